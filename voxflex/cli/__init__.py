@@ -1,0 +1,75 @@
+"""The ``voxflex`` command line: a thin shell over the library.
+
+Each sub-command lives in its own module of this package and exposes
+``register(subparsers)``, which adds its parser and sets ``func`` to a function
+``run(args) -> int``.  Results go to stdout, progress and logs to stderr; a
+:class:`voxflex.VoxflexError` becomes a one-line message on stderr and exit
+status 2, with no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+from .._version import __version__
+from ..errors import VoxflexError
+
+# sub-command modules, in the order --help lists them
+_COMMANDS = ["voxelize", "simulate", "render", "info", "tradeoff"]
+
+_EPILOG = """\
+quick start:
+  voxflex voxelize sphere:0.5 -o ball.nii.gz --voxel-size 0.05
+  voxflex info ball.nii.gz
+  voxflex simulate                   # the bundled default scene
+  voxflex render result.h5 -o result.png
+
+Run 'voxflex COMMAND --help' for the options of each command.
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="voxflex",
+        description="Image-based voxel elastic simulation: voxelize shapes into label images, "
+        "simulate deformable solids on them, render and inspect the results.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"voxflex {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in _COMMANDS:
+        try:
+            module = importlib.import_module(f"voxflex.cli.{name}")
+        except ModuleNotFoundError as exc:  # command not built yet
+            if exc.name != f"voxflex.cli.{name}":
+                raise
+            continue
+        module.register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 1
+    try:
+        return int(args.func(args) or 0)
+    except VoxflexError as exc:
+        print(f"voxflex {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"voxflex {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        print(
+            f"voxflex {args.command}: error: out of memory; use a coarser voxel size or fewer nodes",
+            file=sys.stderr,
+        )
+        return 2

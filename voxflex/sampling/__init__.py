@@ -1,0 +1,1 @@
+"""Quadrature samples (mid-point, Gauss-Legendre, elastons) and their volume moments."""
