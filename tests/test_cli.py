@@ -1,0 +1,44 @@
+"""The command-line shell: version, help, module entry point, error mapping."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+import voxflex
+from voxflex.cli import main
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert voxflex.__version__ in capsys.readouterr().out
+
+
+def test_no_command_prints_help(capsys):
+    assert main([]) == 1
+    out = capsys.readouterr().out
+    assert "usage: voxflex" in out and "quick start" in out
+
+
+def test_python_dash_m_runs_the_cli():
+    proc = subprocess.run(
+        [sys.executable, "-m", "voxflex", "--version"], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0
+    assert proc.stdout.strip() == f"voxflex {voxflex.__version__}"
+
+
+def test_tradeoff_is_reported_as_not_implemented(capsys, tmp_path):
+    status = main(["tradeoff", str(tmp_path / "scene.toml")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2
+    assert len(err) == 1 and "not implemented" in err[0]
+
+
+def test_unknown_public_name():
+    with pytest.raises(AttributeError):
+        voxflex.does_not_exist  # noqa: B018
