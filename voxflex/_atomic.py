@@ -30,6 +30,10 @@ def atomic_path(path, *, suffix: str | None = None):
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=folder)
     os.close(fd)
     tmp = Path(tmp)
+    # mkstemp creates 0600; give the output the permissions a plain open() would
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     try:
         yield tmp
         os.replace(tmp, path)

@@ -5,6 +5,12 @@ voxel size along the array axes; ``origin`` is the world position of the
 *corner* of voxel (0, 0, 0); ``direction`` is an orthonormal 3x3 matrix whose
 columns are the world directions of the array axes.  Voxel (i, j, k) covers
 ``origin + direction @ (spacing * ([i, i+1] x [j, j+1] x [k, k+1]))``.
+
+Besides geometry the image answers simple questions about its content
+(label counts, volumes, bounding boxes, connected components, memory) and
+describes itself in a few lines (:meth:`LabelImage.describe`, used by
+``voxflex info``).  Files are read and written by :mod:`voxflex.image.io`
+through :meth:`LabelImage.load` and :meth:`LabelImage.save`.
 """
 
 from __future__ import annotations
@@ -13,9 +19,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, check_choice
 
 LABEL_DTYPES = (np.uint8, np.uint16)
+
+#: Named neighbourhoods for connected components: voxels that share a face
+#: (6 neighbours), a face or an edge (18), or a face, edge or corner (26).
+CONNECTIVITIES = {"face": 1, "edge": 2, "vertex": 3}
 
 
 def _as_labels(labels) -> np.ndarray:
@@ -132,3 +142,180 @@ class LabelImage:
             mask = self.labels > 0
         ijk = np.argwhere(mask)
         return self.index_to_world(ijk + 0.5)
+
+    # -- content ------------------------------------------------------------
+    def present_labels(self) -> np.ndarray:
+        """Sorted non-zero labels present in the image, (m,) int."""
+        return np.flatnonzero(np.bincount(self.labels.ravel())[1:]) + 1
+
+    def label_counts(self, *, include_empty: bool = False) -> dict[int, int]:
+        """Number of voxels of each label present, ``{label: count}`` in increasing label order.
+
+        Label 0 (empty) is included only when ``include_empty`` and present.
+        """
+        counts = np.bincount(self.labels.ravel())
+        first = 0 if include_empty else 1
+        return {int(lab): int(counts[lab]) for lab in np.flatnonzero(counts) if lab >= first}
+
+    def label_volumes(self) -> dict[int, float]:
+        """Material volume of each non-zero label, ``{label: m^3}``.
+
+        With ``occupancy`` set each voxel contributes ``occupancy * voxel_volume``
+        (partial volume); otherwise ``count * voxel_volume``.
+        """
+        flat = self.labels.ravel()
+        if self.occupancy is None:
+            sums = np.bincount(flat).astype(float)
+        else:
+            sums = np.bincount(flat, weights=self.occupancy.ravel().astype(float))
+        present = np.bincount(flat)
+        return {int(lab): float(sums[lab]) * self.voxel_volume for lab in np.flatnonzero(present) if lab > 0}
+
+    def bounding_boxes(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Index bounding box of each non-zero label, ``{label: (lo, hi)}``.
+
+        ``lo`` (3,) int is the first voxel index along each axis and ``hi`` (3,)
+        int is one past the last (half-open, like a slice): the label occupies
+        voxels ``lo <= ijk < hi``.  In continuous index coordinates the box is
+        ``[lo, hi]`` (voxel corners).
+        """
+        from scipy import ndimage
+
+        boxes = {}
+        for lab, slc in enumerate(ndimage.find_objects(self.labels), start=1):
+            if slc is not None:
+                boxes[lab] = (np.array([s.start for s in slc]), np.array([s.stop for s in slc]))
+        return boxes
+
+    def world_bounding_boxes(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """World axis-aligned bounding box of each non-zero label's voxels, ``{label: (min, max)}`` in m.
+
+        The box encloses the eight corners of the label's index box mapped to
+        the world (exact for an identity ``direction``; for a rotated image it
+        is the world box around the rotated index box).
+        """
+        corners = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], dtype=float)
+        boxes = {}
+        for lab, (lo, hi) in self.bounding_boxes().items():
+            world = self.index_to_world(lo + corners * (hi - lo))
+            boxes[lab] = (world.min(axis=0), world.max(axis=0))
+        return boxes
+
+    def connected_components(self, label: int | None = None, *, connectivity: str = "vertex"):
+        """Connected components of one label (or of all material, ``label=None``).
+
+        Parameters
+        ----------
+        label : int, optional
+            The label whose voxels are grouped; ``None`` groups every voxel with label > 0.
+        connectivity : {"vertex", "edge", "face"}
+            Voxels touching by a face, edge or corner (26 neighbours), by a face
+            or edge (18), or by a face only (6).
+
+        Returns
+        -------
+        components : (nx, ny, nz) int32 array
+            0 outside the label, 1..n the component of each voxel.
+        n : int
+            Number of components.
+        """
+        from scipy import ndimage
+
+        check_choice("connectivity", connectivity, CONNECTIVITIES)
+        mask = self.labels > 0 if label is None else self.labels == label
+        structure = ndimage.generate_binary_structure(3, CONNECTIVITIES[connectivity])
+        components, n = ndimage.label(mask, structure=structure)
+        return components, int(n)
+
+    def component_counts(self, *, connectivity: str = "vertex") -> dict[int, int]:
+        """Number of connected components of each non-zero label present, ``{label: n}``."""
+        return {
+            lab: self.connected_components(lab, connectivity=connectivity)[1] for lab in self.label_counts()
+        }
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the voxel arrays (labels and occupancy), in bytes."""
+        return int(self.labels.nbytes + (0 if self.occupancy is None else self.occupancy.nbytes))
+
+    # -- text ---------------------------------------------------------------
+    def __repr__(self) -> str:
+        shape = "x".join(str(s) for s in self.shape)
+        spacing = ", ".join(f"{v:.6g}" for v in self.spacing)
+        labels = self.present_labels()
+        lab = ", ".join(str(v) for v in labels[:8]) + (", ..." if labels.size > 8 else "")
+        occ = ", occupancy" if self.occupancy is not None else ""
+        return f"LabelImage({shape} {self.labels.dtype}, spacing=[{spacing}] m, labels=[{lab}]{occ})"
+
+    def describe(self, *, connectivity: str = "vertex") -> str:
+        """A human-readable multi-line summary (what ``voxflex info`` prints).
+
+        Shape, spacing, origin, direction, world extent, one line per label
+        (voxels, volume, share of the material, connected components, bounding
+        box) and the memory used.
+        """
+        check_choice("connectivity", connectivity, CONNECTIVITIES)
+
+        def vec(v):
+            return "[" + ", ".join(f"{x:.6g}" for x in v) + "]"
+
+        nx, ny, nz = self.shape
+        unit = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], dtype=float)
+        corners = self.index_to_world(unit * np.array(self.shape, dtype=float))
+        identity = bool(np.allclose(self.direction, np.eye(3), atol=1e-12))
+        lines = [
+            f"label image {nx} x {ny} x {nz} ({self.labels.size} voxels, {self.labels.dtype})",
+            f"  spacing    {vec(self.spacing)} m (voxel volume {self.voxel_volume:.6g} m^3)",
+            f"  origin     {vec(self.origin)} m (corner of voxel 0,0,0)",
+        ]
+        if identity:
+            lines.append("  direction  identity (array axes along world x, y, z)")
+        else:
+            rows = "; ".join(vec(r) for r in self.direction)
+            lines.append(f"  direction  [{rows}] (columns: array axes in the world)")
+        lines.append(f"  extent     {vec(corners.min(axis=0))} to {vec(corners.max(axis=0))} m (world box)")
+        counts = self.label_counts(include_empty=True)
+        volumes = self.label_volumes()
+        total = sum(volumes.values())
+        material = [lab for lab in counts if lab > 0]
+        comps = self.component_counts(connectivity=connectivity)
+        boxes = self.bounding_boxes()
+        lines.append(
+            f"  labels     {len(material)} material label(s), {counts.get(0, 0)} empty voxels"
+            + (" (volumes weighted by occupancy)" if self.occupancy is not None else "")
+        )
+        if material:
+            lines.append(f"    {'label':>5} {'voxels':>10} {'volume m^3':>12} {'share':>7} {'parts':>6}  index box")
+        for lab in material:
+            lo_i, hi_i = boxes[lab]
+            share = volumes[lab] / total if total > 0 else 0.0
+            lines.append(
+                f"    {lab:>5} {counts[lab]:>10} {volumes[lab]:>12.6g} {share:>7.1%} {comps[lab]:>6}  "
+                f"{lo_i.tolist()} to {(hi_i - 1).tolist()}"
+            )
+        n_parts = sum(comps.values())
+        lines.append(f"  total      {total:.6g} m^3 of material in {n_parts} component(s) ({connectivity} connectivity)")
+        lines.append(f"  memory     {_human_bytes(self.nbytes)}")
+        return "\n".join(lines)
+
+    # -- files ----------------------------------------------------------------
+    @classmethod
+    def load(cls, path, *, spacing=None) -> "LabelImage":
+        """Read an image file; the extension picks the format (see :mod:`voxflex.image.io`)."""
+        from .io import load_image
+
+        return load_image(path, spacing=spacing)
+
+    def save(self, path) -> None:
+        """Write the image; the extension picks the format (see :mod:`voxflex.image.io`)."""
+        from .io import save_image
+
+        save_image(self, path)
+
+
+def _human_bytes(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n} B" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n} B"  # pragma: no cover

@@ -1,0 +1,95 @@
+"""``voxflex info FILE``: describe a label image, a scene or a result file.
+
+Images (any extension :mod:`voxflex.image.io` reads) are loaded and described
+by :meth:`voxflex.LabelImage.describe`; ``.toml`` scenes by
+``voxflex.scene.describe_scene``; HDF5 files holding ``/time`` (result files)
+by ``voxflex.result.describe_result``.  The last two are imported lazily.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+from pathlib import Path
+
+from ..errors import InputError, VoxflexError
+
+_EPILOG = """\
+supported image files: .npy (+ NAME.npy.json) .npz .nii .nii.gz .nrrd .mha .mhd
+                       .tif .tiff .h5 .hdf5 .vti
+examples:
+  voxflex info scan.nii.gz
+  voxflex info stack.tif --spacing 1e-5 1e-5 2e-5     # a TIFF that records no voxel size
+  voxflex info beam.toml                              # a scene
+  voxflex info result.h5                              # a simulation result
+"""
+
+
+def register(sub) -> None:
+    parser = sub.add_parser(
+        "info",
+        help="describe an image, a scene or a result file",
+        description="Describe a label image (shape, spacing, origin, direction, labels with their "
+        "voxel counts, volumes and connected components, memory), a scene file (.toml) or a "
+        "result file (.h5 holding /time). Lengths are in metres; the world frame is LPS for "
+        "medical formats (see voxflex.image.io).",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("file", metavar="FILE", help="image, scene (.toml) or result (.h5) file")
+    parser.add_argument(
+        "--spacing",
+        nargs=3,
+        type=float,
+        metavar=("SX", "SY", "SZ"),
+        help="voxel size in metres for image files that record none (a bare .npy, a plain TIFF)",
+    )
+    parser.add_argument(
+        "--connectivity",
+        default="vertex",
+        choices=("vertex", "edge", "face"),
+        help="neighbourhood for counting connected parts: voxels touching by a corner (26 "
+        "neighbours, default), an edge (18) or a face (6)",
+    )
+    parser.set_defaults(func=run)
+
+
+def _describer(module_name: str, function: str, what: str):
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name not in (module_name, None):
+            raise
+        module = None
+    func = getattr(module, function, None)
+    if func is None:
+        raise VoxflexError(f"describing {what} files is not available in this build; 'voxflex info' reads images only")
+    return func
+
+
+def _is_result_file(path: Path) -> bool:
+    import h5py
+
+    try:
+        with h5py.File(str(path), "r") as f:
+            return "time" in f
+    except OSError:
+        return False  # not HDF5 or damaged: the image reader reports it
+
+
+def run(args) -> int:
+    path = Path(args.file)
+    if not path.exists():
+        raise InputError(f"file '{path}' not found; check the path")
+    name = path.name.lower()
+    if name.endswith(".toml"):
+        text = _describer("voxflex.scene", "describe_scene", "scene")(path)
+    elif name.endswith((".h5", ".hdf5")) and _is_result_file(path):
+        text = _describer("voxflex.result", "describe_result", "result")(path)
+    else:
+        from ..image import LabelImage
+
+        image = LabelImage.load(path, spacing=args.spacing)
+        text = f"{path}\n" + image.describe(connectivity=args.connectivity)
+    print(text)
+    return 0
