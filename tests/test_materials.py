@@ -1,0 +1,325 @@
+"""Materials over F: rest state, frame invariance, linearization, uniaxial closed forms, kernels, inputs."""
+
+from __future__ import annotations
+
+import pathlib
+import sys
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+import voxflex as vf
+from voxflex.deform import MATERIALS, Material, material
+from voxflex.deform.laws import NeoHookeanLaw
+from voxflex.deform.materials import lame
+from voxflex.deform.strains import get_strain
+from voxflex.errors import InputError
+
+sys.path.insert(0, str(pathlib.Path(__file__).parent))
+from contract_materials import (  # noqa: E402
+    MATERIAL_SPECS,
+    ORTHO,
+    E,
+    NU,
+    f_inverted,
+    f_large,
+    f_near_identity,
+    make,
+    _rotation,
+)
+
+MU, LM = lame(E, NU)
+ISOTROPIC = [k for k in MATERIAL_SPECS if not k.startswith(("volume", "hooke-orthotropic"))]
+# frame-invariant: all but the small-strain measures (hooke/linear; corotational-small is only
+# invariant to second order in the rotation angle, see strains.py)
+INVARIANT = [k for k in MATERIAL_SPECS if k not in ("hooke/linear", "hooke/corotational-small")]
+
+
+def _rel(a, b):
+    return np.linalg.norm(np.asarray(a) - b) / max(np.linalg.norm(a), np.linalg.norm(b), 1e-300)
+
+
+def _hooke_tensor(C):
+    """Voigt stiffness (engineering shear) -> A[i,j,k,l] acting on the displacement gradient."""
+    voigt = {(0, 0): 0, (1, 1): 1, (2, 2): 2, (0, 1): 3, (1, 0): 3, (1, 2): 4, (2, 1): 4, (0, 2): 5, (2, 0): 5}
+    A = np.zeros((3, 3, 3, 3))
+    for (i, j), a in voigt.items():
+        for (k, l), b in voigt.items():
+            # e_a = sum_ij B_a,ij H_ij with B = 1 on (i,j) and (j,i) for the engineering shear entries,
+            # so A = B^T C B is C[a(ij), b(kl)] itself
+            A[i, j, k, l] = C[a, b]
+    return A
+
+
+def _isotropic_tangent(mu, lm):
+    d = np.eye(3)
+    return (
+        lm * np.einsum("ij,kl->ijkl", d, d)
+        + mu * (np.einsum("ik,jl->ijkl", d, d) + np.einsum("il,jk->ijkl", d, d))
+    )
+
+
+@pytest.mark.parametrize("label", MATERIAL_SPECS)
+def test_rest_state(label):
+    # W(I) = 0 and P(I) = 0: round-off only (1e-12 of the modulus)
+    W, P, _ = make(label).evaluate(np.eye(3)[None])
+    assert abs(W[0]) <= 1e-12 * E and np.max(np.abs(P)) <= 1e-12 * E
+
+
+@pytest.mark.parametrize("label", ISOTROPIC)
+def test_tangent_at_rest_is_isotropic_hooke(label):
+    # the parameter conversions: every isotropic model linearizes to lmbda d_ij d_kl + mu (d_ik d_jl + d_il d_jk)
+    # with (mu, lmbda) from young/poisson; exact up to round-off (1e-12 relative)
+    A = make(label).tangent(np.eye(3)[None])[0]
+    assert _rel(A, _isotropic_tangent(MU, LM)) < 1e-12
+
+
+def test_tangent_at_rest_volume_and_orthotropic():
+    k = E / (3 * (1 - 2 * NU))
+    d = np.eye(3)
+    for label in ["volume-log", "volume-quadratic"]:
+        A = make(label).tangent(np.eye(3)[None])[0]
+        assert _rel(A, k * np.einsum("ij,kl->ijkl", d, d)) < 1e-12
+    mat = make("hooke-orthotropic")
+    A = mat.tangent(np.eye(3)[None])[0]
+    C = mat.law.C
+    # contraction with symmetric gradients reproduces C (the minor-symmetric part of A is C)
+    rng = np.random.default_rng(0)
+    H = rng.standard_normal((3, 3))
+    H = H + H.T
+    e = np.array([H[0, 0], H[1, 1], H[2, 2], 2 * H[0, 1], 2 * H[1, 2], 2 * H[0, 2]])
+    assert abs(np.einsum("ij,ijkl,kl->", H, A, H) - e @ C @ e) < 1e-12 * abs(e @ C @ e)
+    sym = 0.25 * (A + A.transpose(1, 0, 2, 3) + A.transpose(0, 1, 3, 2) + A.transpose(1, 0, 3, 2))
+    assert _rel(sym, _hooke_tensor(C)) < 1e-12
+
+
+@pytest.mark.parametrize("label", INVARIANT)
+def test_frame_invariance(label):
+    # W(QF) = W(F), P(QF) = Q P(F): round-off (1e-10 relative; SVD/polar round-off ~1e-13)
+    mat = make(label)
+    rng = np.random.default_rng(3)
+    F = np.concatenate([f_near_identity(), f_large()])
+    Q = np.array([_rotation(rng) for _ in range(len(F))])
+    W, P, _ = mat.evaluate(F, tangent=False)
+    W2, P2, _ = mat.evaluate(Q @ F, tangent=False)
+    assert _rel(W2, W) < 1e-10
+    assert _rel(P2, Q @ P) < 1e-10
+
+
+def test_small_strain_hooke_is_not_rotation_invariant():
+    # the reason hooke/linear is excluded above: a pure rotation stores energy under linear strain
+    R = _rotation(np.random.default_rng(4))[None]
+    assert make("hooke/linear").energy(R)[0] > 1e-3 * E
+    assert abs(make("hooke/corotational").energy(R)[0]) < 1e-10 * E
+
+
+@pytest.mark.parametrize("label", MATERIAL_SPECS)
+def test_numba_equals_numpy_twin(label):
+    # same formulas, different order of operations: round-off only (1e-12 relative)
+    mat = make(label)
+    F = np.concatenate([f_near_identity(), f_large()])
+    for a, b in zip(mat.evaluate(F), mat.evaluate(F, backend="numpy")):
+        assert _rel(a, b) < 1e-12
+    W, P, A = mat.evaluate(F, tangent=False)
+    assert A is None and _rel(P, mat.stress(F)) == 0 and _rel(W, mat.energy(F)) == 0
+
+
+# ---------------------------------------------------------------------------- uniaxial closed forms
+STRETCHES = [0.7, 0.9, 1.1, 1.5, 2.0]
+
+
+def _diag(lam, t):
+    return np.diag([lam, t, t])[None]
+
+
+def _lateral(fun, lo=0.2, hi=3.0):
+    """Root of the closed-form lateral-stress equation (independent of the code under test)."""
+    return brentq(fun, lo, hi, xtol=1e-15, rtol=4 * np.finfo(float).eps)
+
+
+def _check_uniaxial(mat, lam, t, expected):
+    # P_xx against its closed form (1e-10 relative, the brief's tolerance; the lateral stretch is
+    # solved to machine precision, so round-off ~1e-14 is what remains) and P_yy = P_zz = 0 at that t
+    P = mat.stress(_diag(lam, t))[0]
+    assert abs(P[0, 0] - expected) <= 1e-10 * abs(expected)
+    assert max(abs(P[1, 1]), abs(P[2, 2])) <= 1e-10 * abs(expected)
+    assert np.max(np.abs(P - np.diag(np.diag(P)))) <= 1e-10 * abs(expected)
+
+
+@pytest.mark.parametrize("lam", STRETCHES)
+def test_uniaxial_small_strain_and_corotational(lam):
+    # linear and every corotational strain see diag(lam, t, t) as e = (lam-1, t-1, t-1):
+    # uniaxial stress gives t - 1 = -nu (lam - 1), P_xx = E (lam - 1)
+    t = 1 - NU * (lam - 1)
+    for s in ["linear", "corotational", "corotational-svd", "corotational-qr", "corotational-small"]:
+        _check_uniaxial(material("hooke", young=E, poisson=NU, strain=s), lam, t, E * (lam - 1))
+
+
+@pytest.mark.parametrize("lam", STRETCHES)
+@pytest.mark.parametrize("nu", [0.0, 0.3])
+def test_uniaxial_stvk(lam, nu):
+    # Green strain: S_yy = 0 gives E_yy = -nu E_xx, P_xx = lam S_xx = E lam (lam^2 - 1) / 2
+    # (nu = 0: t = 1, the brief's P = E lam (lam^2 - 1) / 2)
+    t = np.sqrt(1 - nu * (lam**2 - 1))
+    _check_uniaxial(material("stvk", young=E, poisson=nu), lam, t, E * lam * (lam**2 - 1) / 2)
+    _check_uniaxial(material("hooke", young=E, poisson=nu, strain="green"), lam, t, E * lam * (lam**2 - 1) / 2)
+
+
+@pytest.mark.parametrize("lam", STRETCHES)
+@pytest.mark.parametrize("nu", [0.0, 0.3])
+def test_uniaxial_neo_hookean(lam, nu):
+    # P = mu (F - F^-T) + lmbda ln J F^-T; lateral: mu (t - 1/t) + lmbda ln(lam t^2) / t = 0
+    # (nu = 0: lmbda = 0, t = 1, P = mu (lam - 1/lam))
+    mu, lm = lame(E, nu)
+    t = _lateral(lambda t: mu * (t - 1 / t) + lm * np.log(lam * t * t) / t)
+    expected = mu * (lam - 1 / lam) + lm * np.log(lam * t * t) / lam
+    _check_uniaxial(material("neo-hookean", young=E, poisson=nu), lam, t, expected)
+    if nu == 0:
+        assert t == pytest.approx(1.0, abs=1e-14) and expected == pytest.approx(mu * (lam - 1 / lam), rel=1e-14)
+
+
+@pytest.mark.parametrize("lam", STRETCHES)
+def test_uniaxial_stable_neo_hookean(lam):
+    # P = mu' (1 - 1/(I_C + 1)) F + lmbda' (J - alpha) cof F, cof diag(l, t, t) = diag(t^2, l t, l t)
+    mu, lm = lame(E, NU)
+    ms, ls = 4 * mu / 3, lm + 5 * mu / 6
+    alpha = 1 + 0.75 * ms / ls
+
+    def p(lam, t, axis):
+        ic, J = lam**2 + 2 * t**2, lam * t * t
+        f, cof = (lam, t * t) if axis == 0 else (t, lam * t)
+        return ms * (1 - 1 / (ic + 1)) * f + ls * (J - alpha) * cof
+
+    t = _lateral(lambda t: p(lam, t, 1))
+    _check_uniaxial(material("stable-neo-hookean", young=E, poisson=NU), lam, t, p(lam, t, 0))
+
+
+@pytest.mark.parametrize("lam", STRETCHES)
+def test_uniaxial_ogden(lam):
+    # P_xx = dW/dl_1 = sum_p mu_p (lam^(a_p - 1) - 1/lam) + lmbda ln J / lam, the same with t laterally
+    mat = material("ogden", young=E, poisson=NU)
+    mus, als, lm = np.array(mat.law.mu_p), np.array(mat.law.alpha_p), mat.law.lmbda
+
+    def d(x, J):
+        return np.sum(mus * (x ** (als - 1) - 1 / x)) + lm * np.log(J) / x
+
+    t = _lateral(lambda t: d(t, lam * t * t))
+    _check_uniaxial(mat, lam, t, d(lam, lam * t * t))
+
+
+@pytest.mark.parametrize("lam", STRETCHES)
+@pytest.mark.parametrize("c2", [0.0, 800.0])
+def test_uniaxial_mooney_rivlin_incompressible_limit(lam, c2):
+    # at the isochoric stretch diag(lam, lam^-1/2, lam^-1/2) (J = 1, bulk term silent), the uniaxial
+    # Cauchy stress of the incompressible model is sigma_xx - sigma_yy (a pressure clears sigma_yy),
+    # so the nominal stress is (P_xx lam - P_yy t) / lam = 2 (lam - lam^-2)(c1 + c2/lam): exact identity
+    mat = material("mooney-rivlin", young=E, poisson=NU, c2=c2)
+    c1 = mat.law.c1
+    t = lam**-0.5
+    P = mat.stress(_diag(lam, t))[0]
+    nominal = (P[0, 0] * lam - P[1, 1] * t) / lam
+    expected = 2 * (lam - lam**-2) * (c1 + c2 / lam)
+    assert abs(nominal - expected) <= 1e-10 * abs(expected)
+
+
+@pytest.mark.parametrize("lam", STRETCHES)
+def test_confined_volume_laws(lam):
+    # confined compression/extension F = diag(lam, 1, 1): J = lam;
+    # volume-log P_xx = k ln(lam)/lam, volume-quadratic P_xx = k (lam - 1)
+    k = E / (3 * (1 - 2 * NU))
+    P = make("volume-log").stress(_diag(lam, 1.0))[0, 0, 0]
+    assert abs(P - k * np.log(lam) / lam) <= 1e-10 * abs(k * np.log(lam) / lam)
+    P = make("volume-quadratic").stress(_diag(lam, 1.0))[0, 0, 0]
+    assert abs(P - k * (lam - 1)) <= 1e-10 * abs(k * (lam - 1))
+
+
+def test_ogden_tangent_at_coincident_stretches():
+    # the strain's geometric term sees only s, so where stretches coincide the material supplies the
+    # shear stiffness limit (materials._stretch_tangent).  (1) away from coincidence that formula equals
+    # the chain-rule tangent (round-off, 1e-10); (2) at coincident stretches (not at rest) the tangent
+    # matches central differences of the stress (h = 1e-6: rtol 1e-6 as in the contract)
+    from voxflex.deform.materials import _stretch_tangent
+
+    mat = make("ogden")
+    F = f_large()
+    e = mat.strain.apply(F)
+    _, s, K = mat.law.evaluate(e)
+    assert _rel(_stretch_tangent(F, e, s, K), mat.tangent(F)) < 1e-10
+    rng = np.random.default_rng(7)
+    F = np.array([_rotation(rng) @ np.diag(d) @ _rotation(rng) for d in ([1.3, 1.3, 0.8], [1.2, 0.9, 0.9], [1.1] * 3)])
+    A = mat.tangent(F)
+    h = 1e-6
+    for _ in range(2):
+        dF = rng.standard_normal(F.shape)
+        fd = (mat.stress(F + h * dF) - mat.stress(F - h * dF)) / (2 * h)
+        assert _rel(np.einsum("nijkl,nkl->nij", A, dF), fd) < 1e-6
+
+
+# ---------------------------------------------------------------------------- inversion
+def test_inverted_elements():
+    F = f_inverted()
+    # neo-Hooke: documented +inf energy and NaN stress (a line search sees the inf)
+    W, P, A = make("neo-hookean").evaluate(F)
+    assert np.all(np.isposinf(W)) and np.all(np.isnan(P)) and np.all(np.isnan(A))
+    # stable neo-Hooke and SVD-corotational Hooke: finite, positive energy with a restoring stress
+    for label in ["stable-neo-hookean", "hooke/corotational-svd"]:
+        W, P, A = make(label).evaluate(F)
+        assert np.all(np.isfinite(W)) and np.all(W > 0) and np.all(np.isfinite(A))
+
+
+# ---------------------------------------------------------------------------- parameters
+def test_spec_entry_point_and_constants():
+    mat = vf.material("neo-hookean", young=1e4, poisson=0.3)
+    assert isinstance(mat, Material) and mat.name == "neo-hookean"
+    assert mat.parameters["mu"] == pytest.approx(1e4 / 2.6, rel=1e-15)
+    same = material("neo-hookean", mu=MU, lmbda=LM)
+    F = f_large()
+    assert _rel(same.energy(F), make("neo-hookean").energy(F)) < 1e-14
+    assert same.parameters["young"] == pytest.approx(E, rel=1e-14)
+    assert same.parameters["poisson"] == pytest.approx(NU, rel=1e-14)
+    mr = material("mooney-rivlin", c1=MU / 2 - 100, c2=100, bulk=LM + 2 * MU / 3)
+    assert mr.parameters["young"] == pytest.approx(E, rel=1e-14)
+    assert material("volume-log", bulk=5.0).law.bulk == 5.0
+    assert material("hooke", young=1, poisson=0).strain.name == "corotational"
+    assert material("hooke", young=1, poisson=0, strain="linear").strain.name == "linear"
+    assert material("stvk", young=1, poisson=0).strain.name == "green"
+    og = material("ogden", young=E, poisson=NU, alpha_p=[2.0])
+    assert _rel(og.energy(F), make("neo-hookean").energy(F)) < 1e-12  # one alpha = 2 term is neo-Hooke
+    custom = Material(get_strain("invariant"), NeoHookeanLaw(MU, LM))
+    assert _rel(custom.energy(F), make("neo-hookean").energy(F)) == 0
+    assert set(MATERIALS) >= {"hooke", "hooke-orthotropic", "stvk", "neo-hookean", "stable-neo-hookean",
+                              "mooney-rivlin", "volume-log", "volume-quadratic", "ogden"}
+
+
+BAD = [
+    ("neo-hookean", dict(young=-1.0, poisson=0.3), r"young = -1.0 is out of range; valid: \(0, inf\)"),
+    ("neo-hookean", dict(young=1.0, poisson=0.5), r"poisson = 0.5 is out of range; valid: \[0, 0.5\)"),
+    ("neo-hookean", dict(young=1.0, poisson=-0.1), r"poisson = -0.1 is out of range"),
+    ("neo-hookean", dict(young=float("nan"), poisson=0.3), r"young = nan is out of range"),
+    ("neo-hookean", dict(young=1.0, poisson=0.3, shear=2.0), r"unknown parameter 'shear'.*valid: young, poisson"),
+    ("neo-hookean", dict(young=1.0, poisson=0.3, strain="green"), r"cannot use strain 'green'.*valid: invariant"),
+    ("neo-hookean", dict(young=1.0), r"needs both young and poisson"),
+    ("neo-hookean", dict(young=1.0, poisson=0.3, mu=1.0), r"either young/poisson or mu, lmbda"),
+    ("neo-hookean", dict(mu=1.0), r"missing lmbda"),
+    ("neo-hokean", dict(young=1.0, poisson=0.3), r"unknown material 'neo-hokean' \(did you mean 'neo-hookean'\?\)"),
+    ("hooke", dict(young=1.0, poisson=0.3, strain="invariant"), r"cannot use strain 'invariant'"),
+    ("hooke", dict(young=1.0, poisson=0.3, strain="gren"), r"unknown strain 'gren'"),
+    ("hooke-orthotropic", dict(young=1.0, poisson=0.3), r"takes E1, E2"),
+    ("hooke-orthotropic", {**ORTHO, "E1": -1.0}, r"E1 = -1.0 is out of range"),
+    ("mooney-rivlin", dict(c1=-1.0, c2=0.0, bulk=1.0), r"c1 \+ c2 > 0"),
+    ("ogden", dict(mu_p=[1.0], alpha_p=[2.0, 3.0], lmbda=1.0), r"same length"),
+    ("volume-log", dict(bulk=0.0), r"bulk = 0.0 is out of range"),
+]
+
+
+@pytest.mark.parametrize("name, kw, match", BAD, ids=[f"{b[0]}-{i}" for i, b in enumerate(BAD)])
+def test_bad_parameters(name, kw, match):
+    with pytest.raises(InputError, match=match) as info:
+        material(name, **kw)
+    assert "\n" not in str(info.value)
+
+
+def test_bad_F():
+    with pytest.raises(InputError, match=r"\(n, 3, 3\)"):
+        make("stvk").energy(np.eye(3))

@@ -1,0 +1,38 @@
+"""Deformation core: nodes, mappings, strains, materials, mass, solvers.
+
+The chain  nodes --J--> deformation gradients F --J--> strains --> energy.
+Public names are imported lazily, so that importing one stage does not pull
+in (or wait for) the others.
+
+>>> import numpy as np, voxflex as vf
+>>> mat = vf.material("neo-hookean", young=1e4, poisson=0.3)
+>>> float(mat.energy(np.eye(3)[None])[0])
+0.0
+"""
+
+from __future__ import annotations
+
+import importlib
+
+_LAZY = {
+    "material": "voxflex.deform.materials",
+    "Material": "voxflex.deform.materials",
+    "MATERIALS": "voxflex.deform.materials",
+    "strain": "voxflex.deform.strains",
+    "get_strain": "voxflex.deform.strains",
+    "STRAINS": "voxflex.deform.strains",
+}
+
+__all__ = list(_LAZY)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'voxflex.deform' has no attribute '{name}'")
+
+
+def __dir__():
+    return sorted(__all__)

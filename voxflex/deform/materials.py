@@ -1,0 +1,532 @@
+"""Materials: a strain measure composed with an energy law, over deformation gradients.
+
+A :class:`Material` is ``W(F) = law(strain(F))``.  With the strain Jacobian
+``D = de/dF`` (n, m, 3, 3), the law's stress ``s = dW/de`` (n, m) and tangent
+``K`` (n, m, m), and the strain's geometric term ``G = sum_k s_k d2e_k/dF2``:
+
+* first Piola-Kirchhoff stress ``P = D^T s`` (n, 3, 3) [Pa],
+* tangent ``A[n, i, j, k, l] = dP_ij/dF_kl = D^T K D + G`` (n, 3, 3, 3, 3) [Pa].
+
+:meth:`Material.evaluate` does it in one pass with two compiled kernels (the
+law's and a general chain-rule kernel); ``backend="numpy"`` runs their numpy
+twins.  :func:`material` builds any registered model by name from Young's
+modulus and Poisson's ratio (or the model's own constants).
+
+>>> import numpy as np
+>>> mat = material("stvk", young=1e4, poisson=0.0)
+>>> F = np.diag([1.1, 1.0, 1.0])[None]
+>>> round(float(mat.stress(F)[0, 0, 0]), 6)    # E lambda (lambda^2 - 1) / 2
+1155.0
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .._jit import njit
+from ..errors import InputError, check_choice
+from . import laws as _laws
+
+__all__ = ["Material", "MATERIALS", "material", "lame", "strain_kind"]
+
+# strain name -> the kind of strain vector it produces (see voxflex.deform.laws.STRAIN_KINDS)
+_STRAIN_KINDS = {
+    "linear": "tensor",
+    "green": "tensor",
+    "corotational": "tensor",
+    "corotational-svd": "tensor",
+    "corotational-qr": "tensor",
+    "corotational-small": "tensor",
+    "invariant": "invariant",
+    "invariant-deviatoric": "invariant-deviatoric",
+    "principal-stretch": "principal-stretch",
+}
+
+
+def strain_kind(strain) -> str:
+    """The kind of strain vector a Strain produces (``"tensor"``, ``"invariant"``, ...)."""
+    kind = getattr(strain, "kind", None)
+    if isinstance(kind, str) and kind in _laws.STRAIN_KINDS:
+        return kind
+    name = getattr(strain, "name", "")
+    if name in _STRAIN_KINDS:
+        return _STRAIN_KINDS[name]
+    if name.startswith("corotational") or getattr(strain, "size", None) == 6:
+        return "tensor"
+    raise InputError(f"cannot tell which kind of strain '{name}' is; valid strains: {', '.join(_STRAIN_KINDS)}")
+
+
+def _get_strain(name):
+    from . import strains
+
+    return strains.get_strain(name)
+
+
+# ----------------------------------------------------------------------------------------------
+# the chain rule kernel and its numpy twin
+# ----------------------------------------------------------------------------------------------
+@njit
+def _chain_kernel(jac, s, K, geo, P, A, with_tangent, with_geo):  # pragma: no cover - compiled
+    """P = D^T s and A = D^T K D + G per sample; jac (n, m, 9), geo (n, 9, 9).
+
+    Serial on purpose: the pass is memory-bound (81 doubles written per sample), and on the
+    2-core CI ``parallel=True`` measured no faster (0.86e6 vs 0.92e6 samples/s, m = 6) while
+    compiling 2.4x longer (5.8 s vs 2.4 s).
+    """
+    n, m, _ = jac.shape
+    kd = np.empty((m, 9))
+    for q in range(n):
+        for a in range(9):
+            acc = 0.0
+            for k in range(m):
+                acc += s[q, k] * jac[q, k, a]
+            P[q, a] = acc
+        if with_tangent:
+            for k in range(m):
+                for b in range(9):
+                    acc = 0.0
+                    for l in range(m):
+                        acc += K[q, k, l] * jac[q, l, b]
+                    kd[k, b] = acc
+            for a in range(9):
+                for b in range(9):
+                    acc = geo[q, a, b] if with_geo else 0.0
+                    for k in range(m):
+                        acc += jac[q, k, a] * kd[k, b]
+                    A[q, a, b] = acc
+
+
+def _chain_numpy(jac, s, K, geo, with_tangent):
+    P = np.einsum("nk,nka->na", s, jac)
+    if not with_tangent:
+        return P, None
+    A = np.einsum("nka,nkl,nlb->nab", jac, K, jac, optimize=True)
+    if geo is not None:
+        A = A + geo
+    return P, A
+
+
+COINCIDENT_GAP = 1e-8
+"""Relative gap ``(sig_p - sig_q) / sig_1`` under which two principal stretches count as equal."""
+
+
+def _stretch_tangent(F, e, s, K, divided=True):
+    """Tangent (n, 3, 3, 3, 3) of an isotropic law over principal stretches, from one SVD of F.
+
+    ``A = sum_pq K_pq Phi_p (x) Phi_q + sum_{p<q} c_pq S_pq (x) S_pq + d_pq N_pq (x) N_pq`` with
+    ``Phi_p = u_p v_p^T``, ``S_pq, N_pq = (u_p v_q^T +- u_q v_p^T)/sqrt 2``,
+    ``d_pq = (s_p + s_q)/(sig_p + sig_q)`` and ``c_pq = (s_p - s_q)/(sig_p - sig_q)``, replaced by its
+    limit ``(K_pp + K_qq)/2 - K_pq`` (the law being symmetric in the stretches) when the stretches
+    coincide (or always, ``divided=False``, for the tests).  Independent of the SVD basis chosen
+    inside a repeated singular value.
+    """
+    U, sig, Vt = np.linalg.svd(F)
+    phi = np.einsum("nip,njp->npij", U, Vt.transpose(0, 2, 1))  # u_p v_p^T
+    A = np.einsum("npq,npij,nqkl->nijkl", K, phi, phi)
+    for p in range(3):
+        for q in range(p + 1, 3):
+            up, uq = U[:, :, p], U[:, :, q]
+            vp, vq = Vt[:, p, :], Vt[:, q, :]
+            a = np.einsum("ni,nj->nij", up, vq)
+            b = np.einsum("ni,nj->nij", uq, vp)
+            S = (a + b) / np.sqrt(2.0)
+            N = (a - b) / np.sqrt(2.0)
+            gap = e[:, p] - e[:, q]
+            limit = 0.5 * (K[:, p, p] + K[:, q, q]) - K[:, p, q]
+            close = np.abs(gap) <= COINCIDENT_GAP * np.abs(e[:, 0])
+            if divided:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    c = np.where(close, limit, (s[:, p] - s[:, q]) / np.where(close, 1.0, gap))
+            else:
+                c = limit
+            d = (s[:, p] + s[:, q]) / (e[:, p] + e[:, q])
+            A += c[:, None, None, None, None] * np.einsum("nij,nkl->nijkl", S, S)
+            A += d[:, None, None, None, None] * np.einsum("nij,nkl->nijkl", N, N)
+    return A
+
+
+def _coincident_stretch_tangent(F, e, s, K, A):
+    """Repair, in place, the tangent of samples whose principal stretches coincide.
+
+    The strain's geometric term only sees s, so at coincident stretches (F = I, every rest
+    state) it misses the shear stiffness ``(K_pp + K_qq)/2 - K_pq`` of an isotropic law; those
+    samples are recomputed with :func:`_stretch_tangent`.
+    """
+    gaps = np.minimum(e[:, 0] - e[:, 1], e[:, 1] - e[:, 2])
+    close = np.abs(gaps) <= COINCIDENT_GAP * np.abs(e[:, 0])
+    close &= np.all(np.isfinite(K.reshape(len(K), -1)), axis=1)
+    if np.any(close):
+        A[close] = _stretch_tangent(F[close], e[close], s[close], K[close])
+
+
+def _check_F(F) -> np.ndarray:
+    F = np.asarray(F, dtype=np.float64)
+    if F.ndim != 3 or F.shape[1:] != (3, 3):
+        raise InputError(f"deformation gradients F must have shape (n, 3, 3), got {F.shape}")
+    return F
+
+
+# ----------------------------------------------------------------------------------------------
+# Material
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Material:
+    """An energy density over deformation gradients: ``law(strain(F))``.
+
+    Parameters
+    ----------
+    strain : Strain
+        A strain measure from :mod:`voxflex.deform.strains` (``apply``, ``jacobian``, ``geometric``).
+    law : Law
+        An energy law from :mod:`voxflex.deform.laws` whose ``accepts`` holds the strain's kind.
+    name : str
+        The registry name (or a label of your choice).
+    parameters : dict
+        The constants it was built from (for records and summaries).
+    """
+
+    strain: object
+    law: _laws.Law
+    name: str = "custom"
+    parameters: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if not isinstance(self.law, _laws.Law):
+            raise InputError(f"law must be a voxflex Law, got {type(self.law).__name__}")
+        kind = strain_kind(self.strain)
+        if kind not in self.law.accepts:
+            valid = [n for n, k in _STRAIN_KINDS.items() if k in self.law.accepts]
+            raise InputError(
+                f"material '{self.name}' cannot use strain '{self.strain.name}' ({kind}); valid: {', '.join(valid)}"
+            )
+
+    def energy(self, F) -> np.ndarray:
+        """Energy density W (n,) [Pa] of deformation gradients F (n, 3, 3)."""
+        F = _check_F(F)
+        e = np.ascontiguousarray(self.strain.apply(F), dtype=np.float64)
+        return self.law._evaluate(e, False, "numba")[0]
+
+    def stress(self, F) -> np.ndarray:
+        """First Piola-Kirchhoff stress P = dW/dF (n, 3, 3) [Pa]."""
+        return self.evaluate(F, tangent=False)[1]
+
+    def tangent(self, F) -> np.ndarray:
+        """Tangent A[n, i, j, k, l] = dP_ij/dF_kl (n, 3, 3, 3, 3) [Pa]."""
+        return self.evaluate(F, tangent=True)[2]
+
+    def evaluate(self, F, *, tangent: bool = True, backend: str = "numba"):
+        """Energy, stress and tangent in one fused pass (what the solvers call).
+
+        Parameters
+        ----------
+        F : array (n, 3, 3)
+            Deformation gradients.
+        tangent : bool
+            Also compute the tangent (else the third result is None).
+        backend : {"numba", "numpy"}
+            Compiled kernels or their numpy twins (same results to round-off).
+
+        Returns
+        -------
+        W : (n,) [Pa]; P : (n, 3, 3) [Pa]; A : (n, 3, 3, 3, 3) [Pa] or None.
+        """
+        F = _check_F(F)
+        check_choice("backend", backend, _laws.BACKENDS)
+        n = F.shape[0]
+        numpy = backend == "numpy"
+        e, jac = self.strain.evaluate_reference(F) if numpy else self.strain.evaluate(F)
+        e = np.ascontiguousarray(e, dtype=np.float64)
+        m = e.shape[1]
+        jac = np.ascontiguousarray(np.reshape(jac, (n, m, 9)), dtype=np.float64)
+        W, s, K = self.law._evaluate(e, tangent, backend)
+        geo = None
+        if tangent and not getattr(self.strain, "constant_jacobian", False):
+            geo = self.strain.evaluate_reference(F, s)[2] if numpy else self.strain.geometric(F, s)
+            geo = np.ascontiguousarray(np.reshape(geo, (n, 9, 9)), dtype=np.float64)
+        if backend == "numpy":
+            P, A = _chain_numpy(jac, s, K, geo, tangent)
+        else:
+            P = np.empty((n, 9))
+            A = np.empty((n, 9, 9) if tangent else (1, 9, 9))
+            dummy = np.zeros((1, 9, 9))
+            _chain_kernel(
+                jac,
+                s,
+                K if tangent else np.zeros((1, m, m)),
+                geo if geo is not None else dummy,
+                P,
+                A,
+                tangent,
+                geo is not None,
+            )
+            if not tangent:
+                A = None
+        P = P.reshape(n, 3, 3)
+        A = None if A is None else A.reshape(n, 3, 3, 3, 3)
+        if A is not None and strain_kind(self.strain) == "principal-stretch":
+            _coincident_stretch_tangent(F, e, s, K, A)
+        return W, P, A
+
+
+# ----------------------------------------------------------------------------------------------
+# parameters
+# ----------------------------------------------------------------------------------------------
+def lame(young: float, poisson: float) -> tuple[float, float]:
+    """Lamé constants ``(mu, lmbda)`` [Pa] from Young's modulus [Pa] and Poisson's ratio."""
+    mu = young / (2.0 * (1.0 + poisson))
+    lmbda = young * poisson / ((1.0 + poisson) * (1.0 - 2.0 * poisson))
+    return mu, lmbda
+
+
+def _number(name, value, *, low=None, high=None, low_open=True, high_open=True, what="") -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number{what}, got {value!r}") from None
+    ok = math.isfinite(v)
+    if ok and low is not None:
+        ok = v > low if low_open else v >= low
+    if ok and high is not None:
+        ok = v < high if high_open else v <= high
+    if not ok:
+        lo = "" if low is None else ("(" if low_open else "[") + f"{low:g}"
+        hi = "" if high is None else f"{high:g}" + (")" if high_open else "]")
+        rng = f"{lo or '(-inf'}, {hi or 'inf)'}"
+        raise InputError(f"{name} = {value!r} is out of range; valid: {rng}{what}")
+    return v
+
+
+def _young_poisson(young, poisson):
+    E = _number("young", young, low=0.0, what=" Pa")
+    nu = _number("poisson", poisson, low=0.0, high=0.5, low_open=False)
+    return E, nu
+
+
+def _split(model, young, poisson, constants, alternatives, optional=()):
+    """Resolve (young, poisson) or a model's own constants; return (E, nu, consts dict)."""
+    allowed = set(alternatives) | set(optional)
+    unknown = sorted(set(constants) - allowed)
+    if unknown:
+        valid = ", ".join(["young", "poisson", "strain", *alternatives, *optional])
+        raise InputError(f"unknown parameter '{unknown[0]}' for material '{model}'; valid: {valid}")
+    given = [k for k in alternatives if k in constants]
+    if young is not None or poisson is not None:
+        if young is None or poisson is None:
+            raise InputError(f"material '{model}' needs both young and poisson (or {', '.join(alternatives)})")
+        if given:
+            raise InputError(
+                f"material '{model}': give either young/poisson or {', '.join(alternatives)}, not both ({given[0]})"
+            )
+        E, nu = _young_poisson(young, poisson)
+        return E, nu, dict(constants)
+    if not alternatives:
+        raise InputError(f"material '{model}' needs young and poisson")
+    return None, None, dict(constants)
+
+
+def _require(model, constants, names):
+    missing = [k for k in names if k not in constants]
+    if missing:
+        raise InputError(
+            f"material '{model}' needs young and poisson, or {', '.join(names)} (missing {missing[0]})"
+        )
+
+
+def _isotropic_lame(model, young, poisson, constants):
+    E, nu, c = _split(model, young, poisson, constants, ("mu", "lmbda"))
+    if E is not None:
+        mu, lm = lame(E, nu)
+        return mu, lm, {"young": E, "poisson": nu, "mu": mu, "lmbda": lm}
+    _require(model, c, ("mu", "lmbda"))
+    mu = _number("mu", c["mu"], low=0.0, what=" Pa")
+    lm = _number("lmbda", c["lmbda"], low=0.0, low_open=False, what=" Pa (poisson >= 0)")
+    E = mu * (3 * lm + 2 * mu) / (lm + mu)
+    return mu, lm, {"young": E, "poisson": lm / (2 * (lm + mu)), "mu": mu, "lmbda": lm}
+
+
+def _strain(model, strain, default):
+    name = default if strain is None else strain
+    if not isinstance(name, str):
+        return name  # a Strain object
+    check_choice("strain", name, _STRAIN_KINDS)
+    return _get_strain(name)
+
+
+def _hooke(young=None, poisson=None, strain=None, **constants):
+    mu, lm, params = _isotropic_lame("hooke", young, poisson, constants)
+    law = _laws.HookeLaw(_laws.isotropic_stiffness(mu, lm))
+    return Material(_strain("hooke", strain, "corotational"), law, "hooke", params)
+
+
+def _stvk(young=None, poisson=None, strain=None, **constants):
+    mu, lm, params = _isotropic_lame("stvk", young, poisson, constants)
+    law = _laws.HookeLaw(_laws.isotropic_stiffness(mu, lm))
+    return Material(_strain("stvk", strain, "green"), law, "stvk", params)
+
+
+_ORTHO = ("E1", "E2", "E3", "nu12", "nu13", "nu23", "G12", "G23", "G13")
+
+
+def _hooke_orthotropic(young=None, poisson=None, strain=None, **constants):
+    model = "hooke-orthotropic"
+    if young is not None or poisson is not None:
+        raise InputError(f"material '{model}' takes {', '.join(_ORTHO)}, not young/poisson")
+    unknown = sorted(set(constants) - set(_ORTHO))
+    if unknown:
+        raise InputError(f"unknown parameter '{unknown[0]}' for material '{model}'; valid: strain, {', '.join(_ORTHO)}")
+    missing = [k for k in _ORTHO if k not in constants]
+    if missing:
+        raise InputError(f"material '{model}' needs {', '.join(_ORTHO)} (missing {missing[0]})")
+    v = {}
+    for k in _ORTHO:
+        if k[0] in "EG":
+            v[k] = _number(k, constants[k], low=0.0, what=" Pa")
+        else:
+            v[k] = _number(k, constants[k])
+    law = _laws.HookeLaw(_laws.orthotropic_stiffness(**v))
+    return Material(_strain(model, strain, "corotational"), law, model, v)
+
+
+def _neo_hookean(young=None, poisson=None, strain=None, **constants):
+    mu, lm, params = _isotropic_lame("neo-hookean", young, poisson, constants)
+    return Material(_strain("neo-hookean", strain, "invariant"), _laws.NeoHookeanLaw(mu, lm), "neo-hookean", params)
+
+
+def _stable_neo_hookean(young=None, poisson=None, strain=None, **constants):
+    mu, lm, params = _isotropic_lame("stable-neo-hookean", young, poisson, constants)
+    law = _laws.StableNeoHookeanLaw(4.0 * mu / 3.0, lm + 5.0 * mu / 6.0)
+    return Material(_strain("stable-neo-hookean", strain, "invariant"), law, "stable-neo-hookean", params)
+
+
+def _mooney_rivlin(young=None, poisson=None, strain=None, **constants):
+    model = "mooney-rivlin"
+    E, nu, c = _split(model, young, poisson, constants, ("c1", "bulk"), optional=("c2",))
+    c2 = _number("c2", c.get("c2", 0.0), what=" Pa")
+    if E is not None:
+        mu, lm = lame(E, nu)
+        c1 = 0.5 * mu - c2
+        bulk = lm + 2.0 * mu / 3.0
+    else:
+        _require(model, c, ("c1", "bulk"))
+        c1 = _number("c1", c["c1"], what=" Pa")
+        bulk = _number("bulk", c["bulk"], low=0.0, what=" Pa")
+        mu = 2.0 * (c1 + c2)
+        lm = bulk - 2.0 * mu / 3.0
+        E, nu = None, None
+    if not (c1 + c2 > 0):
+        raise InputError(f"mooney-rivlin needs c1 + c2 > 0 (shear modulus 2(c1 + c2)); got c1={c1:g}, c2={c2:g}")
+    if lm < 0:
+        raise InputError("mooney-rivlin needs bulk >= 4(c1 + c2)/3 (poisson >= 0)")
+    if E is None:
+        E = mu * (3 * lm + 2 * mu) / (lm + mu)
+        nu = lm / (2 * (lm + mu))
+    params = {"young": E, "poisson": nu, "c1": c1, "c2": c2, "bulk": bulk, "mu": mu, "lmbda": lm}
+    return Material(_strain(model, strain, "invariant-deviatoric"), _laws.MooneyRivlinLaw(c1, c2, bulk), model, params)
+
+
+def _volume(model, law_type):
+    def factory(young=None, poisson=None, strain=None, **constants):
+        E, nu, c = _split(model, young, poisson, constants, ("bulk",))
+        if E is not None:
+            bulk = E / (3.0 * (1.0 - 2.0 * nu))
+            params = {"young": E, "poisson": nu, "bulk": bulk}
+        else:
+            _require(model, c, ("bulk",))
+            bulk = _number("bulk", c["bulk"], low=0.0, what=" Pa")
+            params = {"bulk": bulk}
+        return Material(_strain(model, strain, "invariant"), law_type(bulk), model, params)
+
+    factory.__name__ = "_" + model.replace("-", "_")
+    return factory
+
+
+# Treloar-rubber-like default shape of the Ogden terms (Ogden 1972): relative mu_p and alpha_p
+_OGDEN_ALPHA = (1.3, 5.0, -2.0)
+_OGDEN_WEIGHT = (0.63, 0.0012, -0.01)
+
+
+def _ogden(young=None, poisson=None, strain=None, **constants):
+    model = "ogden"
+    E, nu, c = _split(model, young, poisson, constants, ("mu_p", "lmbda"), optional=("alpha_p",))
+    if E is not None:
+        mu, lm = lame(E, nu)
+        if "alpha_p" in c:
+            al = np.atleast_1d(np.asarray(c["alpha_p"], dtype=float))
+            if al.ndim != 1 or al.size == 0 or not np.all(np.isfinite(al)) or np.any(al == 0):
+                raise InputError("ogden alpha_p must be a non-empty sequence of finite non-zero numbers")
+            mus = 2.0 * mu / (al * al.size)  # equal share of the shear modulus per term
+        else:
+            al = np.asarray(_OGDEN_ALPHA)
+            w = np.asarray(_OGDEN_WEIGHT)
+            mus = w * mu / np.sum(0.5 * w * al)
+    else:
+        _require(model, c, ("mu_p", "alpha_p", "lmbda"))
+        mus = np.atleast_1d(np.asarray(c["mu_p"], dtype=float))
+        al = np.atleast_1d(np.asarray(c["alpha_p"], dtype=float))
+        lm = _number("lmbda", c["lmbda"], low=0.0, low_open=False, what=" Pa")
+        if mus.shape != al.shape or mus.ndim != 1:
+            raise InputError("ogden mu_p and alpha_p must have the same length")
+        mu = float(np.sum(0.5 * mus * al))
+        if not mu > 0:
+            raise InputError(f"ogden needs sum(mu_p * alpha_p) / 2 > 0 (the shear modulus); got {mu:g}")
+        E = mu * (3 * lm + 2 * mu) / (lm + mu)
+        nu = lm / (2 * (lm + mu))
+    law = _laws.OgdenLaw(tuple(mus), tuple(al), lm)
+    params = {"young": E, "poisson": nu, "mu": mu, "lmbda": lm, "mu_p": law.mu_p, "alpha_p": law.alpha_p}
+    return Material(_strain(model, strain, "principal-stretch"), law, model, params)
+
+
+MATERIALS: dict[str, Callable[..., Material]] = {
+    "hooke": _hooke,
+    "hooke-orthotropic": _hooke_orthotropic,
+    "stvk": _stvk,
+    "neo-hookean": _neo_hookean,
+    "stable-neo-hookean": _stable_neo_hookean,
+    "mooney-rivlin": _mooney_rivlin,
+    "volume-log": _volume("volume-log", _laws.VolumeLogLaw),
+    "volume-quadratic": _volume("volume-quadratic", _laws.VolumeQuadraticLaw),
+    "ogden": _ogden,
+}
+"""Registry: model name -> factory ``(young=None, poisson=None, strain=None, **constants) -> Material``."""
+
+
+def material(name: str, *, young=None, poisson=None, strain=None, **constants) -> Material:
+    """Build a registered material model by name.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`MATERIALS`: ``hooke`` (default strain ``corotational``;
+        ``strain="linear"`` is small-strain elasticity, ``"green"`` is StVK),
+        ``hooke-orthotropic`` (``E1, E2, E3, nu12, nu13, nu23, G12, G23, G13``),
+        ``stvk``, ``neo-hookean``, ``stable-neo-hookean``, ``mooney-rivlin``
+        (``c1, c2, bulk``), ``volume-log``, ``volume-quadratic`` (``bulk``),
+        ``ogden`` (``mu_p, alpha_p, lmbda``).
+    young : float, optional
+        Young's modulus [Pa], > 0.
+    poisson : float, optional
+        Poisson's ratio in [0, 0.5).
+    strain : str or Strain, optional
+        The strain measure; default: the one the model needs.
+    **constants
+        Model constants instead of young/poisson: ``mu``, ``lmbda`` [Pa] for the
+        isotropic models; see above for the others.
+
+    Raises
+    ------
+    InputError
+        Unknown model, unknown or missing parameter, value out of range, or a
+        strain the law cannot read.
+
+    Examples
+    --------
+    >>> mat = material("neo-hookean", young=1e4, poisson=0.3)
+    >>> mat.parameters["mu"]   # doctest: +ELLIPSIS
+    3846.15...
+    """
+    check_choice("material", name, MATERIALS)
+    return MATERIALS[name](young=young, poisson=poisson, strain=strain, **constants)
