@@ -1,0 +1,176 @@
+"""Surface meshes: loading, validation, orientation.
+
+A surface mesh is held as a :class:`SurfaceMesh` (vertices (V, 3) float64,
+faces (F, 3) int64 triangles).  Files are read with pyvista's readers
+(.stl .obj .ply .vtk .vtp), any polygonal cells are triangulated and
+degenerate triangles (a repeated vertex index) are dropped.  The mesh need not
+be watertight: the inside test is the generalized winding number.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+MESH_EXTENSIONS = (".stl", ".obj", ".ply", ".vtk", ".vtp")
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceMesh:
+    """A triangle surface, validated on construction.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, metres
+        Finite coordinates.
+    faces : (F, 3) int
+        Vertex indices of each triangle (F >= 1); triangles with a repeated
+        index are dropped.
+    name : str
+        Where the mesh came from (for messages).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    name: str = "mesh"
+
+    def __post_init__(self):
+        name = self.name
+        try:
+            vertices = np.asarray(self.vertices, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"{name}: vertices must be numbers of shape (V, 3)") from None
+        if vertices.ndim != 2 or vertices.shape[1] != 3:
+            raise InputError(f"{name}: vertices must have shape (V, 3), got {vertices.shape}")
+        faces = np.asarray(self.faces)
+        if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] == 0 and faces.size:
+            raise InputError(
+                f"{name}: faces must be triangles of shape (F, 3), got {faces.shape}; triangulate the mesh first"
+            )
+        if faces.size and not np.issubdtype(faces.dtype, np.integer):
+            if not np.all(np.isfinite(faces)) or np.any(faces != np.round(faces)):
+                raise InputError(f"{name}: faces must hold integer vertex indices")
+        faces = faces.astype(np.int64)
+        if len(faces) == 0 or len(vertices) == 0:
+            raise InputError(f"{name}: the mesh is empty (no triangles); give a closed surface mesh")
+        if faces.min() < 0 or faces.max() >= len(vertices):
+            raise InputError(
+                f"{name}: faces refer to vertex {int(faces.max()) if faces.max() >= len(vertices) else int(faces.min())}"
+                f" but the mesh has {len(vertices)} vertices; fix the face indices"
+            )
+        used = vertices[np.unique(faces)]
+        if not np.all(np.isfinite(used)):
+            raise InputError(f"{name}: vertex coordinates contain NaN or inf; repair or re-export the mesh")
+        keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+        faces = np.ascontiguousarray(faces[keep])
+        if len(faces) == 0:
+            raise InputError(f"{name}: every triangle is degenerate (repeated vertices); the mesh encloses nothing")
+        lo, hi = self._span(vertices, faces)
+        if np.any(hi - lo <= 0):
+            raise InputError(f"{name}: the mesh is flat (zero extent along an axis); it encloses no volume")
+        for arr in (vertices, faces):
+            arr.setflags(write=False)
+        object.__setattr__(self, "vertices", vertices)
+        object.__setattr__(self, "faces", faces)
+
+    @staticmethod
+    def _span(vertices, faces):
+        used = vertices[faces.reshape(-1)]
+        return used.min(axis=0), used.max(axis=0)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper corners (3,), (3,) of the used vertices' bounding box."""
+        return self._span(self.vertices, self.faces)
+
+    @property
+    def signed_volume(self) -> float:
+        """Enclosed volume by the divergence theorem (m^3); negative for an inward-oriented surface.
+
+        Exact for a closed surface; only indicative for an open one.
+        """
+        tri = self.vertices[self.faces]
+        return float(np.einsum("ti,ti->t", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0)
+
+    def oriented(self) -> "SurfaceMesh":
+        """The mesh with its faces flipped if its signed volume is negative (outward orientation)."""
+        if self.signed_volume >= 0:
+            return self
+        return SurfaceMesh(self.vertices, self.faces[:, ::-1], name=self.name)
+
+
+def load_mesh(path) -> SurfaceMesh:
+    """Read a surface mesh file (.stl .obj .ply .vtk .vtp) into a triangulated :class:`SurfaceMesh`.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, unknown extension, a file with no surface
+        triangles, NaN/inf coordinates.
+    """
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext not in MESH_EXTENSIONS:
+        raise InputError(
+            f"'{path}' is not a surface mesh file; use one of {' '.join(MESH_EXTENSIONS)} "
+            "or a primitive spec (box:LX,LY,LZ, cylinder:R,L, sphere:R)"
+        )
+    if not path.is_file():
+        raise InputError(f"mesh file '{path}' not found; check the path")
+    if not os.access(path, os.R_OK):
+        raise InputError(f"mesh file '{path}' is not readable; check its permissions")
+    if path.stat().st_size == 0:
+        raise InputError(f"mesh file '{path}' is empty (0 bytes); re-export the mesh")
+    import pyvista as pv
+
+    try:
+        data = pv.read(str(path))
+    except Exception as exc:  # the readers raise many types (OSError, ValueError, vtk errors)
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"could not read '{path}' as a {ext} mesh ({first}); check that it is a valid {ext} file") from None
+    if isinstance(data, pv.MultiBlock):
+        data = data.combine()
+    if not isinstance(data, pv.PolyData):
+        try:
+            data = data.extract_surface()
+        except Exception:
+            raise InputError(f"'{path}' holds no surface; give a surface mesh (triangles or polygons)") from None
+    if data.n_points == 0 or data.n_cells == 0:
+        raise InputError(f"'{path}' contains no surface (0 points or cells); check that it is a valid {ext} mesh")
+    if data.n_faces == 0:
+        raise InputError(f"'{path}' contains no polygons (only points or lines); give a closed surface mesh")
+    try:
+        tri = data.triangulate()
+    except Exception:
+        raise InputError(f"the faces of '{path}' could not be triangulated; re-export them as triangles") from None
+    if not tri.is_all_triangles:
+        tri = tri.extract_cells_by_type(5).extract_surface() if hasattr(tri, "extract_cells_by_type") else tri
+    faces = _triangle_faces(tri, path)
+    return SurfaceMesh(np.asarray(tri.points, dtype=np.float64), faces, name=str(path))
+
+
+def _triangle_faces(poly, path) -> np.ndarray:
+    flat = np.asarray(poly.faces)
+    if flat.size == 0:
+        raise InputError(f"'{path}' contains no triangles after triangulation; give a closed surface mesh")
+    if flat.size % 4 == 0 and np.all(flat.reshape(-1, 4)[:, 0] == 3):
+        return flat.reshape(-1, 4)[:, 1:].astype(np.int64)
+    raise InputError(f"the faces of '{path}' could not be triangulated; re-export them as triangles")
+
+
+def as_mesh(source, name: str = "mesh") -> SurfaceMesh:
+    """A :class:`SurfaceMesh` from a ``(vertices, faces)`` pair, a pyvista PolyData or a path."""
+    if isinstance(source, SurfaceMesh):
+        return source
+    if isinstance(source, (str, os.PathLike)):
+        return load_mesh(source)
+    if isinstance(source, tuple) and len(source) == 2:
+        return SurfaceMesh(source[0], source[1], name=name)
+    if hasattr(source, "triangulate") and hasattr(source, "faces"):
+        tri = source.triangulate()
+        return SurfaceMesh(np.asarray(tri.points), _triangle_faces(tri, name), name=name)
+    raise InputError(f"cannot use {type(source).__name__} as a mesh; give a file path or a (vertices, faces) pair")
