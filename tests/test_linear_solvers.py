@@ -1,0 +1,59 @@
+"""Linear solvers agree on a 3-D elasticity system; rigid modes; auto selection."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from voxflex.deform.linear_solvers import DENSE_MAX, DIRECT_MAX, choose_method, rigid_body_modes, solve_linear
+from voxflex.deform.materials import material
+from voxflex.deform.voxel_model import VoxelModel
+from voxflex.errors import InputError
+from voxflex.image.label_image import LabelImage
+
+
+def _system():
+    image = LabelImage(np.ones((8, 3, 3)), spacing=(0.5, 1 / 3, 1 / 3))
+    model = VoxelModel.from_image(image, {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
+    K = model.hessian(model.rest)
+    free = np.flatnonzero(np.repeat(model.rest[:, 0] > 1e-9, 3))
+    b = np.random.default_rng(0).standard_normal(len(free))
+    return model, K, free, K[free][:, free], b
+
+
+def test_methods_agree_to_their_tolerance():
+    model, K, free, A, b = _system()
+    ref, info = solve_linear(A, b, method="cholesky")
+    assert info.residual < 1e-12
+    for method in ("direct", "cg", "amg"):
+        x, info = solve_linear(A, b, method=method, rtol=1e-10, near_null=rigid_body_modes(model.rest)[free])
+        assert info.method == method and info.residual <= 1e-10 * 1.01
+        # solution error <= condition number x residual; kappa ~ 1e4 here, so 1e-5 is the bound
+        assert np.linalg.norm(x - ref) <= 1e-5 * np.linalg.norm(ref)
+        if method in ("cg", "amg"):
+            assert info.iterations > 0
+    # amg with rigid modes needs far fewer iterations than Jacobi-CG
+    nn = rigid_body_modes(model.rest)[free]
+    assert solve_linear(A, b, method="amg", rtol=1e-10, near_null=nn)[1].iterations < \
+        solve_linear(A, b, method="cg", rtol=1e-10)[1].iterations
+
+
+def test_rigid_modes_span_the_null_space_of_a_free_body():
+    model, K, _, _, _ = _system()
+    B = rigid_body_modes(model.rest)
+    assert np.abs(K @ B).max() < 1e-9 * abs(K).max() * np.abs(B).max()
+    assert np.linalg.matrix_rank(B) == 6
+
+
+def test_auto_selection_and_errors():
+    assert choose_method(DENSE_MAX) == "cholesky"
+    assert choose_method(DENSE_MAX + 1) == "direct" and choose_method(DIRECT_MAX) == "direct"
+    assert choose_method(DIRECT_MAX + 1) == "cg"
+    _, _, _, A, b = _system()
+    x, info = solve_linear(A, b)  # 7 * 4 * 4 * 3 = 336 unknowns -> direct
+    assert info.method == "direct"
+    with pytest.raises(InputError, match="linear solver"):
+        solve_linear(A, b, method="lu")
+    # an iterative method that cannot reach the tolerance falls back to direct and says so
+    x, info = solve_linear(A, b, method="cg", rtol=1e-12, maxiter=3)
+    assert info.method == "direct" and "fell back" in info.note and info.residual < 1e-12

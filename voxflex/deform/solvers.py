@@ -1,0 +1,406 @@
+"""Static and implicit-Euler solvers for node-based models (the voxel model first).
+
+Statics: the equilibrium ``dE/dq = f`` is the minimum of the total potential
+``Pi(q) = E(q) - f . (q - X)``, found by Newton's method with a backtracking
+(Armijo) line search on Pi, under load stepping: step k of ``steps`` applies
+the load factor ``s = k / steps`` to the forces and to the prescribed motions.
+
+Dynamics: backward (implicit) Euler.  With ``xhat = q_n + h v_n`` the new
+positions minimise the incremental potential
+
+    Phi(q) = 1/(2h^2) |q - xhat|_M^2 + 1/(2h) |q - q_n|_D^2 + E(q) - f . q,
+
+with Rayleigh damping ``D = alpha M + beta K(q_n)`` (the stiffness frozen at
+the start of the step so that Phi is a true potential); then
+``v_{n+1} = (q_{n+1} - q_n) / h``.  Backward Euler dissipates: a single mode of
+frequency w loses the factor ``1 / (1 + w^2 h^2)`` of its energy per step.
+
+Fixed DOFs are eliminated (the system is reduced to the free DOFs), never
+penalised.  When prescribed DOFs move, the first Newton iteration of a step is
+the linearised predictor ``K_ff dq_f = -r_f - K_fc dq_c``, which carries the
+interior along with the boundary and avoids inverted voxels.
+
+Non-convergence raises :class:`~voxflex.errors.ConvergenceError` stating the
+step, the iterations, the residual, the line search and the linear solver.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import ConvergenceError, InputError, check_choice
+from .boundary import FixedRegion, ForceRegion, fixed_dofs, prescribed_positions, region_forces
+from .linear_solvers import METHODS, rigid_body_modes, solve_linear
+
+KINDS = ("static", "implicit-euler")
+MASS_KINDS = ("lumped", "consistent")
+ARMIJO = 1e-4
+MAX_HALVINGS = 30
+ROUNDOFF = 1e-11  # relative energy slack of the line search (differences of Pi below it are round-off)
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Solver settings.
+
+    Parameters
+    ----------
+    kind : {"static", "implicit-euler"}
+    steps : int
+        Static: load increments; implicit Euler: time steps.
+    dt : float (s)
+        Time step (implicit Euler).
+    tolerance : float
+        Newton stops when ``|r_free| <= tolerance * scale``, with ``scale`` the
+        largest of the external forces, the first residual of the step and the
+        reactions on the fixed DOFs (N).
+    max_iterations : int
+        Newton iterations per step.
+    line_search : bool
+        Backtracking Armijo line search on the (incremental) potential.
+    linear_solver : {"auto", "cholesky", "direct", "cg", "amg"}
+        See :mod:`voxflex.deform.linear_solvers`.
+    rayleigh_mass, rayleigh_stiffness : float
+        Damping ``D = rayleigh_mass * M + rayleigh_stiffness * K`` (1/s and s).
+    mass : {"lumped", "consistent"}
+        Mass matrix of implicit Euler.
+    """
+
+    kind: str = "static"
+    steps: int = 1
+    dt: float = 0.01
+    tolerance: float = 1e-8
+    max_iterations: int = 50
+    line_search: bool = True
+    linear_solver: str = "auto"
+    rayleigh_mass: float = 0.0
+    rayleigh_stiffness: float = 0.0
+    mass: str = "lumped"
+
+    def __post_init__(self):
+        check_choice("solver kind", self.kind, KINDS)
+        check_choice("linear solver", self.linear_solver, METHODS)
+        check_choice("mass", self.mass, MASS_KINDS)
+        if int(self.steps) != self.steps or self.steps < 1:
+            raise InputError(f"solver steps must be a positive integer, got {self.steps!r}")
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise InputError(f"time step dt must be > 0 (s), got {self.dt!r}")
+        if not (np.isfinite(self.tolerance) and 0 < self.tolerance < 1):
+            raise InputError(f"solver tolerance must be in (0, 1), got {self.tolerance!r}")
+        if int(self.max_iterations) != self.max_iterations or self.max_iterations < 1:
+            raise InputError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
+        for name in ("rayleigh_mass", "rayleigh_stiffness"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError(f"{name} must be >= 0, got {v!r}")
+
+
+@dataclass
+class StepRecord:
+    """State after one step (the first record is the rest state at time 0).
+
+    ``time`` is the load factor for statics, seconds for dynamics; ``q`` (n, 3)
+    node positions (m); ``v`` (n, 3) velocities (m/s) or None (statics);
+    energies in J; ``residual`` the final relative residual; ``linear_iterations``
+    summed over the step's Newton iterations (0 for direct solvers).
+    """
+
+    time: float
+    q: np.ndarray
+    v: np.ndarray | None
+    newton_iterations: int
+    seconds: float
+    elastic_energy: float
+    kinetic_energy: float
+    residual: float
+    linear_iterations: int = 0
+    linear_solver: str = ""
+    line_search_halvings: int = 0
+
+
+class _Problem:
+    """The potential of one step over the flat DOF vector x (3n,)."""
+
+    def __init__(self, model, f, M=None, h=None, xhat=None, xn=None, D=None):
+        self.model = model
+        self.f = f
+        self.M = M
+        self.h = h
+        self.xhat = xhat
+        self.xn = xn
+        self.D = D
+        self.rest = model.rest.ravel()
+        self.constant = bool(getattr(model, "constant_tangent", False))
+
+    def __call__(self, x, hessian=True, gradient=True):
+        q = x.reshape(-1, 3)
+        E, g, H = self.model.energy_gradient_hessian(q, hessian=hessian) if gradient else (
+            self.model.energy(q), None, None)
+        u = x - self.rest
+        work = float(self.f @ u)
+        pot = E - work
+        mag = abs(E) + abs(work)
+        if g is not None:
+            g = g.ravel() - self.f
+        if self.M is not None:
+            dx = x - self.xhat
+            Mdx = self.M @ dx
+            kin = 0.5 * float(dx @ Mdx) / self.h**2
+            pot += kin
+            mag += kin
+            if g is not None:
+                g = g + Mdx / self.h**2
+            if H is not None:
+                H = H + self.M / self.h**2
+            if self.D is not None:
+                dn = x - self.xn
+                Ddn = self.D @ dn
+                damp = 0.5 * float(dn @ Ddn) / self.h
+                pot += damp
+                mag += damp
+                if g is not None:
+                    g = g + Ddn / self.h
+                if H is not None:
+                    H = H + self.D / self.h
+        return pot, E, g, (sp.csr_matrix(H) if H is not None else None), mag
+
+
+def _newton(problem, x, free, fixed, x_fixed, options, near_null, label):
+    """Minimise ``problem`` over the free DOFs with the fixed DOFs moved to ``x_fixed``.
+
+    Returns x, iterations, relative residual, linear iterations, solver name, halvings.
+    """
+    tol = options.tolerance
+    fnorm = float(np.linalg.norm(problem.f))
+    delta_c = x_fixed - x[fixed]
+    moving = len(fixed) > 0 and bool(np.any(delta_c != 0))
+    lin_its = 0
+    halvings_total = 0
+    solver_used = ""
+    scale = fnorm
+    for it in range(options.max_iterations + 1):
+        pot, E, g, H, mag = problem(x, hessian=True)
+        if not np.isfinite(pot) or not np.all(np.isfinite(g)):
+            raise ConvergenceError(f"{label}: the energy is not finite at iteration {it} (inverted voxels?)")
+        r = g[free]
+        rn = float(np.linalg.norm(r))
+        reaction = float(np.linalg.norm(g[fixed])) if len(fixed) else 0.0
+        if it == 0:
+            scale = max(scale, rn)
+        scale = max(scale, reaction)
+        rel = rn / scale if scale > 0 else 0.0
+        # round-off floor: positions are absolute coordinates, known to eps |x|, so the residual
+        # cannot drop below ~eps |diag(H)| |x| (matters for tiny tolerances and for M / h^2 terms)
+        floor = 16.0 * np.finfo(float).eps * float(np.linalg.norm(np.abs(H.diagonal()[free] * x[free])))
+        if not moving and (scale == 0.0 or rn <= max(tol * scale, floor)):
+            return x, it, rel, lin_its, solver_used, halvings_total
+        if it == options.max_iterations:
+            break
+        Hf = H[free]
+        Hff = Hf[:, free]
+        rhs = -r
+        if moving:
+            rhs = rhs - Hf[:, fixed] @ delta_c
+        rhs_n = float(np.linalg.norm(rhs))
+        if problem.constant:
+            eta = 0.5 * tol * scale / max(rhs_n, 1e-300)
+        else:
+            eta = max(min(0.1, rn / max(scale, 1e-300)), 0.5 * tol * scale / max(rhs_n, 1e-300))
+        eta = float(np.clip(eta, 1e-14, 0.5))
+        nn = near_null if options.linear_solver == "amg" else None
+        d, info = solve_linear(Hff, rhs, method=options.linear_solver, rtol=eta, near_null=nn)
+        lin_its += info.iterations
+        solver_used = info.method + (f" ({info.note})" if info.note else "")
+        if moving:
+            # predictor: move the fixed DOFs to their targets, carry the interior along
+            x_new = x.copy()
+            x_new[fixed] = x_fixed
+            alpha = 1.0
+            for _ in range(MAX_HALVINGS):
+                x_try = x_new.copy()
+                x_try[free] += alpha * d
+                if np.isfinite(problem(x_try, hessian=False, gradient=False)[0]):
+                    break
+                alpha *= 0.5
+                halvings_total += 1
+            else:
+                raise ConvergenceError(
+                    f"{label}: every predictor step to the prescribed positions gives a non-finite energy "
+                    f"({MAX_HALVINGS} halvings); use more load steps"
+                )
+            x = x_try
+            moving = False
+            continue
+        slope = float(r @ d)
+        if slope >= 0:
+            # not a descent direction (indefinite tangent): regularise with a scaled identity, direct solve
+            diag = np.abs(Hff.diagonal())
+            mu = 1e-4 * float(np.mean(diag)) if len(diag) else 1.0
+            for _ in range(12):
+                d, info = solve_linear(Hff + mu * sp.identity(Hff.shape[0], format="csr"), rhs, method="direct")
+                slope = float(r @ d)
+                if slope < 0:
+                    break
+                mu *= 10.0
+            else:
+                raise ConvergenceError(f"{label}: no descent direction found at iteration {it} (tangent indefinite)")
+            solver_used = "direct (shifted: tangent indefinite)"
+        if not options.line_search:
+            x = x.copy()
+            x[free] += d
+            continue
+        alpha = 1.0
+        accepted = False
+        for _ in range(MAX_HALVINGS):
+            x_try = x.copy()
+            x_try[free] += alpha * d
+            pot_try = problem(x_try, hessian=False, gradient=False)[0]
+            if np.isfinite(pot_try) and pot_try <= pot + ARMIJO * alpha * slope + ROUNDOFF * mag:
+                accepted = True
+                break
+            alpha *= 0.5
+            halvings_total += 1
+        if not accepted:
+            raise ConvergenceError(
+                f"{label}: line search failed at Newton iteration {it} (relative residual {rel:.2e}, "
+                f"{MAX_HALVINGS} halvings, linear solver {solver_used}); use more load steps or a smaller dt"
+            )
+        x = x_try
+    raise ConvergenceError(
+        f"{label}: Newton did not converge in {options.max_iterations} iterations: relative residual {rel:.2e} "
+        f"(tolerance {tol:.1e}), {halvings_total} line-search halvings, linear solver {solver_used} "
+        f"({lin_its} linear iterations); use more load steps, a smaller dt or more iterations"
+    )
+
+
+def solve(
+    model,
+    *,
+    fixed: Sequence[FixedRegion] = (),
+    forces: Sequence[ForceRegion] = (),
+    gravity=None,
+    densities: Mapping[int, float] | None = None,
+    options: SolverOptions = SolverOptions(),
+    callback: Callable | None = None,
+    q0=None,
+    v0=None,
+) -> list[StepRecord]:
+    """Run a static (load-stepped) or implicit-Euler simulation of ``model``.
+
+    Parameters
+    ----------
+    model : VoxelModel (or any model with rest, n_nodes, energy, energy_gradient_hessian,
+        gravity_force, mass_matrix, nodal_volumes, boundary_quads)
+    fixed : FixedRegion sequence
+        Held or moved regions (prescribed motions reach their transform at the end).
+    forces : ForceRegion sequence
+    gravity : (3,) float, m/s^2, optional
+        Needs ``densities``.
+    densities : mapping label -> kg/m^3, optional
+        Needed for gravity and implicit Euler.
+    options : SolverOptions
+    callback : callable(StepRecord), optional
+        Called after each step.
+    q0, v0 : (n, 3) float, optional
+        Initial positions (default: rest) and velocities (implicit Euler; default 0).
+        Fixed DOFs still follow their regions.
+
+    Returns
+    -------
+    list of StepRecord, ``steps + 1`` long (the rest state first).
+
+    Raises
+    ------
+    InputError
+        Bad regions or loads (e.g. gravity or dynamics without densities).
+    ConvergenceError
+        A step did not converge (the message says what was tried).
+    """
+    if not isinstance(options, SolverOptions):
+        raise InputError("options must be a SolverOptions")
+    fixed = list(fixed)
+    forces = list(forces)
+    for r in fixed:
+        if not isinstance(r, FixedRegion):
+            raise InputError(f"fixed entries must be FixedRegion, got {type(r).__name__}")
+    for r in forces:
+        if not isinstance(r, ForceRegion):
+            raise InputError(f"forces entries must be ForceRegion, got {type(r).__name__}")
+    dynamic = options.kind == "implicit-euler"
+    if (gravity is not None or dynamic) and densities is None:
+        raise InputError("gravity and implicit-euler need densities (kg/m^3) for every material label")
+    n = model.n_nodes
+    X = np.asarray(model.rest, dtype=float).ravel()
+    dofs, owner = fixed_dofs(model.rest, fixed)
+    free = np.setdiff1d(np.arange(3 * n), dofs)
+    f_full = region_forces(model, forces).ravel() if forces else np.zeros(3 * n)
+    if gravity is not None:
+        f_full = f_full + model.gravity_force(densities, gravity).ravel()
+    near_null = rigid_body_modes(model.rest)[free] if options.linear_solver == "amg" else None
+
+    M = None
+    if dynamic:
+        M = model.mass_matrix(densities, lumped=options.mass == "lumped")
+    x = X.copy()
+    if q0 is not None:
+        q0 = np.asarray(q0, dtype=float)
+        if q0.shape != (n, 3) or not np.all(np.isfinite(q0)):
+            raise InputError(f"q0 must be a finite ({n}, 3) array of node positions, got shape {q0.shape}")
+        x = q0.ravel().copy()
+    v = np.zeros(3 * n) if dynamic else None
+    if v0 is not None:
+        v0 = np.asarray(v0, dtype=float)
+        if not dynamic or v0.shape != (n, 3) or not np.all(np.isfinite(v0)):
+            raise InputError(f"v0 must be a finite ({n}, 3) array and needs kind='implicit-euler'")
+        v = v0.ravel().copy()
+    kin0 = 0.5 * float(v @ (M @ v)) if dynamic else 0.0
+    records = [StepRecord(0.0, x.reshape(n, 3).copy(), None if v is None else v.reshape(n, 3).copy(), 0, 0.0,
+                          float(model.energy(x.reshape(n, 3))), kin0, 0.0)]
+    t_end = options.steps * options.dt
+    for k in range(1, options.steps + 1):
+        t0 = time.perf_counter()
+        if dynamic:
+            t = k * options.dt
+            factor = t / t_end
+            label = f"implicit Euler step {k}/{options.steps} (t = {t:.4g} s)"
+            D = None
+            if options.rayleigh_mass or options.rayleigh_stiffness:
+                D = options.rayleigh_mass * M
+                if options.rayleigh_stiffness:
+                    D = D + options.rayleigh_stiffness * model.hessian(x.reshape(n, 3))
+            problem = _Problem(model, f_full, M=M, h=options.dt, xhat=x + options.dt * v, xn=x.copy(), D=D)
+            x_start = x + options.dt * v
+        else:
+            factor = k / options.steps
+            t = factor
+            label = f"static step {k}/{options.steps} (load factor {factor:.4g})"
+            problem = _Problem(model, factor * f_full)
+            x_start = x.copy()
+        x_fixed = prescribed_positions(model.rest, fixed, dofs, owner, factor) if len(dofs) else np.zeros(0)
+        # fixed DOFs start from their previous values so the predictor sees their motion
+        x_start[dofs] = x[dofs]
+        x_new, its, rel, lin_its, solver_used, halvings = _newton(
+            problem, x_start, free, dofs, x_fixed, options, near_null, label
+        )
+        E = float(model.energy(x_new.reshape(n, 3)))
+        kin = 0.0
+        if dynamic:
+            v = (x_new - x) / options.dt
+            kin = 0.5 * float(v @ (M @ v))
+        x = x_new
+        rec = StepRecord(
+            float(t), x.reshape(n, 3).copy(), None if v is None else v.reshape(n, 3).copy(), int(its),
+            time.perf_counter() - t0, E, kin, float(rel), int(lin_its), solver_used, int(halvings),
+        )
+        records.append(rec)
+        if callback is not None:
+            callback(rec)
+    return records
+
+
+__all__ = ["SolverOptions", "StepRecord", "solve", "FixedRegion", "ForceRegion"]

@@ -1,0 +1,473 @@
+"""The full-resolution voxel model: trilinear nodes at the corners of occupied voxels.
+
+This is the reference every reduced model is measured against.  Nodes sit at
+the corners of the voxels with label > 0; inside each voxel the motion is
+trilinear; each voxel is integrated with a quadrature rule on the unit cube
+(2x2x2 Gauss-Legendre, or the mid-point rule).  At each sample the chain is
+
+    nodes q (n, 3) --J--> F = sum_a q_a (x) grad w_a --> material (W, P, A)
+
+and the energy, forces and stiffness are ``E = sum vol W(F)``,
+``dE/dq = sum vol J^T P`` and ``d2E/dq2 = sum vol J^T A J``.  On a regular grid
+the weight gradients at the quadrature points are the same in every voxel, so
+``J`` is never stored: a table ``G (Q, 8, 3)`` and the voxel connectivity
+replace it.  The Hessian is assembled by a compiled kernel straight into a CSR
+pattern computed once; contributions of materials whose tangent does not depend
+on F (Hooke with linear strain) are cached.
+
+Mid-point quadrature: one sample per voxel cannot see the voxel's hourglass
+motions (bilinear "checkerboard" modes), so the stiffness has zero modes
+besides the 6 rigid motions (12 per isolated voxel, fewer for connected
+voxels but still many).  It is offered for speed comparisons, not hidden:
+static problems with it are often singular.
+
+>>> import numpy as np
+>>> from voxflex.image.label_image import LabelImage
+>>> from voxflex.deform.materials import material
+>>> image = LabelImage(np.ones((4, 1, 1)))
+>>> model = VoxelModel.from_image(image, {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
+>>> model.n_nodes, model.n_elements
+(20, 4)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import InputError, check_choice
+from ..sampling.quadrature import RULES, unit_cube_rule
+from ..voronoi.trilinear import CORNER_OFFSETS, TrilinearGrid, trilinear_weights
+from . import _voxel_kernels as kern
+
+CHUNK_ELEMENTS = 16384
+"""Voxels evaluated per batch (bounds the memory of F, P, A: ~80 MB of tangents with 8 samples each)."""
+
+
+def tangent_is_constant(material) -> bool:
+    """Whether ``material``'s tangent dP/dF does not depend on F (then its stiffness is cached).
+
+    Reads ``material.constant_tangent`` when the material declares it, else
+    recognises Hooke's law with linear (small) strain.
+    """
+    flag = getattr(material, "constant_tangent", None)
+    if flag is not None:
+        return bool(flag() if callable(flag) else flag)
+    name = str(getattr(material, "name", "")).lower()
+    strain = getattr(material, "strain", "")
+    strain = str(getattr(strain, "name", strain)).lower()
+    return name in {"hooke", "linear"} and strain == "linear"
+
+
+@dataclass(frozen=True, eq=False)
+class PointMapping:
+    """Linear map from node positions to the positions of material points.
+
+    ``x_p = sum_a w_pa q_a`` with the trilinear weights of the voxel holding
+    point p.  Used for probes, loads and mass points.
+
+    Attributes
+    ----------
+    values : ShapeValues
+        index (m, 8), w (m, 8), dw (m, 8, 3), rest (m, 3).
+    n_nodes : int
+    """
+
+    values: object
+    n_nodes: int
+
+    @property
+    def weights(self) -> sp.csr_matrix:
+        """(m, n) sparse weight matrix W."""
+        v = self.values
+        m, p = v.index.shape
+        mask = v.index >= 0
+        rows = np.repeat(np.arange(m), p).reshape(m, p)[mask]
+        return sp.csr_matrix((v.w[mask], (rows, v.index[mask])), shape=(m, self.n_nodes))
+
+    @property
+    def jacobian(self) -> sp.csr_matrix:
+        """(3m, 3n) sparse Jacobian d x / d q (``W kron I3``); constant."""
+        return sp.kron(self.weights, sp.identity(3, format="csr"), format="csr")
+
+    def apply(self, q) -> np.ndarray:
+        """Positions (m, 3) of the points for node positions ``q`` (n, 3)."""
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.n_nodes, 3):
+            raise InputError(f"q must have shape ({self.n_nodes}, 3), got {q.shape}")
+        v = self.values
+        idx = np.where(v.index >= 0, v.index, 0)
+        return np.einsum("mp,mpk->mk", v.w, q[idx])
+
+
+class VoxelModel:
+    """Trilinear voxel model of a labelled image (see the module docstring).
+
+    Build with :meth:`from_image`.  The state ``q`` is the (n, 3) array of node
+    positions (m); energies are in J, forces in N, stiffness in N/m.
+
+    Attributes
+    ----------
+    rest : (n, 3) float
+        Node rest positions (voxel corners), numbered by sorted corner index.
+    grid : TrilinearGrid
+    element_label : (m,) int
+    element_volume : (m,) float
+        Voxel volume times occupancy (m^3).
+    quadrature : str
+    """
+
+    dofs_per_node = 3
+
+    def __init__(self, grid: TrilinearGrid, labels, volumes, materials, quadrature, mask):
+        self.grid = grid
+        self.rest = grid.node_positions
+        self.rest.setflags(write=False)
+        self.element_label = np.asarray(labels)
+        self.element_volume = np.asarray(volumes, dtype=float)
+        self.materials = dict(materials)
+        self.quadrature = quadrature
+        self._mask = mask
+        local, weights = unit_cube_rule(quadrature)
+        self._local = local
+        self._qweights = weights
+        self._G = np.ascontiguousarray(grid.reference_gradients(local))  # (Q, 8, 3)
+        self._groups = []  # (label, element ids, constant tangent)
+        for label in np.unique(self.element_label):
+            ids = np.flatnonzero(self.element_label == label)
+            self._groups.append((int(label), ids, tangent_is_constant(self.materials[int(label)])))
+        self._pattern = None
+        self._constant_data = None
+
+    # -- construction -------------------------------------------------------
+    @classmethod
+    def from_image(
+        cls,
+        image,
+        materials: Mapping[int, object],
+        *,
+        quadrature: str = "gauss-legendre",
+        use_occupancy: bool = True,
+    ) -> "VoxelModel":
+        """Voxel model of ``image`` with one material per label.
+
+        Parameters
+        ----------
+        image : LabelImage
+        materials : mapping label -> Material
+            Every label > 0 present in the image needs a material.
+        quadrature : {"gauss-legendre", "midpoint"}
+            2x2x2 Gauss-Legendre (exact stiffness for linear elasticity) or one
+            point per voxel (hourglass modes, see the module docstring).
+        use_occupancy : bool
+            Scale each voxel's volume by ``image.occupancy`` when the image has one.
+
+        Raises
+        ------
+        InputError
+            Empty image, a label without material, an unknown quadrature.
+        """
+        check_choice("quadrature", quadrature, RULES)
+        labels = np.asarray(image.labels)
+        mask = labels > 0
+        if not np.any(mask):
+            raise InputError("the image has no occupied voxel (all labels are 0); give at least one labelled voxel")
+        try:
+            materials = {int(k): v for k, v in dict(materials).items()}
+        except (TypeError, ValueError):
+            raise InputError("materials must map integer labels to materials, e.g. {1: material('hooke', ...)}") from None
+        present = np.unique(labels[mask]).astype(int)
+        missing = [int(lab) for lab in present if lab not in materials]
+        if missing:
+            raise InputError(
+                f"label(s) {missing} in the image have no material; give one per label "
+                f"(materials given for {sorted(materials)})"
+            )
+        for lab in present:
+            if not hasattr(materials[int(lab)], "evaluate"):
+                raise InputError(f"material for label {lab} has no evaluate(F) method; build it with vf.material(...)")
+        grid = TrilinearGrid.from_image(image, mask)
+        ijk = grid.element_ijk
+        element_label = labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]].astype(np.int64)
+        volumes = np.full(len(ijk), float(image.voxel_volume))
+        if use_occupancy and image.occupancy is not None:
+            volumes *= np.asarray(image.occupancy, dtype=float)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+        return cls(grid, element_label, volumes, {int(k): materials[int(k)] for k in present}, quadrature, mask)
+
+    # -- sizes -----------------------------------------------------------------
+    @property
+    def n_nodes(self) -> int:
+        return self.grid.n_nodes
+
+    @property
+    def n_elements(self) -> int:
+        return self.grid.n_elements
+
+    @property
+    def n_samples(self) -> int:
+        return self.n_elements * len(self._qweights)
+
+    @property
+    def constant_tangent(self) -> bool:
+        """True when every material's tangent is constant (the energy is quadratic in q)."""
+        return all(const for _, _, const in self._groups)
+
+    def _check_q(self, q) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.n_nodes, 3):
+            raise InputError(f"q must have shape ({self.n_nodes}, 3) (node positions), got {q.shape}")
+        return q
+
+    # -- kinematics ------------------------------------------------------------
+    def _chunks(self, only_variable=False):
+        for label, ids, const in self._groups:
+            if only_variable and const:
+                continue
+            for start in range(0, len(ids), CHUNK_ELEMENTS):
+                yield label, ids[start : start + CHUNK_ELEMENTS], const
+
+    def _deformation_gradient(self, q, elements):
+        """F (k * Q, 3, 3) at the samples of ``elements`` (element-major)."""
+        X = q[self.grid.element_nodes[elements]]  # (k, 8, 3)
+        F = np.einsum("eai,qaj->eqij", X, self._G, optimize=True)
+        return F.reshape(-1, 3, 3)
+
+    def _sample_volumes(self, elements):
+        return (self.element_volume[elements][:, None] * self._qweights[None, :]).reshape(-1)
+
+    def deformation_gradients(self, q) -> np.ndarray:
+        """F (m * Q, 3, 3) at every sample, element-major (elements in C order of the image)."""
+        q = self._check_q(q)
+        return self._deformation_gradient(q, np.arange(self.n_elements))
+
+    def sample_volumes(self) -> np.ndarray:
+        """Volume weight (m * Q,) of every sample (m^3), element-major."""
+        return self._sample_volumes(np.arange(self.n_elements))
+
+    # -- energy and derivatives ------------------------------------------------
+    def energy(self, q) -> float:
+        """Elastic energy (J) at node positions ``q`` (n, 3); inf/NaN when a material is undefined there."""
+        return self.energy_gradient_hessian(q, gradient=False, hessian=False)[0]
+
+    def gradient(self, q) -> np.ndarray:
+        """dE/dq (n, 3) in N; the internal force is its negative."""
+        return self.energy_gradient_hessian(q, hessian=False)[1]
+
+    def hessian(self, q) -> sp.csr_matrix:
+        """d2E/dq2 as a (3n, 3n) CSR matrix, DOF ``3 * node + component`` (N/m)."""
+        return self.energy_gradient_hessian(q)[2]
+
+    def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
+        """Energy, gradient and Hessian in one pass over the samples.
+
+        Returns
+        -------
+        energy : float (J)
+        gradient : (n, 3) float or None (N)
+        hessian : (3n, 3n) csr_matrix or None (N/m)
+        """
+        q = self._check_q(q)
+        n = self.n_nodes
+        energy = 0.0
+        grad = np.zeros((n, 3)) if gradient else None
+        data = None
+        if hessian:
+            self._ensure_pattern()
+            indptr, indices, indptr_b, blockmap = self._pattern
+            if self._constant_data is None and any(const for _, _, const in self._groups):
+                self._constant_data = self._assemble_constant(q)
+            data = self._constant_data.copy() if self._constant_data is not None else np.zeros(len(indices))
+        conn = self.grid.element_nodes
+        for label, elements, const in self._chunks():
+            mat = self.materials[label]
+            F = self._deformation_gradient(q, elements)
+            vol = self._sample_volumes(elements)
+            need_tangent = hessian and not const
+            W, P, A = mat.evaluate(F, tangent=need_tangent)
+            energy += float(np.dot(vol, W))
+            if gradient:
+                VP = (P * vol[:, None, None]).reshape(len(elements), -1, 3, 3)
+                fe = np.einsum("eqij,qaj->eai", VP, self._G, optimize=True)  # (k, 8, 3)
+                nodes = conn[elements].ravel()
+                for c in range(3):
+                    grad[:, c] += np.bincount(nodes, weights=fe[:, :, c].ravel(), minlength=n)
+            if need_tangent:
+                Ke = kern.element_stiffness(self._G, A, vol)
+                kern.scatter_blocks(Ke, conn[elements], blockmap[elements], indptr_b, data)
+        H = None
+        if hessian:
+            H = sp.csr_matrix((data, indices, indptr), shape=(3 * n, 3 * n))
+        return energy, grad, H
+
+    def _ensure_pattern(self):
+        if self._pattern is None:
+            self._pattern = kern.block_csr_pattern(self.grid.element_nodes, self.n_nodes)
+
+    def _assemble_constant(self, q):
+        indptr, indices, indptr_b, blockmap = self._pattern
+        data = np.zeros(len(indices))
+        conn = self.grid.element_nodes
+        for label, elements, const in self._chunks():
+            if not const:
+                continue
+            F = self._deformation_gradient(q, elements)
+            _, _, A = self.materials[label].evaluate(F, tangent=True)
+            Ke = kern.element_stiffness(self._G, A, self._sample_volumes(elements))
+            kern.scatter_blocks(Ke, conn[elements], blockmap[elements], indptr_b, data)
+        return data
+
+    # -- points, mass, loads ---------------------------------------------------
+    def point_mapping(self, points) -> PointMapping:
+        """Trilinear mapping of material points (m, 3) given at rest (world, m).
+
+        Raises
+        ------
+        InputError
+            When a point lies outside the material (names the point).
+        """
+        return PointMapping(self.grid.shape_values(points), self.n_nodes)
+
+    def _densities(self, densities) -> np.ndarray:
+        """Density (kg/m^3) of each element from a mapping label -> density."""
+        if densities is None:
+            raise InputError("densities are needed (mass, gravity, dynamics); give a density per material label")
+        try:
+            dens = {int(k): float(v) for k, v in dict(densities).items()}
+        except (TypeError, ValueError):
+            raise InputError("densities must map integer labels to numbers, e.g. {1: 1000.0}") from None
+        missing = [int(lab) for lab, _, _ in self._groups if lab not in dens]
+        if missing:
+            raise InputError(f"label(s) {missing} have no density; give a density per material label")
+        bad = {k: v for k, v in dens.items() if not np.isfinite(v) or v < 0}
+        if bad:
+            raise InputError(f"densities must be finite and >= 0, got {bad}")
+        table = np.zeros(int(self.element_label.max()) + 1)
+        for lab, _, _ in self._groups:
+            table[lab] = dens[lab]
+        return table[self.element_label]
+
+    def _mass_rule(self):
+        """2x2x2 Gauss-Legendre mass points: exact for products of trilinear weights."""
+        local, weights = unit_cube_rule("gauss-legendre")
+        w, _, _ = trilinear_weights(local)
+        return w, weights  # (Q, 8), (Q,)
+
+    def element_masses(self, densities) -> np.ndarray:
+        """Mass (kg) of each voxel: density x volume x occupancy."""
+        return self._densities(densities) * self.element_volume
+
+    def mass_matrix(self, densities: Mapping[int, float], *, lumped: bool = True) -> sp.csr_matrix:
+        """Mass matrix (3n, 3n) in kg from mass points at the 2x2x2 Gauss points.
+
+        ``M = J^T diag(m_s) J`` with the trilinear mapping J of the mass points
+        (consistent, exact for trilinear voxels whatever the stiffness quadrature);
+        ``lumped=True`` puts the row sums on the diagonal.
+        """
+        me = self.element_masses(densities)
+        w, qw = self._mass_rule()
+        Mref = np.einsum("q,qa,qb->ab", qw, w, w)  # (8, 8), sums to 1
+        conn = self.grid.element_nodes
+        n = self.n_nodes
+        if lumped:
+            node_mass = np.bincount(conn.ravel(), weights=(me[:, None] * Mref.sum(axis=1)[None, :]).ravel(), minlength=n)
+            return sp.diags(np.repeat(node_mass, 3)).tocsr()
+        rows = np.repeat(conn, 8, axis=1).ravel()
+        cols = np.tile(conn, (1, 8)).ravel()
+        vals = (me[:, None] * Mref.ravel()[None, :]).ravel()
+        Mn = sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
+        return sp.kron(Mn, sp.identity(3, format="csr"), format="csr")
+
+    def nodal_volumes(self) -> np.ndarray:
+        """Lumped volume (n,) of each node (m^3): an eighth of each adjacent voxel's (occupied) volume."""
+        conn = self.grid.element_nodes
+        return np.bincount(conn.ravel(), weights=np.repeat(self.element_volume / 8.0, 8), minlength=self.n_nodes)
+
+    def gravity_force(self, densities: Mapping[int, float], g) -> np.ndarray:
+        """Nodal gravity force (n, 3) in N: ``J^T (rho g vol)`` at the mass points."""
+        g = np.asarray(g, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise InputError(f"gravity must be 3 finite numbers (m/s^2), got {np.asarray(g).tolist()}")
+        me = self.element_masses(densities)
+        w, qw = self._mass_rule()
+        share = qw @ w  # (8,) integral of each weight over the unit cube
+        conn = self.grid.element_nodes
+        node_mass = np.bincount(conn.ravel(), weights=(me[:, None] * share[None, :]).ravel(), minlength=self.n_nodes)
+        return node_mass[:, None] * g[None, :]
+
+    # -- boundary ----------------------------------------------------------------
+    def boundary_quads(self):
+        """Voxel faces exposed to empty space.
+
+        Returns
+        -------
+        quads : (F, 4) int64
+            Nodes of each face, counter-clockwise seen from outside.
+        area : (F,) float (m^2)
+        centre : (F, 3) float, rest position (m)
+        normal : (F, 3) float, outward unit normal at rest
+        """
+        grid = self.grid
+        ijk = grid.element_ijk
+        shape = np.asarray(grid.shape)
+        nx, ny, nz = grid.shape
+        quads, normals, areas = [], [], []
+        flip = np.linalg.det(grid.direction) < 0
+        for a in range(3):
+            b, c = (a + 1) % 3, (a + 2) % 3
+            eb = np.eye(3, dtype=np.int64)[b]
+            ec = np.eye(3, dtype=np.int64)[c]
+            ea = np.eye(3, dtype=np.int64)[a]
+            for side in (-1, 1):
+                nb = ijk + side * ea
+                outside = np.any((nb < 0) | (nb >= shape), axis=1)
+                nbc = np.clip(nb, 0, shape - 1)
+                empty = outside | ~self._mask[nbc[:, 0], nbc[:, 1], nbc[:, 2]]
+                sel = ijk[empty]
+                if len(sel) == 0:
+                    continue
+                p0 = sel + (ea if side > 0 else 0)
+                corners = np.stack([p0, p0 + eb, p0 + eb + ec, p0 + ec], axis=1)  # (f, 4, 3)
+                if (side < 0) != flip:
+                    corners = corners[:, ::-1]
+                keys = (corners[..., 0] * (ny + 1) + corners[..., 1]) * (nz + 1) + corners[..., 2]
+                quads.append(np.searchsorted(grid.node_key, keys))
+                normal = side * grid.direction[:, a]
+                normals.append(np.broadcast_to(normal, (len(sel), 3)))
+                areas.append(np.full(len(sel), grid.spacing[b] * grid.spacing[c]))
+        quads = np.concatenate(quads).astype(np.int64)
+        centre = self.rest[quads].mean(axis=1)
+        return quads, np.concatenate(areas), centre, np.concatenate(normals).astype(float)
+
+    def boundary_surface(self):
+        """Triangulated boundary (faces exposed to empty space), outward orientation.
+
+        Returns
+        -------
+        vertices_rest : (V, 3) float
+        faces : (F, 3) int64, counter-clockwise seen from outside
+        vertex_node : (V,) int64
+            Node of each vertex: deformed vertices are ``q[vertex_node]``.
+        """
+        quads = self.boundary_quads()[0]
+        tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
+        vertex_node, faces = np.unique(tris, return_inverse=True)
+        faces = faces.reshape(-1, 3).astype(np.int64)
+        return self.rest[vertex_node].copy(), faces, vertex_node.astype(np.int64)
+
+    def nodes_in_box(self, lo, hi) -> np.ndarray:
+        """Indices of the nodes whose rest position lies in the box [lo, hi] (inclusive)."""
+        lo = np.asarray(lo, dtype=float)
+        hi = np.asarray(hi, dtype=float)
+        return np.flatnonzero(np.all((self.rest >= lo) & (self.rest <= hi), axis=1))
+
+    def rigid_modes(self) -> np.ndarray:
+        """(3n, 6) rigid-body modes (3 translations, 3 infinitesimal rotations about the centroid)."""
+        from .linear_solvers import rigid_body_modes
+
+        return rigid_body_modes(self.rest)
+
+
+__all__ = ["VoxelModel", "PointMapping", "tangent_is_constant", "CORNER_OFFSETS"]

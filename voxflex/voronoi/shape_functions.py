@@ -1,0 +1,294 @@
+"""Shape functions: the padded container and Shepard (inverse-distance) weights.
+
+A shape function spreads the motion of ``n`` nodes over ``m`` children (mass,
+collision or visual points, quadrature samples).  Child ``c`` depends on at most
+``P`` parent nodes; :class:`ShapeValues` stores, for every child, the parent
+indices (padded with ``-1``), the values ``w``, the gradients ``dw`` with
+respect to the child's rest position ``X`` and optionally the Hessians ``ddw``.
+Any shape function (Shepard, natural neighbours, trilinear voxel weights)
+produces one; the mappings of :mod:`voxflex.deform.mappings` consume it.
+
+Example
+-------
+>>> import numpy as np
+>>> nodes = np.array([[0.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
+>>> sv = shepard(np.array([[0.25, 0.25, 0.0]]), nodes)
+>>> float(sv.w.sum())
+1.0
+>>> sv.partition_of_unity_error() < 1e-12
+True
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["ShapeValues", "shepard"]
+
+
+@dataclass(frozen=True)
+class ShapeValues:
+    """Shape functions of ``m`` children (points or samples) on their parent nodes.
+
+    Parameters
+    ----------
+    index : (m, P) int array
+        Parent node indices of each child, padded with ``-1``.  A parent may
+        appear at most once per child.
+    w : (m, P) float array
+        Shape-function values (dimensionless), 0 where padded.
+    dw : (m, P, 3) float array
+        Gradients with respect to the child's rest position X (1/m), 0 where padded.
+    ddw : (m, P, 3, 3) float array or None
+        Hessians with respect to X (1/m²), symmetric, 0 where padded; optional
+        (needed only for the mapping to F and its gradient).
+    rest : (m, 3) float array
+        Rest positions X of the children (m).
+    n_nodes : int, optional
+        Number of nodes; when given, every index must be below it.
+
+    Raises
+    ------
+    InputError
+        On wrong shapes, non-finite values, indices out of range, repeated
+        parents, or non-zero values in padded slots.
+
+    Notes
+    -----
+    Arrays are stored as C-contiguous ``int64`` / ``float64`` (copied only when
+    needed).  Treat them as read-only.
+    """
+
+    index: np.ndarray
+    w: np.ndarray
+    dw: np.ndarray
+    ddw: np.ndarray | None
+    rest: np.ndarray
+    n_nodes: int | None = None
+
+    def __post_init__(self):
+        def _float(name, a):
+            try:
+                a = np.ascontiguousarray(a, dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise InputError(f"ShapeValues.{name} must be a float array ({exc})") from None
+            if not np.all(np.isfinite(a)):
+                raise InputError(f"ShapeValues.{name} has non-finite values; compute the shape functions away from singular points")
+            return a
+
+        index = np.asarray(self.index)
+        if index.ndim != 2 or not (np.issubdtype(index.dtype, np.integer) or index.size == 0):
+            raise InputError(f"ShapeValues.index must be an (m, P) integer array, got shape {index.shape} dtype {index.dtype}")
+        index = np.ascontiguousarray(index, dtype=np.int64)
+        m, P = index.shape
+        w = _float("w", self.w)
+        dw = _float("dw", self.dw)
+        rest = _float("rest", self.rest)
+        if w.shape != (m, P):
+            raise InputError(f"ShapeValues.w must have shape {(m, P)} like index, got {w.shape}")
+        if dw.shape != (m, P, 3):
+            raise InputError(f"ShapeValues.dw must have shape {(m, P, 3)}, got {dw.shape}")
+        if rest.shape != (m, 3):
+            raise InputError(f"ShapeValues.rest must have shape {(m, 3)} (one rest position per child), got {rest.shape}")
+        ddw = None
+        if self.ddw is not None:
+            ddw = _float("ddw", self.ddw)
+            if ddw.shape != (m, P, 3, 3):
+                raise InputError(f"ShapeValues.ddw must have shape {(m, P, 3, 3)} or be None, got {ddw.shape}")
+        if np.any(index < -1):
+            raise InputError("ShapeValues.index has entries below -1; pad with -1 only")
+        n_nodes = self.n_nodes
+        if n_nodes is not None:
+            n_nodes = int(n_nodes)
+            if n_nodes < 0:
+                raise InputError(f"ShapeValues.n_nodes must be >= 0, got {n_nodes}")
+            if index.size and index.max() >= n_nodes:
+                raise InputError(f"ShapeValues.index refers to node {int(index.max())} but there are only {n_nodes} nodes")
+        pad = index < 0
+        if np.any(w[pad] != 0) or np.any(dw[pad] != 0) or (ddw is not None and np.any(ddw[pad] != 0)):
+            raise InputError("ShapeValues: padded slots (index -1) must hold zero values, gradients and Hessians")
+        if P > 1 and m:
+            s = np.sort(index, axis=1)
+            if np.any((s[:, 1:] == s[:, :-1]) & (s[:, 1:] >= 0)):
+                raise InputError("ShapeValues.index repeats a parent within a child; merge the repeated entries")
+        object.__setattr__(self, "index", index)
+        object.__setattr__(self, "w", w)
+        object.__setattr__(self, "dw", dw)
+        object.__setattr__(self, "ddw", ddw)
+        object.__setattr__(self, "rest", rest)
+        object.__setattr__(self, "n_nodes", n_nodes)
+
+    @property
+    def m(self) -> int:
+        """Number of children."""
+        return self.index.shape[0]
+
+    @property
+    def n_parents(self) -> int:
+        """Padded number of parents per child, P."""
+        return self.index.shape[1]
+
+    @property
+    def has_hessians(self) -> bool:
+        return self.ddw is not None
+
+    def partition_of_unity_error(self) -> float:
+        """Largest deviation from a partition of unity over all children.
+
+        Returns ``max_c max(|Σ_a w_a - 1|, |Σ_a ∇w_a| * L, |Σ_a ∇∇w_a| * L²)``
+        where ``L`` is the extent of the children's rest positions (so that
+        every term is dimensionless); Hessian terms only when stored.
+        """
+        if self.m == 0:
+            return 0.0
+        ext = float(np.ptp(self.rest, axis=0).max()) if self.m > 1 else 1.0
+        L = ext if ext > 0 else 1.0
+        err = float(np.max(np.abs(self.w.sum(axis=1) - 1.0)))
+        err = max(err, float(np.max(np.abs(self.dw.sum(axis=1)))) * L)
+        if self.ddw is not None:
+            err = max(err, float(np.max(np.abs(self.ddw.sum(axis=1)))) * L * L)
+        return err
+
+    def linear_precision_error(self, node_positions) -> float:
+        """Largest deviation from reproducing linear fields, relative to the extent.
+
+        Linear precision means ``Σ_a w_a X_a = X``, ``Σ_a X_a ⊗ ∇w_a = I`` and
+        ``Σ_a X_a ⊗ ∇∇w_a = 0``; returns the max of these residuals made
+        dimensionless with the extent ``L`` of the children.
+        """
+        Xn = np.asarray(node_positions, dtype=np.float64)
+        if Xn.ndim != 2 or Xn.shape[1] != 3 or (self.m and self.index.max() >= len(Xn)):
+            raise InputError("node_positions must be an (n, 3) array covering every parent index")
+        if self.m == 0:
+            return 0.0
+        ext = float(np.ptp(self.rest, axis=0).max()) if self.m > 1 else 1.0
+        L = ext if ext > 0 else 1.0
+        Xa = np.where(self.index[..., None] >= 0, Xn[np.maximum(self.index, 0)], 0.0)
+        err = float(np.max(np.abs(np.einsum("mp,mpi->mi", self.w, Xa) - self.rest))) / L
+        G = np.einsum("mpi,mpj->mij", Xa, self.dw)
+        err = max(err, float(np.max(np.abs(G - np.eye(3)))))
+        if self.ddw is not None:
+            H = np.einsum("mpi,mpjk->mijk", Xa, self.ddw)
+            err = max(err, float(np.max(np.abs(H))) * L)
+        return err
+
+    def to_sparse(self, n_nodes: int | None = None):
+        """The values as a ``scipy.sparse.csr_matrix`` of shape (m, n_nodes)."""
+        import scipy.sparse as sp
+
+        n = self.n_nodes if n_nodes is None else int(n_nodes)
+        if n is None:
+            n = int(self.index.max()) + 1 if self.index.size else 0
+        mask = self.index >= 0
+        rows = np.broadcast_to(np.arange(self.m)[:, None], self.index.shape)[mask]
+        return sp.csr_matrix((self.w[mask], (rows, self.index[mask])), shape=(self.m, n))
+
+
+def shepard(points, nodes, *, power: float = 2.0, n_parents: int | None = None, hessians: bool = True) -> ShapeValues:
+    """Shepard (inverse-distance) weights of ``points`` on ``nodes``.
+
+    ``w_a(X) = g_a / Σ_b g_b`` with ``g_a = |X - X_a|^(-power)``, a partition of
+    unity, non-negative, interpolating (``w_a(X_b) = δ_ab``) but without linear
+    precision.
+
+    Parameters
+    ----------
+    points : (m, 3) float array
+        Rest positions X of the children (m).
+    nodes : (n, 3) float array
+        Rest positions X_a of the nodes (m).
+    power : float, keyword-only
+        Exponent, > 0 (default 2).  At a point coinciding with a node the
+        derivatives are the limits for ``power >= 2`` (gradients 0; Hessians
+        ``∓2 Σ g`` I for power 2, 0 above); for smaller powers they are
+        unbounded and set to 0 there.
+    n_parents : int, optional
+        Keep only the ``n_parents`` nearest nodes (renormalized Shepard, still
+        a partition of unity; the weights jump where the set of nearest nodes
+        changes).  Default: all nodes.
+    hessians : bool
+        Also compute the Hessians ``ddw``.
+
+    Returns
+    -------
+    ShapeValues
+        With ``P = n_parents`` (or ``n``), parents sorted by distance.
+
+    References
+    ----------
+    D. Shepard, "A two-dimensional interpolation function for irregularly-spaced
+    data", Proc. ACM National Conference, 1968.
+    """
+    X = np.asarray(points, dtype=np.float64)
+    Xn = np.asarray(nodes, dtype=np.float64)
+    if X.ndim != 2 or X.shape[1] != 3:
+        raise InputError(f"points must be an (m, 3) array, got shape {X.shape}")
+    if Xn.ndim != 2 or Xn.shape[1] != 3 or len(Xn) == 0:
+        raise InputError(f"nodes must be a non-empty (n, 3) array, got shape {Xn.shape}")
+    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Xn))):
+        raise InputError("points and nodes must be finite")
+    power = float(power)
+    if not power > 0:
+        raise InputError(f"power must be > 0, got {power}")
+    n = len(Xn)
+    k = n if n_parents is None else int(n_parents)
+    if not 1 <= k <= n:
+        raise InputError(f"n_parents must be between 1 and the number of nodes ({n}), got {n_parents}")
+    if k < n:
+        from scipy.spatial import cKDTree
+
+        _, idx = cKDTree(Xn).query(X, k=k)
+        idx = np.asarray(idx, dtype=np.int64).reshape(len(X), k)
+    else:
+        d2all = ((X[:, None, :] - Xn[None, :, :]) ** 2).sum(-1)
+        idx = np.argsort(d2all, axis=1, kind="stable").astype(np.int64)
+    w, dw, ddw = _shepard_impl(X, Xn[idx], power, hessians)
+    return ShapeValues(index=idx, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=n)
+
+
+def _shepard_impl(X, Xa, p, hessians):
+    """Shepard values, gradients and Hessians; X (m,3), Xa (m,P,3) parent positions."""
+    r = X[:, None, :] - Xa  # (m, P, 3)
+    d2 = (r * r).sum(-1)  # (m, P)
+    hit = d2 == 0.0
+    rows_hit = hit.any(axis=1)
+    d2s = np.where(hit, 1.0, d2)
+    g = d2s ** (-0.5 * p)  # |r|^-p
+    gp = -p * d2s ** (-0.5 * p - 1.0)  # coefficient of r in grad g
+    dg = gp[..., None] * r
+    S = g.sum(1)
+    w = g / S[:, None]
+    dS = dg.sum(1)
+    dw = (dg - w[..., None] * dS[:, None, :]) / S[:, None, None]
+    ddw = None
+    if hessians:
+        I = np.eye(3)
+        gpp = p * (p + 2.0) * d2s ** (-0.5 * p - 2.0)
+        ddg = gp[..., None, None] * I + gpp[..., None, None] * r[..., :, None] * r[..., None, :]
+        ddS = ddg.sum(1)
+        ddw = (
+            ddg
+            - dw[..., :, None] * dS[:, None, None, :]
+            - dS[:, None, :, None] * dw[..., None, :]
+            - w[..., None, None] * ddS[:, None]
+        ) / S[:, None, None, None]
+    if np.any(rows_hit):
+        # the child sits on a node: w = delta, and the limits of the derivatives
+        hw = hit[rows_hit]
+        w[rows_hit] = hw.astype(np.float64)
+        dw[rows_hit] = 0.0
+        if ddw is not None:
+            if p == 2.0:
+                # w_a ≈ 1 - |r|² G, w_b ≈ |r|² g_b near node a, with G = Σ_{b≠a} g_b
+                gother = np.where(hw, 0.0, ((Xa[rows_hit] - X[rows_hit][:, None, :]) ** 2).sum(-1))
+                gother = np.where(hw, 0.0, 1.0 / np.where(hw, 1.0, gother))
+                G = gother.sum(1)
+                coef = np.where(hw, -2.0 * G[:, None], 2.0 * gother)
+                ddw[rows_hit] = coef[..., None, None] * np.eye(3)
+            else:
+                ddw[rows_hit] = 0.0
+    return w, dw, ddw
