@@ -42,3 +42,12 @@ def test_tradeoff_is_reported_as_not_implemented(capsys, tmp_path):
 def test_unknown_public_name():
     with pytest.raises(AttributeError):
         voxflex.does_not_exist  # noqa: B018
+
+
+def test_public_functions_are_not_shadowed_by_their_modules():
+    # importing the implementing modules must not replace vf.simulate / vf.render
+    import voxflex.rendering  # noqa: F401
+    import voxflex.simulation  # noqa: F401
+
+    assert voxflex.simulate.__name__ == "simulate" and callable(voxflex.simulate)
+    assert voxflex.render.__name__ == "render" and callable(voxflex.render)

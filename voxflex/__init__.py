@@ -25,9 +25,9 @@ _LAZY = {
     "material": "voxflex.deform",
     "strain": "voxflex.deform",
     "Scene": "voxflex.scene",
-    "simulate": "voxflex.simulate",
+    "simulate": "voxflex.simulation",
     "Result": "voxflex.result",
-    "render": "voxflex.render",
+    "render": "voxflex.rendering",
 }
 
 __all__ = ["__version__", "VoxflexError", "InputError", "ConvergenceError", *_LAZY]

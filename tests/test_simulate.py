@@ -1,0 +1,124 @@
+"""vf.simulate: scene -> image -> model -> solver -> Result, against closed forms."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import voxflex as vf
+from voxflex.errors import InputError
+from voxflex.image import LabelImage
+from voxflex.scene import (
+    ElasticitySpec,
+    FixedSpec,
+    LoadSpec,
+    MaterialSpec,
+    NodesSpec,
+    ObjectSpec,
+    ProbeSpec,
+    Scene,
+    SolverSpec,
+)
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+# sliding supports on the three faces through the origin (uniaxial stress states are exact)
+SLIDING = (
+    FixedSpec(max=(1e-6, 1e9, 1e9), components="x"),
+    FixedSpec(max=(1e9, 1e-6, 1e9), components="y"),
+    FixedSpec(max=(1e9, 1e9, 1e-6), components="z"),
+)
+
+
+def test_two_materials_in_series_from_an_image_file(tmp_path):
+    """A bar [0,2]x[0,1]x[0,1]: label 1 on x < 1 (E1), label 2 on x > 1 (E2), nu = 0,
+    pulled by a total force F on the face x = 2.  Uniaxial stress F/A in both parts,
+    so the end moves by F (L1/E1 + L2/E2) / A exactly (a linear field is in the
+    trilinear space)."""
+    labels = np.ones((4, 2, 2), np.uint8)
+    labels[2:] = 2
+    LabelImage(labels, spacing=(0.5, 0.5, 0.5)).save(tmp_path / "bar.npz")
+    E1, E2, F = 1e4, 3e4, 100.0
+    scene = Scene(
+        object=ObjectSpec(image=str(tmp_path / "bar.npz")),
+        materials=(
+            MaterialSpec(label=1, model="hooke", young=E1, poisson=0.0),
+            MaterialSpec(label=2, model="hooke", young=E2, poisson=0.0),
+        ),
+        elasticity=ElasticitySpec(strain="linear"),
+        fixed=SLIDING,
+        loads=(LoadSpec(kind="force", vector=(F, 0.0, 0.0), min=(2 - 1e-6, -1e9, -1e9)),),
+        probes=(ProbeSpec("interface", (1.0, 0.5, 0.5)), ProbeSpec("end", (2.0, 1.0, 1.0))),
+    )
+    result = vf.simulate(scene, progress=False)
+    u_interface = result.probes["interface"][-1] - result.probes["interface"][0]
+    u_end = result.probes["end"][-1] - result.probes["end"][0]
+    # Newton's relative residual tolerance is 1e-8 and the problem is linear: 1e-8 relative
+    assert u_interface[0] == pytest.approx(F / E1, rel=1e-8)
+    assert u_end[0] == pytest.approx(F / E1 + F / E2, rel=1e-8)
+    assert abs(u_end[1]) < 1e-12 and abs(u_end[2]) < 1e-12  # nu = 0: no lateral contraction
+    # elastic energy = work / 2 = F u / 2 for a linear problem
+    assert result.energy_elastic[-1] == pytest.approx(F * u_end[0] / 2, rel=1e-8)
+    assert result.n_voxels == 16 and set(np.unique(result.image_labels)) == {1, 2}
+
+
+def test_output_file_from_the_scene_and_probe_shape(tmp_path):
+    scene = Scene.from_toml(EXAMPLES / "cantilever.toml")
+    scene = replace(scene, output=replace(scene.output, file=str(tmp_path / "c.h5")))
+    result = vf.simulate(scene, progress=False)
+    assert (tmp_path / "c.h5").exists()
+    loaded = vf.Result.load(tmp_path / "c.h5")
+    np.testing.assert_array_equal(loaded.probes["tip"], result.probes["tip"])
+    assert result.probes["tip"].shape == (2, 3)
+    # the 8x2x2 reference of scikit-fem / warp.fem / sfepy, 1e-5 relative
+    assert result.probes["tip"][-1, 2] - 0.5 == pytest.approx(-0.339310, rel=1e-5)
+    # the scene text in the result reads back to the same scene
+    assert Scene.from_toml_text(result.scene) == scene
+
+
+def test_not_implemented_parts_say_so():
+    scene = Scene.from_toml(EXAMPLES / "cantilever.toml")
+    with pytest.raises(NotImplementedError, match="affine-frame models are not implemented"):
+        vf.simulate(replace(scene, nodes=NodesSpec(kind="affine")), progress=False)
+    with pytest.raises(NotImplementedError, match="elaston"):
+        vf.simulate(replace(scene, elasticity=ElasticitySpec(quadrature="elaston")), progress=False)
+    with pytest.raises(InputError, match="shape_function"):
+        vf.simulate(replace(scene, nodes=NodesSpec(shape_function="shepard")), progress=False)
+
+
+def test_bad_scenes_are_input_errors(tmp_path):
+    scene = Scene.from_toml(EXAMPLES / "cantilever.toml")
+    with pytest.raises(InputError, match=r"label 2 does not occur in the image"):
+        vf.simulate(replace(scene, materials=scene.materials + (MaterialSpec(label=2),)), progress=False)
+    with pytest.raises(InputError):  # a probe outside the material
+        vf.simulate(replace(scene, probes=(ProbeSpec("far", (10.0, 0.5, 0.5)),)), progress=False)
+    with pytest.raises(InputError, match="Scene or a scene file"):
+        vf.simulate(42)
+
+
+def test_midpoint_quadrature_and_dynamics_layers():
+    """A free block falling under gravity with backward Euler and mid-point quadrature.
+    Uniform gravity on a free body is a rigid translation (no strain, so hourglass modes
+    of the one-point rule are not excited): v_n = n h g, x_n - x_0 = g h^2 n (n + 1) / 2,
+    kinetic energy = M |v_n|^2 / 2 with M = rho * volume."""
+    rho, h, n, g = 2.0, 0.01, 3, -9.81
+    scene = Scene(
+        object=ObjectSpec(shape="box", size=(2.0, 1.0, 1.0), voxel_size=0.5),
+        materials=(MaterialSpec(model="hooke", young=1e4, poisson=0.3, density=rho),),
+        elasticity=ElasticitySpec(quadrature="midpoint", strain="linear"),
+        loads=(LoadSpec(kind="gravity", vector=(0.0, 0.0, g)),),
+        solver=SolverSpec(kind="implicit-euler", dt=h, steps=n),
+        probes=(ProbeSpec("corner", (2.0, 1.0, 1.0)),),
+    )
+    result = vf.simulate(scene, progress=False)
+    np.testing.assert_allclose(result.time, [0.0, 0.01, 0.02, 0.03], rtol=0, atol=1e-15)
+    k = np.arange(n + 1)
+    drop = result.probes["corner"][:, 2] - 1.0
+    # one Newton step per time step on a linear problem: round-off only (1e-12 absolute)
+    np.testing.assert_allclose(drop, g * h**2 * k * (k + 1) / 2, rtol=0, atol=1e-12)
+    mass = rho * 2.0
+    np.testing.assert_allclose(result.energy_kinetic, mass * (k * h * g) ** 2 / 2, rtol=1e-9, atol=1e-15)
+    assert np.all(np.abs(result.energy_elastic) < 1e-18)  # no strain: the hourglass modes stay asleep

@@ -1,0 +1,380 @@
+"""Simulation results: the in-memory :class:`Result`, its HDF5 file and ParaView series.
+
+The HDF5 layout is the SPEC's result table, exactly (extra datasets/attrs may
+be added; readers ignore what they do not know):
+
+=========================================== ============ =======================================
+path                                        shape        meaning
+=========================================== ============ =======================================
+attrs ``voxflex_version``, ``scene``                     version string; the scene as TOML text
+``/time``                                   (T,)         time of each state (static: load factor)
+``/probes/NAME``                            (T, 3)       world position of each probe
+``/surface/rest``                           (V, 3)       rest positions of the surface vertices
+``/surface/faces``                          (F, 3)       triangles (int64)
+``/surface/positions``                      (T, V, 3)    deformed positions
+``/nodes/rest``, ``/nodes/state``           (n, d),      the DOFs (d = 3 for points, 12 for affine)
+                                            (T, n, d)
+``/energy/elastic``, ``/energy/kinetic``    (T,)         energies (J)
+``/stats/newton_iterations``,               (T,)         solver effort (step 0, the rest state, is 0)
+``/stats/step_seconds``
+``/image/labels`` + attrs ``spacing``,      (nx, ny, nz) the label image simulated
+``origin`` (+ ``direction``, extension)
+=========================================== ============ =======================================
+
+Extensions: root attr ``node_kind`` (``"voxel"``), attr ``format = "voxflex-result"``.
+Every dataset is gzip-compressed; the file is written atomically.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._atomic import atomic_path
+from ._version import __version__
+from .errors import InputError
+
+__all__ = ["Result", "describe_result"]
+
+_FORMAT = "voxflex-result"
+
+
+def _arr(name, value, ndim, last=None, dtype=float) -> np.ndarray:
+    a = np.asarray(value, dtype=dtype)
+    if a.ndim != ndim or (last is not None and a.shape[-1] != last):
+        want = f"{ndim}-D" + (f" with last axis {last}" if last is not None else "")
+        raise InputError(f"Result.{name} must be {want}, got shape {a.shape}")
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Result:
+    """Everything a simulation produced (same content as the result file).
+
+    Parameters
+    ----------
+    time : (T,) float
+        Time of each recorded state in s (static runs: the load factor, 0..1).
+    probes : dict name -> (T, 3) float
+        World positions of the probe points, metres.
+    surface_rest : (V, 3) float; surface_faces : (F, 3) int; surface_positions : (T, V, 3) float
+        The boundary surface (triangles) at rest and at every state.
+    nodes_rest : (n, d) float; nodes_state : (T, n, d) float
+        Degrees of freedom (d = 3 for voxel nodes).
+    energy_elastic, energy_kinetic : (T,) float
+        Joules.
+    newton_iterations : (T,) int; step_seconds : (T,) float
+        Solver effort per recorded state (the rest state: 0).
+    image_labels : (nx, ny, nz) int; image_spacing, image_origin : (3,) float; image_direction : (3, 3)
+        The label image simulated.
+    scene : str
+        The scene as TOML text.
+    version : str
+        The voxflex version that produced it.
+    node_kind : str
+        ``"voxel"`` (trilinear corner nodes) — or ``"affine"`` for reduced models.
+    """
+
+    time: np.ndarray
+    probes: dict
+    surface_rest: np.ndarray
+    surface_faces: np.ndarray
+    surface_positions: np.ndarray
+    nodes_rest: np.ndarray
+    nodes_state: np.ndarray
+    energy_elastic: np.ndarray
+    energy_kinetic: np.ndarray
+    newton_iterations: np.ndarray
+    step_seconds: np.ndarray
+    image_labels: np.ndarray
+    image_spacing: np.ndarray
+    image_origin: np.ndarray
+    image_direction: np.ndarray = field(default_factory=lambda: np.eye(3))
+    scene: str = ""
+    version: str = __version__
+    node_kind: str = "voxel"
+
+    def __post_init__(self):
+        s = object.__setattr__
+        time = _arr("time", self.time, 1)
+        T = time.shape[0]
+        if T == 0:
+            raise InputError("Result.time is empty; a result holds at least the rest state")
+        s(self, "time", time)
+        probes = {}
+        for name, pos in dict(self.probes).items():
+            p = _arr(f"probes['{name}']", pos, 2, 3)
+            if p.shape[0] != T or "/" in str(name):
+                raise InputError(f"probe '{name}' must have shape ({T}, 3) and a name without '/', got {p.shape}")
+            probes[str(name)] = p
+        s(self, "probes", probes)
+        s(self, "surface_rest", _arr("surface_rest", self.surface_rest, 2, 3))
+        s(self, "surface_faces", _arr("surface_faces", self.surface_faces, 2, 3, dtype=np.int64))
+        V = self.surface_rest.shape[0]
+        if self.surface_faces.size and (self.surface_faces.min() < 0 or self.surface_faces.max() >= V):
+            raise InputError(f"Result.surface_faces index vertices outside 0..{V - 1}")
+        s(self, "surface_positions", _arr("surface_positions", self.surface_positions, 3, 3))
+        if self.surface_positions.shape[:2] != (T, V):
+            raise InputError(f"Result.surface_positions must be ({T}, {V}, 3), got {self.surface_positions.shape}")
+        s(self, "nodes_rest", _arr("nodes_rest", self.nodes_rest, 2))
+        s(self, "nodes_state", _arr("nodes_state", self.nodes_state, 3))
+        if self.nodes_state.shape != (T, *self.nodes_rest.shape):
+            raise InputError(
+                f"Result.nodes_state must be ({T}, {', '.join(map(str, self.nodes_rest.shape))}), "
+                f"got {self.nodes_state.shape}"
+            )
+        for name, dtype in (
+            ("energy_elastic", float),
+            ("energy_kinetic", float),
+            ("newton_iterations", np.int64),
+            ("step_seconds", float),
+        ):
+            a = _arr(name, getattr(self, name), 1, dtype=dtype)
+            if a.shape != (T,):
+                raise InputError(f"Result.{name} must have shape ({T},), got {a.shape}")
+            s(self, name, a)
+        labels = np.asarray(self.image_labels)
+        if labels.ndim != 3 or not np.issubdtype(labels.dtype, np.integer):
+            raise InputError(f"Result.image_labels must be a 3-D integer array, got {labels.dtype} {labels.shape}")
+        labels = np.ascontiguousarray(labels)
+        labels.setflags(write=False)
+        s(self, "image_labels", labels)
+        s(self, "image_spacing", _arr("image_spacing", self.image_spacing, 1, 3))
+        s(self, "image_origin", _arr("image_origin", self.image_origin, 1, 3))
+        direction = np.asarray(self.image_direction, dtype=float)
+        if direction.shape != (3, 3):
+            raise InputError(f"Result.image_direction must be 3x3, got {direction.shape}")
+        s(self, "image_direction", direction)
+        s(self, "scene", str(self.scene))
+        s(self, "version", str(self.version))
+        s(self, "node_kind", str(self.node_kind))
+
+    # -- conveniences -----------------------------------------------------
+    @property
+    def n_steps(self) -> int:
+        """Number of recorded states T (the rest state included)."""
+        return int(self.time.shape[0])
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.nodes_rest.shape[0])
+
+    @property
+    def n_dofs(self) -> int:
+        return int(self.nodes_rest.size)
+
+    @property
+    def n_voxels(self) -> int:
+        return int(np.count_nonzero(self.image_labels))
+
+    def step_index(self, step: int) -> int:
+        """Normalize a step index (negative counts from the end); InputError when out of range."""
+        T = self.n_steps
+        if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or not -T <= step < T:
+            raise InputError(f"step {step!r} is out of range; this result has steps 0..{T - 1} (or -1 for the last)")
+        return int(step) % T
+
+    def displacement(self, step: int = -1) -> np.ndarray:
+        """Surface vertex displacements (V, 3) at ``step``, metres."""
+        return self.surface_positions[self.step_index(step)] - self.surface_rest
+
+    def probe_displacements(self, step: int = -1) -> dict:
+        """{name: (3,) displacement of each probe at ``step``} in metres."""
+        i = self.step_index(step)
+        return {k: v[i] - v[0] for k, v in self.probes.items()}
+
+    # -- HDF5 -------------------------------------------------------------
+    def save(self, path) -> Path:
+        """Write the result file (HDF5, the SPEC layout), atomically; returns the path."""
+        import h5py
+
+        path = Path(path)
+        comp = dict(compression="gzip", compression_opts=4, shuffle=True)
+
+        def put(group, name, data):
+            data = np.asarray(data)
+            if data.size == 0:
+                return group.create_dataset(name, data=data)
+            return group.create_dataset(name, data=data, chunks=True, **comp)
+
+        with atomic_path(path) as tmp:
+            with h5py.File(tmp, "w") as f:
+                f.attrs["voxflex_version"] = self.version
+                f.attrs["scene"] = self.scene
+                f.attrs["format"] = _FORMAT
+                f.attrs["node_kind"] = self.node_kind
+                put(f, "time", self.time)
+                g = f.create_group("probes")
+                for name, pos in self.probes.items():
+                    put(g, name, pos)
+                g = f.create_group("surface")
+                put(g, "rest", self.surface_rest)
+                put(g, "faces", self.surface_faces)
+                put(g, "positions", self.surface_positions)
+                g = f.create_group("nodes")
+                put(g, "rest", self.nodes_rest)
+                put(g, "state", self.nodes_state)
+                g = f.create_group("energy")
+                put(g, "elastic", self.energy_elastic)
+                put(g, "kinetic", self.energy_kinetic)
+                g = f.create_group("stats")
+                put(g, "newton_iterations", self.newton_iterations)
+                put(g, "step_seconds", self.step_seconds)
+                g = f.create_group("image")
+                d = put(g, "labels", self.image_labels)
+                d.attrs["spacing"] = self.image_spacing
+                d.attrs["origin"] = self.image_origin
+                d.attrs["direction"] = self.image_direction
+                g.attrs["spacing"] = self.image_spacing
+                g.attrs["origin"] = self.image_origin
+        return path
+
+    @classmethod
+    def load(cls, path) -> Result:
+        """Read a result file; InputError when the file is missing or not a voxflex result."""
+        import h5py
+
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"result file '{path}' not found; check the path")
+        try:
+            f = h5py.File(path, "r")
+        except OSError:
+            raise InputError(f"'{path}' is not an HDF5 file; give a result file written by 'voxflex simulate'") from None
+        with f:
+            required = ("time", "surface/rest", "surface/faces", "surface/positions", "nodes/rest", "nodes/state")
+            missing = [p for p in required if p not in f]
+            if "voxflex_version" not in f.attrs or missing:
+                what = f"lacks /{missing[0]}" if missing else "has no voxflex_version attribute"
+                raise InputError(
+                    f"'{path}' is not a voxflex result file ({what}); give a file written by 'voxflex simulate'"
+                )
+            T = f["time"].shape[0]
+
+            def get(name, default=None):
+                return f[name][()] if name in f else default
+
+            labels_ds = f["image/labels"] if "image/labels" in f else None
+            if labels_ds is not None:
+                labels = labels_ds[()]
+                spacing = labels_ds.attrs.get("spacing", f["image"].attrs.get("spacing", np.ones(3)))
+                origin = labels_ds.attrs.get("origin", f["image"].attrs.get("origin", np.zeros(3)))
+                direction = labels_ds.attrs.get("direction", np.eye(3))
+            else:
+                labels, spacing, origin, direction = np.zeros((1, 1, 1), np.uint8), np.ones(3), np.zeros(3), np.eye(3)
+            zeros = np.zeros(T)
+            return cls(
+                time=f["time"][()],
+                probes={k: v[()] for k, v in f["probes"].items()} if "probes" in f else {},
+                surface_rest=f["surface/rest"][()],
+                surface_faces=f["surface/faces"][()],
+                surface_positions=f["surface/positions"][()],
+                nodes_rest=f["nodes/rest"][()],
+                nodes_state=f["nodes/state"][()],
+                energy_elastic=get("energy/elastic", zeros),
+                energy_kinetic=get("energy/kinetic", zeros),
+                newton_iterations=get("stats/newton_iterations", zeros.astype(np.int64)),
+                step_seconds=get("stats/step_seconds", zeros),
+                image_labels=labels,
+                image_spacing=spacing,
+                image_origin=origin,
+                image_direction=direction,
+                scene=_text(f.attrs.get("scene", "")),
+                version=_text(f.attrs["voxflex_version"]),
+                node_kind=_text(f.attrs.get("node_kind", "voxel")),
+            )
+
+    # -- ParaView ---------------------------------------------------------
+    def export_vtk(self, target) -> Path:
+        """Write a ParaView time series: one ``.vtp`` per state plus a ``.pvd`` collection.
+
+        Parameters
+        ----------
+        target : path
+            A ``.pvd`` file (the ``.vtp`` files go beside it, named after it) or a
+            folder (created if missing; the collection is ``result.pvd`` inside).
+
+        Returns
+        -------
+        Path of the ``.pvd`` file.  Each ``.vtp`` holds the deformed surface with
+        point arrays ``displacement`` (V, 3) and ``displacement_magnitude`` (V,).
+        """
+        import pyvista as pv
+
+        target = Path(target)
+        if target.suffix.lower() == ".pvd":
+            folder, stem = target.parent if str(target.parent) else Path("."), target.stem
+        else:
+            if target.suffix and not target.is_dir():
+                raise InputError(f"VTK export target '{target}' must be a folder or a .pvd file")
+            folder, stem = target, "result"
+            folder.mkdir(parents=True, exist_ok=True)
+        if not folder.is_dir():
+            raise InputError(f"output folder '{folder}' does not exist; create it or choose another path")
+        faces = np.hstack([np.full((self.surface_faces.shape[0], 1), 3), self.surface_faces]).ravel()
+        entries = []
+        for t in range(self.n_steps):
+            name = f"{stem}_{t:04d}.vtp"
+            mesh = pv.PolyData(np.array(self.surface_positions[t]), faces=faces)
+            u = self.surface_positions[t] - self.surface_rest
+            mesh.point_data["displacement"] = u
+            mesh.point_data["displacement_magnitude"] = np.linalg.norm(u, axis=1)
+            with atomic_path(folder / name) as tmp:
+                mesh.save(str(tmp), binary=True)
+            entries.append((float(self.time[t]), name))
+        pvd = folder / f"{stem}.pvd"
+        with atomic_path(pvd) as tmp:
+            tmp.write_text(_pvd_xml(entries), encoding="utf-8")
+        return pvd
+
+
+def _pvd_xml(entries) -> str:
+    from xml.sax.saxutils import quoteattr
+
+    rows = "\n".join(
+        f'    <DataSet timestep="{t!r}" group="" part="0" file={quoteattr(name)}/>' for t, name in entries
+    )
+    return (
+        '<?xml version="1.0"?>\n'
+        '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
+        "  <Collection>\n"
+        f"{rows}\n"
+        "  </Collection>\n"
+        "</VTKFile>\n"
+    )
+
+
+def _text(value) -> str:
+    return value.decode("utf-8") if isinstance(value, bytes) else str(value)
+
+
+def describe_result(path) -> str:
+    """A short human-readable summary of a result file (used by ``voxflex info``)."""
+    r = Result.load(path)
+    T = r.n_steps
+    labels, counts = np.unique(r.image_labels[r.image_labels > 0], return_counts=True)
+    lines = [
+        f"result: {path} (voxflex {r.version})",
+        f"  image: {' x '.join(map(str, r.image_labels.shape))} voxels, spacing {r.image_spacing.tolist()} m, "
+        f"{r.n_voxels} occupied ({', '.join(f'label {a}: {b}' for a, b in zip(labels, counts))})",
+        f"  model: {r.node_kind} nodes, {r.n_nodes} nodes, {r.n_dofs} DOF; surface {r.surface_rest.shape[0]} vertices, "
+        f"{r.surface_faces.shape[0]} triangles",
+        f"  states: {T} (time {r.time[0]:g} .. {r.time[-1]:g}); Newton iterations {int(r.newton_iterations.sum())}, "
+        f"solve time {r.step_seconds.sum():.3g} s",
+        f"  energy at the end: elastic {r.energy_elastic[-1]:.6g} J, kinetic {r.energy_kinetic[-1]:.6g} J",
+        f"  max surface displacement at the end: {np.linalg.norm(r.displacement(-1), axis=1).max():.6g} m",
+    ]
+    for name, pos in r.probes.items():
+        u = pos[-1] - pos[0]
+        lines.append(
+            f"  probe {name}: rest {_fmt(pos[0])} -> final {_fmt(pos[-1])} (displacement {_fmt(u)})"
+        )
+    return "\n".join(lines)
+
+
+def _fmt(v) -> str:
+    return "[" + ", ".join(f"{x:.6g}" for x in v) + "]"

@@ -1,0 +1,763 @@
+"""Scenes: what to simulate, read from TOML or built in code.
+
+A scene mirrors the pipeline (see the SPEC's scene table): the object (a
+primitive shape, a surface mesh or a label image), one material per label, the
+nodes, the elasticity integration, fixed regions, loads, the solver, probes and
+the output file.  Each table is a frozen dataclass validated on construction;
+:meth:`Scene.from_toml` / :meth:`Scene.from_dict` validate at the edge (unknown
+tables and keys are errors with a did-you-mean and the valid names; wrong types
+and ranges name the table and the key) and :meth:`Scene.to_toml` writes a file
+that reads back to an equal scene.
+
+Example
+-------
+>>> from voxflex.scene import Scene, ObjectSpec, MaterialSpec
+>>> scene = Scene(object=ObjectSpec(shape="box", size=(4.0, 1.0, 1.0), voxel_size=0.25),
+...               materials=(MaterialSpec(model="hooke", young=1e4, poisson=0.3),))
+>>> Scene.from_toml_text(scene.to_toml()) == scene
+True
+
+Departures from the SPEC's defaults, stated honestly: ``[nodes] kind`` defaults
+to ``"voxel"`` (the reduced affine-frame models are not implemented yet) and
+``[elasticity] quadrature`` defaults to ``"gauss-legendre"`` (elastons belong to
+the affine models).  Extensions: a top-level ``title``; ``[object] axis`` for
+cylinders; ``[[material]]`` model constants (``mu``, ``lmbda``, ``c1``, ``c2``,
+``bulk``, ...) and a per-material ``strain``; ``[[load]] kind = "force"`` (a
+total force on a box region); ``[solver]`` ``tolerance``, ``max_iterations``,
+``line_search``, ``linear_solver``, ``rayleigh_mass``, ``rayleigh_stiffness``.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+
+from .errors import InputError, did_you_mean
+
+__all__ = [
+    "Scene",
+    "ObjectSpec",
+    "MaterialSpec",
+    "NodesSpec",
+    "ElasticitySpec",
+    "FixedSpec",
+    "LoadSpec",
+    "SolverSpec",
+    "ProbeSpec",
+    "OutputSpec",
+    "describe_scene",
+    "default_scene_path",
+]
+
+SHAPES = {"box": 3, "cylinder": 2, "sphere": 1}
+NODE_KINDS = ("voxel", "affine")
+SHAPE_FUNCTIONS = ("natural-neighbour", "shepard", "barycentric", "trilinear")
+QUADRATURES = ("midpoint", "gauss-legendre", "elaston")
+STRAIN_NAMES = (
+    "linear",
+    "green",
+    "corotational",
+    "corotational-svd",
+    "corotational-qr",
+    "corotational-small",
+    "invariant",
+    "invariant-deviatoric",
+    "principal-stretch",
+)
+LOAD_KINDS = ("gravity", "traction", "force")
+SOLVER_KINDS = ("static", "implicit-euler")
+LINEAR_SOLVERS = ("auto", "cholesky", "direct", "cg", "amg")
+# model-specific constants a [[material]] table may carry besides young/poisson
+MATERIAL_CONSTANTS = (
+    "mu",
+    "lmbda",
+    "bulk",
+    "c1",
+    "c2",
+    "alpha",
+    "alphas",
+    "mus",
+    "n",
+    "E1",
+    "E2",
+    "E3",
+    "nu12",
+    "nu13",
+    "nu23",
+    "G12",
+    "G13",
+    "G23",
+)
+_INF = math.inf
+
+
+# ---------------------------------------------------------------------------
+# small validators: every message names the table and the key
+# ---------------------------------------------------------------------------
+def _where(table: str, key: str) -> str:
+    return f"[{table}] {key}"
+
+
+def _number(table, key, value, *, positive=False, nonnegative=False, integer=False, minimum=None):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        kind = "an integer" if integer else "a number"
+        raise InputError(f"{_where(table, key)} must be {kind}, got {value!r}")
+    if integer:
+        if isinstance(value, float):
+            if not value.is_integer():
+                raise InputError(f"{_where(table, key)} must be an integer, got {value!r}")
+        value = int(value)
+    else:
+        value = float(value)
+        if math.isnan(value):
+            raise InputError(f"{_where(table, key)} must be a number, got nan")
+    if positive and not value > 0:
+        raise InputError(f"{_where(table, key)} must be > 0, got {value!r}")
+    if nonnegative and not value >= 0:
+        raise InputError(f"{_where(table, key)} must be >= 0, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise InputError(f"{_where(table, key)} must be >= {minimum}, got {value!r}")
+    if not integer and not positive and not nonnegative:
+        return value
+    if not integer and math.isinf(value):
+        raise InputError(f"{_where(table, key)} must be finite, got {value!r}")
+    return value
+
+
+def _vector(table, key, value, length=3, *, finite=True, positive=False) -> tuple[float, ...]:
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != length:
+        raise InputError(f"{_where(table, key)} must be a list of {length} numbers, got {value!r}")
+    out = []
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
+            raise InputError(f"{_where(table, key)} must be a list of {length} numbers, got {value!r}")
+        if finite and math.isinf(v):
+            raise InputError(f"{_where(table, key)} must be finite, got {value!r}")
+        if positive and not v > 0:
+            raise InputError(f"{_where(table, key)} must be > 0 everywhere, got {value!r}")
+        out.append(float(v))
+    return tuple(out)
+
+
+def _string(table, key, value, choices=None) -> str:
+    if not isinstance(value, str):
+        raise InputError(f"{_where(table, key)} must be a string, got {value!r}")
+    if choices is not None and value not in choices:
+        raise InputError(
+            f"{_where(table, key)}: unknown value '{value}'{did_you_mean(value, choices)}; "
+            f"valid: {', '.join(choices)}"
+        )
+    return value
+
+
+def _boolean(table, key, value) -> bool:
+    if not isinstance(value, bool):
+        raise InputError(f"{_where(table, key)} must be true or false, got {value!r}")
+    return value
+
+
+def _check_keys(table: str, data: dict, valid) -> None:
+    for key in data:
+        if key not in valid:
+            raise InputError(
+                f"unknown key '{key}' in [{table}]{did_you_mean(key, valid)}; valid keys: {', '.join(valid)}"
+            )
+
+
+def _valid_keys(cls) -> tuple[str, ...]:
+    return tuple(f.name for f in fields(cls) if not f.name.startswith("_"))
+
+
+# ---------------------------------------------------------------------------
+# the tables
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ObjectSpec:
+    """``[object]``: exactly one of ``shape`` / ``mesh`` / ``image``.
+
+    Parameters
+    ----------
+    shape : {"box", "cylinder", "sphere"}, optional
+        A primitive; ``size`` gives box lengths (3), cylinder ``[radius, length]``
+        or sphere ``[radius]``, in metres.
+    mesh, image : str, optional
+        Paths (absolute once read from a file: relative paths are resolved
+        against the scene file's folder).  A mesh is voxelized at ``voxel_size``;
+        an image is used as is (its own spacing and origin).
+    voxel_size : float, metres
+        Required for shape and mesh.
+    origin : (3,) float, metres
+        Lower corner of the shape's bounding box (shape only).
+    axis : {"x", "y", "z"}
+        Cylinder axis (extension; default "z").
+    """
+
+    shape: str | None = None
+    size: tuple[float, ...] | None = None
+    mesh: str | None = None
+    image: str | None = None
+    voxel_size: float | None = None
+    origin: tuple[float, float, float] | None = None
+    axis: str | None = None
+
+    def __post_init__(self):
+        t = "object"
+        given = [k for k in ("shape", "mesh", "image") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise InputError(
+                f"[object] needs exactly one of shape, mesh, image (got {', '.join(given) or 'none'}); "
+                "e.g. shape = \"box\" with size = [4.0, 1.0, 1.0]"
+            )
+        if self.shape is not None:
+            _string(t, "shape", self.shape, tuple(SHAPES))
+            if self.size is None:
+                raise InputError(f"[object] shape = \"{self.shape}\" needs size ({_size_help(self.shape)})")
+            n = SHAPES[self.shape]
+            if isinstance(self.size, (int, float)) and not isinstance(self.size, bool) and n == 1:
+                object.__setattr__(self, "size", (self.size,))
+            try:
+                size = _vector(t, "size", self.size, n, positive=True)
+            except InputError:
+                raise InputError(
+                    f"[object] size for shape \"{self.shape}\" must be {_size_help(self.shape)}, got {self.size!r}"
+                ) from None
+            object.__setattr__(self, "size", size)
+            if self.axis is not None:
+                _string(t, "axis", self.axis, ("x", "y", "z"))
+                if self.shape != "cylinder":
+                    raise InputError("[object] axis applies to shape = \"cylinder\" only; remove it")
+        else:
+            if self.size is not None:
+                raise InputError("[object] size applies to shape only; remove it for a mesh or an image")
+            if self.axis is not None:
+                raise InputError("[object] axis applies to shape = \"cylinder\" only; remove it")
+            if self.origin is not None:
+                raise InputError(
+                    "[object] origin applies to shape only (a mesh or an image keeps its own coordinates); remove it"
+                )
+            key = "mesh" if self.mesh is not None else "image"
+            _string(t, key, getattr(self, key))
+        if self.image is not None:
+            if self.voxel_size is not None:
+                raise InputError(
+                    "[object] voxel_size applies to shape and mesh only (an image keeps its own spacing); remove it"
+                )
+        else:
+            if self.voxel_size is None:
+                raise InputError("[object] needs voxel_size (metres) for a shape or a mesh, e.g. voxel_size = 0.1")
+            object.__setattr__(self, "voxel_size", _number(t, "voxel_size", self.voxel_size, positive=True))
+        if self.origin is not None:
+            object.__setattr__(self, "origin", _vector(t, "origin", self.origin))
+
+    @property
+    def source_kind(self) -> str:
+        """``"shape"``, ``"mesh"`` or ``"image"``."""
+        return "shape" if self.shape else ("mesh" if self.mesh else "image")
+
+
+def _size_help(shape: str) -> str:
+    return {
+        "box": "[lx, ly, lz]",
+        "cylinder": "[radius, length]",
+        "sphere": "[radius]",
+    }.get(shape, "a list of positive numbers")
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    """``[[material]]``: the material of one label.
+
+    ``young`` (Pa) and ``poisson`` in [0, 0.5) for every isotropic model, or the
+    model's own constants (``constants``, written as plain keys in TOML);
+    ``density`` in kg/m^3; ``strain`` overrides ``[elasticity] strain`` for this
+    label.
+    """
+
+    label: int = 1
+    model: str = "neo-hookean"
+    young: float | None = None
+    poisson: float | None = None
+    density: float = 1000.0
+    strain: str | None = None
+    constants: tuple[tuple[str, float], ...] = ()
+
+    def __post_init__(self):
+        t = "material"
+        label = _number(t, "label", self.label, integer=True)
+        if not 1 <= label <= 65535:
+            raise InputError(f"[material] label must be in 1..65535 (0 is empty space), got {label}")
+        object.__setattr__(self, "label", label)
+        _string(t, "model", self.model, _material_models())
+        if self.young is not None:
+            object.__setattr__(self, "young", _number(t, "young", self.young, positive=True))
+        if self.poisson is not None:
+            nu = _number(t, "poisson", self.poisson)
+            if not 0.0 <= nu < 0.5:
+                raise InputError(f"[material] poisson must be in [0, 0.5), got {nu!r}")
+            object.__setattr__(self, "poisson", nu)
+        object.__setattr__(self, "density", _number(t, "density", self.density, positive=True))
+        if self.strain is not None:
+            _string(t, "strain", self.strain, STRAIN_NAMES)
+        constants = dict(self.constants)
+        for name, value in constants.items():
+            _check_keys(t, {name: None}, MATERIAL_CONSTANTS)
+            if isinstance(value, list):
+                constants[name] = tuple(_number(t, name, v) for v in value)
+            else:
+                constants[name] = _number(t, name, value)
+        object.__setattr__(self, "constants", tuple(sorted(constants.items())))
+
+    def material_kwargs(self, default_strain: str | None = None) -> dict:
+        """Keyword arguments for :func:`voxflex.deform.materials.material` (besides the name)."""
+        kwargs = dict(self.constants)
+        if self.young is not None:
+            kwargs["young"] = self.young
+        if self.poisson is not None:
+            kwargs["poisson"] = self.poisson
+        strain = self.strain or default_strain
+        if strain is not None:
+            kwargs["strain"] = strain
+        return kwargs
+
+
+def _material_models() -> tuple[str, ...] | None:
+    """The registry's names when the materials module is importable (else no check here)."""
+    try:
+        from .deform.materials import MATERIALS
+    except ImportError:
+        return None
+    return tuple(MATERIALS)
+
+
+@dataclass(frozen=True)
+class NodesSpec:
+    """``[nodes]``: ``kind = "voxel"`` (trilinear nodes at voxel corners) or ``"affine"`` (frames).
+
+    The default is ``"voxel"`` — the SPEC's default ``"affine"`` names the
+    reduced model, which is not implemented yet.  ``count`` and
+    ``shape_function`` apply to affine frames (voxel nodes are trilinear;
+    ``None`` = the node kind's own: natural-neighbour for frames).
+    """
+
+    kind: str = "voxel"
+    count: int = 20
+    shape_function: str | None = None
+
+    def __post_init__(self):
+        _string("nodes", "kind", self.kind, NODE_KINDS)
+        object.__setattr__(self, "count", _number("nodes", "count", self.count, integer=True, minimum=1))
+        if self.shape_function is not None:
+            _string("nodes", "shape_function", self.shape_function, SHAPE_FUNCTIONS)
+
+
+@dataclass(frozen=True)
+class ElasticitySpec:
+    """``[elasticity]``: quadrature (default ``"gauss-legendre"``, 2x2x2 per voxel), samples, strain."""
+
+    quadrature: str = "gauss-legendre"
+    samples: int = 200
+    strain: str | None = None
+
+    def __post_init__(self):
+        _string("elasticity", "quadrature", self.quadrature, QUADRATURES)
+        object.__setattr__(self, "samples", _number("elasticity", "samples", self.samples, integer=True, minimum=1))
+        if self.strain is not None:
+            _string("elasticity", "strain", self.strain, STRAIN_NAMES)
+
+
+@dataclass(frozen=True)
+class FixedSpec:
+    """``[[fixed]]``: nodes whose rest position lies in the box [min, max] are held.
+
+    ``components`` holds only some (e.g. ``"x"`` for a sliding support);
+    ``transform`` (3x4 affine map, reached at the end of the run) moves the
+    region instead of holding it in place.
+    """
+
+    min: tuple[float, float, float] = (-_INF, -_INF, -_INF)
+    max: tuple[float, float, float] = (_INF, _INF, _INF)
+    components: str = "xyz"
+    transform: tuple[tuple[float, ...], ...] | None = None
+
+    def __post_init__(self):
+        t = "fixed"
+        lo = _vector(t, "min", self.min, finite=False)
+        hi = _vector(t, "max", self.max, finite=False)
+        if any(a > b for a, b in zip(lo, hi)):
+            raise InputError(f"[fixed] min must be <= max along every axis, got min={list(lo)} max={list(hi)}")
+        object.__setattr__(self, "min", lo)
+        object.__setattr__(self, "max", hi)
+        comp = _string(t, "components", self.components)
+        if not comp or any(c not in "xyz" for c in comp) or len(set(comp)) != len(comp):
+            raise InputError(f"[fixed] components must be a non-empty subset of \"xyz\" (e.g. \"x\"), got {comp!r}")
+        object.__setattr__(self, "components", "".join(c for c in "xyz" if c in comp))
+        if self.transform is not None:
+            rows = self.transform
+            if isinstance(rows, (str, bytes)) or not hasattr(rows, "__len__") or len(rows) != 3:
+                raise InputError(f"[fixed] transform must be a 3x4 matrix [[a,b,c,tx],[..],[..]], got {rows!r}")
+            object.__setattr__(self, "transform", tuple(_vector(t, "transform", r, 4) for r in rows))
+
+
+@dataclass(frozen=True)
+class LoadSpec:
+    """``[[load]]``: ``gravity`` (acceleration, m/s^2, on every label's density),
+    ``traction`` (Pa on the boundary faces inside [min, max]) or ``force``
+    (a total force in N spread over the nodes inside [min, max])."""
+
+    kind: str = "gravity"
+    vector: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    min: tuple[float, float, float] | None = None
+    max: tuple[float, float, float] | None = None
+
+    def __post_init__(self):
+        t = "load"
+        _string(t, "kind", self.kind, LOAD_KINDS)
+        object.__setattr__(self, "vector", _vector(t, "vector", self.vector))
+        if self.kind == "gravity":
+            if self.min is not None or self.max is not None:
+                raise InputError("[load] min/max apply to traction and force loads; gravity acts everywhere")
+        else:
+            lo = (-_INF,) * 3 if self.min is None else _vector(t, "min", self.min, finite=False)
+            hi = (_INF,) * 3 if self.max is None else _vector(t, "max", self.max, finite=False)
+            if self.min is None and self.max is None:
+                raise InputError(f"[load] kind = \"{self.kind}\" needs a region: give min and/or max")
+            if any(a > b for a, b in zip(lo, hi)):
+                raise InputError(f"[load] min must be <= max along every axis, got min={list(lo)} max={list(hi)}")
+            object.__setattr__(self, "min", lo)
+            object.__setattr__(self, "max", hi)
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    """``[solver]``: ``static`` (``steps`` load increments) or ``implicit-euler``
+    (``steps`` time steps of ``dt`` seconds), Newton ``tolerance`` (relative
+    residual), ``max_iterations``, ``line_search``, ``linear_solver``, Rayleigh damping."""
+
+    kind: str = "static"
+    dt: float = 0.01
+    steps: int = 1
+    tolerance: float = 1e-8
+    max_iterations: int = 50
+    line_search: bool = True
+    linear_solver: str = "auto"
+    rayleigh_mass: float = 0.0
+    rayleigh_stiffness: float = 0.0
+
+    def __post_init__(self):
+        t = "solver"
+        _string(t, "kind", self.kind, SOLVER_KINDS)
+        object.__setattr__(self, "dt", _number(t, "dt", self.dt, positive=True))
+        object.__setattr__(self, "steps", _number(t, "steps", self.steps, integer=True, minimum=1))
+        object.__setattr__(self, "tolerance", _number(t, "tolerance", self.tolerance, positive=True))
+        object.__setattr__(
+            self, "max_iterations", _number(t, "max_iterations", self.max_iterations, integer=True, minimum=1)
+        )
+        _boolean(t, "line_search", self.line_search)
+        _string(t, "linear_solver", self.linear_solver, LINEAR_SOLVERS)
+        object.__setattr__(self, "rayleigh_mass", _number(t, "rayleigh_mass", self.rayleigh_mass, nonnegative=True))
+        object.__setattr__(
+            self, "rayleigh_stiffness", _number(t, "rayleigh_stiffness", self.rayleigh_stiffness, nonnegative=True)
+        )
+
+
+@dataclass(frozen=True)
+class ProbeSpec:
+    """``[[probe]]``: a material point (world rest position, metres) recorded at every step."""
+
+    name: str
+    point: tuple[float, float, float]
+
+    def __post_init__(self):
+        name = _string("probe", "name", self.name)
+        if not name or "/" in name or name in {".", ".."}:
+            raise InputError(f"[probe] name must be a non-empty name without '/', got {name!r}")
+        object.__setattr__(self, "point", _vector("probe", "point", self.point))
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    """``[output]``: ``file`` — the result file (.h5) written after the run (resolved like mesh paths)."""
+
+    file: str | None = None
+
+    def __post_init__(self):
+        if self.file is not None:
+            _string("output", "file", self.file)
+
+
+_SINGLE = {
+    "object": ObjectSpec,
+    "nodes": NodesSpec,
+    "elasticity": ElasticitySpec,
+    "solver": SolverSpec,
+    "output": OutputSpec,
+}
+_ARRAYS = {"material": MaterialSpec, "fixed": FixedSpec, "load": LoadSpec, "probe": ProbeSpec}
+_TOP_KEYS = ("title", "object", "material", "nodes", "elasticity", "fixed", "load", "solver", "probe", "output")
+_FIELD = {"material": "materials", "fixed": "fixed", "load": "loads", "probe": "probes"}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A complete simulation set-up (see the module docstring and the SPEC's scene table).
+
+    Only ``object`` and at least one material are required.  ``base_dir`` is
+    the folder relative paths were resolved against (informational; not
+    compared, not written).
+    """
+
+    object: ObjectSpec
+    materials: tuple[MaterialSpec, ...]
+    nodes: NodesSpec = field(default_factory=NodesSpec)
+    elasticity: ElasticitySpec = field(default_factory=ElasticitySpec)
+    fixed: tuple[FixedSpec, ...] = ()
+    loads: tuple[LoadSpec, ...] = ()
+    solver: SolverSpec = field(default_factory=SolverSpec)
+    probes: tuple[ProbeSpec, ...] = ()
+    output: OutputSpec = field(default_factory=OutputSpec)
+    title: str | None = None
+    base_dir: str | None = field(default=None, compare=False)
+
+    def __post_init__(self):
+        if not isinstance(self.object, ObjectSpec):
+            raise InputError("Scene.object must be an ObjectSpec (the [object] table)")
+        for name, cls in (("materials", MaterialSpec), ("fixed", FixedSpec), ("loads", LoadSpec), ("probes", ProbeSpec)):
+            items = getattr(self, name)
+            if isinstance(items, cls):
+                items = (items,)
+            items = tuple(items)
+            if not all(isinstance(i, cls) for i in items):
+                raise InputError(f"Scene.{name} must be a sequence of {cls.__name__}")
+            object.__setattr__(self, name, items)
+        if not self.materials:
+            raise InputError("a scene needs at least one [[material]] table, e.g. model = \"neo-hookean\"")
+        labels = [m.label for m in self.materials]
+        dup = sorted({x for x in labels if labels.count(x) > 1})
+        if dup:
+            raise InputError(f"[[material]] label {dup[0]} is given more than once; give each label one material")
+        names = [p.name for p in self.probes]
+        dup = sorted({x for x in names if names.count(x) > 1})
+        if dup:
+            raise InputError(f"[[probe]] name '{dup[0]}' is used more than once; give each probe its own name")
+        if self.title is not None:
+            _string("scene", "title", self.title)
+
+    # -- reading ----------------------------------------------------------
+    @classmethod
+    def from_toml(cls, path) -> Scene:
+        """Read a scene file; relative paths in it are resolved against its folder."""
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"scene file '{path}' not found; check the path")
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"cannot read scene file '{path}': {exc}") from None
+        return cls.from_toml_text(text, base_dir=path.resolve().parent, source=str(path))
+
+    @classmethod
+    def from_toml_text(cls, text: str, *, base_dir=None, source: str = "scene") -> Scene:
+        """Parse scene TOML text (``base_dir``: folder for relative paths, default the current one)."""
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"{source} is not valid TOML: {exc}") from None
+        return cls.from_dict(data, base_dir=base_dir)
+
+    @classmethod
+    def from_dict(cls, d: dict, *, base_dir=None) -> Scene:
+        """Build a scene from parsed TOML (nested dicts/lists), validating every key."""
+        if not isinstance(d, dict):
+            raise InputError(f"a scene must be a table of tables, got {type(d).__name__}")
+        base = Path(base_dir) if base_dir is not None else Path.cwd()
+        _check_keys_top(d)
+        if "object" not in d:
+            raise InputError("the scene has no [object] table; add one, e.g. [object] shape = \"box\" ...")
+        if "material" not in d:
+            raise InputError("the scene has no [[material]] table; add one, e.g. [[material]] model = \"neo-hookean\"")
+        kwargs = {}
+        for name, spec in _SINGLE.items():
+            if name in d:
+                table = d[name]
+                if not isinstance(table, dict):
+                    raise InputError(f"[{name}] must be a table, got {type(table).__name__}")
+                kwargs[name] = _build(name, spec, table)
+        for name, spec in _ARRAYS.items():
+            if name in d:
+                tables = d[name]
+                if isinstance(tables, dict):  # [material] written as a single table
+                    tables = [tables]
+                if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+                    raise InputError(f"[[{name}]] must be one or more tables, e.g. [[{name}]] ...")
+                kwargs[_FIELD[name]] = tuple(_build(name, spec, t) for t in tables)
+        if "title" in d:
+            kwargs["title"] = _string("scene", "title", d["title"])
+        obj = kwargs["object"]
+        if obj.mesh is not None or obj.image is not None:
+            key = "mesh" if obj.mesh is not None else "image"
+            resolved = _resolve(base, getattr(obj, key))
+            if not Path(resolved).exists():
+                raise InputError(f"[object] {key} file '{getattr(obj, key)}' not found (looked for {resolved})")
+            kwargs["object"] = replace(obj, **{key: resolved})
+        if "output" in kwargs and kwargs["output"].file is not None:
+            kwargs["output"] = OutputSpec(file=_resolve(base, kwargs["output"].file))
+        return cls(**kwargs, base_dir=str(base))
+
+    # -- writing ----------------------------------------------------------
+    def to_toml(self) -> str:
+        """The scene as TOML text; :meth:`from_toml_text` reads it back to an equal scene."""
+        lines: list[str] = []
+        if self.title is not None:
+            lines += [f"title = {_toml_value(self.title)}", ""]
+        lines += _table("object", self.object)
+        for m in self.materials:
+            lines += _table("material", m, array=True)
+        lines += _table("nodes", self.nodes)
+        lines += _table("elasticity", self.elasticity)
+        for f in self.fixed:
+            lines += _table("fixed", f, array=True)
+        for ld in self.loads:
+            lines += _table("load", ld, array=True)
+        lines += _table("solver", self.solver)
+        for p in self.probes:
+            lines += _table("probe", p, array=True)
+        if self.output.file is not None:
+            lines += _table("output", self.output)
+        return "\n".join(lines).rstrip("\n") + "\n"
+
+    # -- conveniences -----------------------------------------------------
+    def material_for(self, label: int) -> MaterialSpec:
+        for m in self.materials:
+            if m.label == label:
+                return m
+        raise InputError(
+            f"label {label} has no [[material]]; add one with label = {label} "
+            f"(materials given for labels {', '.join(str(m.label) for m in self.materials)})"
+        )
+
+    @property
+    def gravity(self) -> tuple[float, float, float] | None:
+        """Sum of the gravity loads (m/s^2), or None without gravity."""
+        g = [ld.vector for ld in self.loads if ld.kind == "gravity"]
+        if not g:
+            return None
+        return tuple(float(sum(v[i] for v in g)) for i in range(3))
+
+
+def _check_keys_top(d: dict) -> None:
+    for key in d:
+        if key not in _TOP_KEYS:
+            raise InputError(
+                f"unknown table '[{key}]' in the scene{did_you_mean(key, _TOP_KEYS)}; "
+                f"valid: {', '.join(_TOP_KEYS)}"
+            )
+
+
+def _build(name: str, spec, table: dict):
+    valid = _valid_keys(spec)
+    if spec is MaterialSpec:
+        valid = tuple(k for k in valid if k != "constants") + MATERIAL_CONSTANTS
+        _check_keys(name, table, valid)
+        table = dict(table)
+        constants = tuple((k, table.pop(k)) for k in MATERIAL_CONSTANTS if k in table)
+        return spec(**table, constants=constants)
+    _check_keys(name, table, valid)
+    if spec is ProbeSpec:
+        for key in ("name", "point"):
+            if key not in table:
+                raise InputError(f"[probe] needs {key}, e.g. name = \"tip\", point = [4.0, 0.5, 0.5]")
+    return spec(**table)
+
+
+def _resolve(base: Path, path: str) -> str:
+    p = Path(path).expanduser()
+    return str(p if p.is_absolute() else (base / p).resolve())
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)  # shortest repr: reads back bit-exact
+    if isinstance(value, str):
+        escaped = (
+            value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t").replace("\r", "\\r")
+        )
+        return f'"{escaped}"'
+    if isinstance(value, (tuple, list)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+def _table(name: str, spec, *, array: bool = False) -> list[str]:
+    lines = [f"[[{name}]]" if array else f"[{name}]"]
+    for f in fields(spec):
+        value = getattr(spec, f.name)
+        if value is None:
+            continue
+        if f.name == "constants":
+            lines += [f"{k} = {_toml_value(v)}" for k, v in value]
+            continue
+        lines.append(f"{f.name} = {_toml_value(value)}")
+    lines.append("")
+    return lines
+
+
+# ---------------------------------------------------------------------------
+def default_scene_path() -> Path:
+    """The bundled default scene (``voxflex.data/default.toml``)."""
+    from importlib.resources import files
+
+    return Path(str(files("voxflex.data") / "default.toml"))
+
+
+def describe_scene(path) -> str:
+    """A short human-readable summary of a scene file (used by ``voxflex info``)."""
+    scene = Scene.from_toml(path)
+    o = scene.object
+    lines = [f"scene: {path}"]
+    if scene.title:
+        lines.append(f"  title: {scene.title}")
+    if o.shape:
+        where = f" at origin {list(o.origin)}" if o.origin else ""
+        extra = f", axis {o.axis}" if o.axis else ""
+        lines.append(f"  object: {o.shape} size {list(o.size)}{extra}{where}, voxel size {o.voxel_size:g} m")
+    elif o.mesh:
+        lines.append(f"  object: mesh {o.mesh}, voxel size {o.voxel_size:g} m")
+    else:
+        lines.append(f"  object: image {o.image}")
+    for m in scene.materials:
+        params = [f"{k}={v:g}" for k, v in (("E", m.young), ("nu", m.poisson)) if v is not None]
+        params += [f"{k}={v}" for k, v in m.constants]
+        strain = m.strain or scene.elasticity.strain
+        lines.append(
+            f"  material label {m.label}: {m.model} {' '.join(params)} density {m.density:g} kg/m^3"
+            + (f", strain {strain}" if strain else "")
+        )
+    lines.append(
+        f"  nodes: {scene.nodes.kind}"
+        + (f" ({scene.nodes.count} frames, {scene.nodes.shape_function or 'natural-neighbour'})" if scene.nodes.kind == "affine" else "")
+        + f"; quadrature {scene.elasticity.quadrature}"
+    )
+    for f in scene.fixed:
+        how = "moved by a transform" if f.transform is not None else f"held ({f.components})"
+        lines.append(f"  fixed: box {list(f.min)} .. {list(f.max)} {how}")
+    for ld in scene.loads:
+        region = "" if ld.kind == "gravity" else f" on box {list(ld.min)} .. {list(ld.max)}"
+        lines.append(f"  load: {ld.kind} {list(ld.vector)}{region}")
+    s = scene.solver
+    timing = f"{s.steps} time steps of {s.dt:g} s" if s.kind == "implicit-euler" else f"{s.steps} load steps"
+    lines.append(f"  solver: {s.kind}, {timing}, tolerance {s.tolerance:g}")
+    for p in scene.probes:
+        lines.append(f"  probe {p.name}: {list(p.point)}")
+    if scene.output.file:
+        lines.append(f"  output: {scene.output.file}")
+    return "\n".join(lines)
