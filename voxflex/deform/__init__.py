@@ -21,6 +21,17 @@ _LAZY = {
     "strain": "voxflex.deform.strains",
     "get_strain": "voxflex.deform.strains",
     "STRAINS": "voxflex.deform.strains",
+    "Points": "voxflex.deform.nodes",
+    "AffineFrames": "voxflex.deform.nodes",
+    "RigidFrames": "voxflex.deform.nodes",
+    "PointMapping": "voxflex.deform.mappings",
+    "DeformationGradientMapping": "voxflex.deform.mappings",
+    "DeformationGradientWithGradientMapping": "voxflex.deform.mappings",
+    "VoxelModel": "voxflex.deform.voxel_model",
+    "SolverOptions": "voxflex.deform.solvers",
+    "solve": "voxflex.deform.solvers",
+    "FixedRegion": "voxflex.deform.boundary",
+    "ForceRegion": "voxflex.deform.boundary",
 }
 
 __all__ = list(_LAZY)
