@@ -323,3 +323,21 @@ def test_bad_parameters(name, kw, match):
 def test_bad_F():
     with pytest.raises(InputError, match=r"\(n, 3, 3\)"):
         make("stvk").energy(np.eye(3))
+
+
+def test_constant_tangent_flag_matches_the_tangent():
+    """Only a quadratic law over an affine strain has dP/dF independent of F."""
+    rng = np.random.default_rng(3)
+    F1 = np.eye(3) + 0.2 * rng.standard_normal((2, 3, 3))
+    F2 = np.eye(3) + 0.2 * rng.standard_normal((2, 3, 3))
+    for name, strain, expected in [
+        ("hooke", "linear", True),
+        ("hooke", "green", False),
+        ("hooke", "corotational", False),
+        ("neo-hookean", None, False),
+        ("mooney-rivlin", None, False),
+    ]:
+        mat = material(name, young=1e4, poisson=0.3, strain=strain)
+        assert mat.constant_tangent is expected, (name, strain)
+        same = np.allclose(mat.tangent(F1), mat.tangent(F2), rtol=1e-12, atol=1e-9)
+        assert same is expected, (name, strain)

@@ -369,11 +369,14 @@ class Law:
         The strain measure it reads (one of :data:`STRAIN_KINDS`).
     size : int
         m, the length of a strain vector.
+    quadratic : bool
+        Whether W is a quadratic polynomial of e (constant tangent K).
     """
 
     strain_kind = "tensor"
     accepts = ("tensor",)
     size = 6
+    quadratic = False
     _kernel = None
     _twin = None
 
@@ -452,6 +455,7 @@ class HookeLaw(Law):
         Symmetric positive definite Voigt stiffness [Pa]; see
         :func:`isotropic_stiffness`, :func:`orthotropic_stiffness`.
     """
+    quadratic = True
 
     C: np.ndarray = field(default_factory=lambda: np.eye(6))
     strain_kind = "tensor"
@@ -564,6 +568,7 @@ class MooneyRivlinLaw(Law):
 
     Small-strain shear modulus ``2 (c1 + c2)``, bulk modulus ``bulk``.
     """
+    quadratic = True
 
     c1: float = 0.5
     c2: float = 0.0
@@ -604,6 +609,8 @@ class VolumeLogLaw(Law):
 @dataclass(frozen=True, eq=False)
 class VolumeQuadraticLaw(Law):
     """W = bulk/2 (J - 1)^2, J the third entry of an invariant strain (defined for any J)."""
+
+    quadratic = True
 
     bulk: float = 1.0
     strain_kind = "invariant"

@@ -204,6 +204,11 @@ class Material:
                 f"material '{self.name}' cannot use strain '{self.strain.name}' ({kind}); valid: {', '.join(valid)}"
             )
 
+    @property
+    def constant_tangent(self) -> bool:
+        """Whether dP/dF does not depend on F: a quadratic law over a strain affine in F."""
+        return bool(self.law.quadratic and getattr(self.strain, "constant_jacobian", False))
+
     def energy(self, F) -> np.ndarray:
         """Energy density W (n,) [Pa] of deformation gradients F (n, 3, 3)."""
         F = _check_F(F)

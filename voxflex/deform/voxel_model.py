@@ -50,16 +50,10 @@ CHUNK_ELEMENTS = 16384
 def tangent_is_constant(material) -> bool:
     """Whether ``material``'s tangent dP/dF does not depend on F (then its stiffness is cached).
 
-    Reads ``material.constant_tangent`` when the material declares it, else
-    recognises Hooke's law with linear (small) strain.
+    Reads ``material.constant_tangent``; objects that do not declare it are
+    treated as nonlinear (their stiffness is reassembled every iteration).
     """
-    flag = getattr(material, "constant_tangent", None)
-    if flag is not None:
-        return bool(flag() if callable(flag) else flag)
-    name = str(getattr(material, "name", "")).lower()
-    strain = getattr(material, "strain", "")
-    strain = str(getattr(strain, "name", strain)).lower()
-    return name in {"hooke", "linear"} and strain == "linear"
+    return bool(getattr(material, "constant_tangent", False))
 
 
 @dataclass(frozen=True, eq=False)
