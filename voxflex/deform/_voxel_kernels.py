@@ -12,17 +12,9 @@ Two kernels, each with a plain numpy twin used by the tests:
 
 from __future__ import annotations
 
-import os
+import numpy as np
 
-# numba's OpenMP threads busy-wait after each parallel kernel and starve OpenBLAS's threads on
-# small machines (a 243x243 Cholesky measured 0.37 s instead of 0.5 ms on 2 cores); passive
-# waiting removes the contention.  Effective when set before numba starts its thread pool;
-# a user's own setting wins.  (Belongs in voxflex/_jit.py; reported to the lead.)
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-import numpy as np  # noqa: E402
-
-from .._jit import njit, prange  # noqa: E402
+from .._jit import njit, prange
 
 
 @njit(parallel=True)
