@@ -485,3 +485,15 @@ def test_result_layout_with_geometry_on_the_labels_dataset(tmp_path):
     with h5py.File(tmp_path / "ours.h5", "r") as f:
         np.testing.assert_array_equal(f["image"].attrs["direction"], ROT)
         np.testing.assert_array_equal(f["image/labels"].attrs["direction"], ROT)
+
+
+def test_missing_format_reader_names_the_extra(tmp_path, monkeypatch):
+    # the format readers are the optional extra voxflex[images]; without one, say how to get it
+    import sys
+
+    monkeypatch.setitem(sys.modules, "nibabel", None)  # makes `import nibabel` raise ImportError
+    image = LabelImage(np.ones((2, 2, 2), dtype=np.uint8))
+    with pytest.raises(InputError, match=r"voxflex\[images\]") as exc:
+        image.save(tmp_path / "x.nii.gz")
+    assert "nibabel" in str(exc.value) and "\n" not in str(exc.value)
+    assert not list(tmp_path.iterdir())  # nothing half-written

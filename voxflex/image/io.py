@@ -73,6 +73,18 @@ from .._atomic import atomic_path
 from ..errors import InputError, did_you_mean
 from .label_image import LabelImage
 
+
+def _require(module: str, what: str):
+    """Import a format's reader, or say which extra installs it."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise InputError(
+            f"{what} files need the '{module}' package; install it with: pip install 'voxflex[images]'"
+        ) from None
+
 #: extension -> format name, longest extensions first so ``.nii.gz`` wins over ``.gz``
 FORMATS = {
     ".nii.gz": "NIfTI",
@@ -391,7 +403,7 @@ def _write_npz(image, path):
 
 # -- NIfTI ------------------------------------------------------------------------
 def _read_nifti(path):
-    import nibabel as nib
+    nib = _require("nibabel", "NIfTI")
 
     img = nib.load(str(path))
     if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
@@ -412,7 +424,7 @@ def _read_nifti(path):
 
 
 def _write_nifti(image, path):
-    import nibabel as nib
+    nib = _require("nibabel", "NIfTI")
 
     matrix, centre = _centre_affine(image)
     affine = np.eye(4)
@@ -438,7 +450,7 @@ _NRRD_SPACES = {
 
 
 def _read_nrrd(path):
-    import nrrd
+    nrrd = _require("nrrd", "NRRD")
 
     data, header = nrrd.read(str(path), index_order="F")
     data = np.asarray(data)
@@ -482,7 +494,7 @@ def _read_nrrd(path):
 
 
 def _write_nrrd(image, path):
-    import nrrd
+    nrrd = _require("nrrd", "NRRD")
 
     matrix, centre = _centre_affine(image)
     header = {
@@ -499,7 +511,7 @@ def _write_nrrd(image, path):
 
 # -- MetaImage (SimpleITK) --------------------------------------------------------------
 def _read_itk(path):
-    import SimpleITK as sitk
+    sitk = _require("SimpleITK", "MetaImage")
 
     img = sitk.ReadImage(str(path))
     n_comp = img.GetNumberOfComponentsPerPixel()
@@ -521,7 +533,7 @@ def _read_itk(path):
 
 
 def _write_itk(image, path):
-    import SimpleITK as sitk
+    sitk = _require("SimpleITK", "MetaImage")
 
     img = sitk.GetImageFromArray(np.ascontiguousarray(image.labels.transpose(2, 1, 0)))
     matrix, centre = _centre_affine(image)
@@ -547,7 +559,7 @@ def _write_itk(image, path):
 
 # -- TIFF ---------------------------------------------------------------------------
 def _read_tiff(path):
-    import tifffile
+    tifffile = _require("tifffile", "TIFF")
 
     with tifffile.TiffFile(str(path)) as tif:
         if not tif.series:
@@ -598,7 +610,7 @@ def _read_tiff(path):
 
 
 def _write_tiff(image, path):
-    import tifffile
+    tifffile = _require("tifffile", "TIFF")
 
     meta = {
         "axes": "ZYX",
