@@ -2,7 +2,10 @@
 
 For every measure, times ``evaluate(F)`` (E + dE/dF) and ``evaluate(F, s)``
 (+ geometric term) on n samples (default 1e5) of random F near identity, and
-prints samples per second for the numba kernel and the numpy twin.
+prints samples per second for the numba kernel and the numpy twin; then the
+3x3 SVD alone (``voxflex.deform._svd3``, Jacobi rotations, used by the polar,
+signed-SVD and principal-stretch kernels) against numpy's batched LAPACK SVD,
+with their worst reconstruction and orthogonality errors.
 
 Run:  python benchmarks/bench_strains.py [--n 100000] [--repeat 3]
 """
@@ -16,6 +19,7 @@ import time
 
 import numpy as np
 
+from voxflex.deform._svd3 import svd3
 from voxflex.deform.strains import STRAINS
 
 
@@ -63,6 +67,29 @@ def main(argv=None):
         t_jr = _best(lambda: st.evaluate_reference(F), 1)
         t_gr = _best(lambda: st.evaluate_reference(F, s), 1)
         print(f"{name:22s} {n / t_j:12.3g} {n / t_jr:12.3g} {n / t_g:12.3g} {n / t_gr:12.3g} {t_gr / t_g:10.1f}")
+    print()
+    svd_table(F, args.repeat)
+
+
+def _errors(F, U, sig, V):
+    """Worst |U diag(sig) V^T - F| / max|F| and worst |Q^T Q - I| of U and V."""
+    rec = np.abs(U * sig[:, None, :] @ np.swapaxes(V, 1, 2) - F).max(axis=(1, 2)) / np.abs(F).max(axis=(1, 2))
+    orth = max(np.abs(np.swapaxes(Q, 1, 2) @ Q - np.eye(3)).max() for Q in (U, V))
+    return rec.max(), orth
+
+
+def svd_table(F, repeat):
+    n = F.shape[0]
+    svd3(F[:2])  # compile outside the timing
+    head = f"{'3x3 SVD':28s} {'samples/s':>12s} {'max rec err':>12s} {'max orth err':>12s}"
+    print(head)
+    print("-" * len(head))
+    t = _best(lambda: svd3(F), repeat)
+    print(f"{'svd3 (Jacobi, numba)':28s} {n / t:12.3g} {_errors(F, *svd3(F))[0]:12.2g} {_errors(F, *svd3(F))[1]:12.2g}")
+    t = _best(lambda: np.linalg.svd(F), repeat)
+    U, sig, Vh = np.linalg.svd(F)
+    rec, orth = _errors(F, U, sig, np.swapaxes(Vh, 1, 2))
+    print(f"{'numpy.linalg.svd (batched)':28s} {n / t:12.3g} {rec:12.2g} {orth:12.2g}")
 
 
 if __name__ == "__main__":

@@ -114,6 +114,28 @@ def test_signed_svd_inverted_and_flat():
     np.testing.assert_allclose(np.einsum("kij,ij->k", J, v), fd, rtol=0, atol=1e-8 * np.abs(fd).max())
 
 
+@pytest.mark.parametrize("name", ["corotational", "corotational-svd"])
+@pytest.mark.parametrize("sig", [(1.2, 1.2, 0.9), (1.0, 1.0, 1.0), (1.3, 0.8, 0.8), (1.5, 1.0, -0.5)])
+def test_corotational_derivatives_at_repeated_singular_values(name, sig):
+    # the closed-form J and G divide by sig_p + sig_q only, so they stay exact where singular values
+    # coincide (where the SVD itself is not unique); the last case is inverted (signed SVD only:
+    # for polar it is a reflection with singular values (1.5, 1, 0.5), also smooth)
+    st = vs.get_strain(name)
+    R, Q = _rotation([0.3, -1.2, 2.0]), _rotation([-1.0, 0.4, 0.7])
+    F = R @ np.diag(sig) @ Q.T
+    rng = np.random.default_rng(4)
+    s, v = rng.standard_normal(6), rng.standard_normal((3, 3))
+    E, J, G = st.evaluate(F, s)
+    h = 1e-6
+    fd_e = (st.apply(F + h * v) - st.apply(F - h * v)) / (2 * h)
+    jts = [np.einsum("kij,k->ij", st.jacobian(F + t * v), s) for t in (h, -h)]  # J^T s at F +- h v
+    fd_g = (jts[0] - jts[1]) / (2 * h)
+    # central differences: O(h^2) truncation + O(1e-16/h) round-off ~ 1e-10; 1e-7 relative is safe and still
+    # catches any wrong term (those give O(1) errors)
+    np.testing.assert_allclose(np.einsum("kij,ij->k", J, v), fd_e, rtol=0, atol=1e-7 * np.abs(fd_e).max())
+    np.testing.assert_allclose(np.einsum("ijkl,kl->ij", G, v), fd_g, rtol=0, atol=1e-7 * np.abs(fd_g).max())
+
+
 REST = {"invariant": [3, 3, 1], "invariant-deviatoric": [3, 3, 1], "principal-stretch": [1, 1, 1]}
 
 
@@ -239,3 +261,49 @@ def test_gradient_apply_and_jacobian_any_measure(name):
     np.testing.assert_allclose(np.einsum("nkapq,npq->nka", K, v), fd, rtol=0, atol=1e-6 * np.abs(fd).max())
     with pytest.raises(NotImplementedError, match="third derivatives"):
         vs.geometric_with_gradient(st, F, dF, E, dE)
+
+
+# ----------------------------------------------------------------------------- principal stretch + law tangent
+def _stretch_law(sig):
+    """psi = mu sum (sig_i - 1)^2 + lam/2 (sum sig_i - 3)^2, symmetric in the stretches: (s, K) = (dpsi, d2psi)."""
+    mu, lam = 1.0, 2.0
+    s = 2 * mu * (sig - 1) + lam * (sig.sum(axis=-1, keepdims=True) - 3)
+    K = np.broadcast_to(2 * mu * np.eye(3) + lam, sig.shape[:-1] + (3, 3)).copy()
+    return s, K
+
+
+@pytest.mark.parametrize("sig", [(1.0, 1.0, 1.0), (1.2, 1.2, 0.9), (1.3, 0.8, 0.8), (1.4, 1.0, 0.7)])
+def test_stretch_geometric_with_law_tangent(sig):
+    # the full tangent A = J^T K J + G(s, K) of P(F) = sum_k s_k(sig) dsig_k/dF must match central differences
+    # of P, also where stretches coincide (P is smooth there for a symmetric law, the split is not)
+    st = vs.get_strain("principal-stretch")
+    R, Q = _rotation([0.3, -1.2, 2.0]), _rotation([-1.0, 0.4, 0.7])
+    F = R @ np.diag(sig) @ Q.T
+
+    def P(F):
+        e, J = st.evaluate(F)
+        return np.einsum("k,kij->ij", _stretch_law(e)[0], J)
+
+    e, J = st.evaluate(F)
+    s, K = _stretch_law(e)
+    G = st.geometric(F, s, law_tangent=K)
+    A = np.einsum("kij,kl,lmn->ijmn", J, K, J) + G
+    v = np.random.default_rng(6).standard_normal((3, 3))
+    h = 1e-6
+    fd = (P(F + h * v) - P(F - h * v)) / (2 * h)
+    # O(h^2) truncation + round-off / h ~ 1e-10; a missing coincident-pair term is O(1)
+    np.testing.assert_allclose(np.einsum("ijkl,kl->ij", A, v), fd, rtol=0, atol=1e-7 * np.abs(fd).max())
+    # kernel == numpy twin (LAPACK SVD) with the tangent too; compared on the full tangent A, since J and G
+    # alone depend on the basis chosen inside a repeated singular value, their sum does not (same
+    # formulas, different bases and rounding: 1e-12 relative)
+    er, Jr, Gr = st.evaluate_reference(F, s, law_tangent=K)
+    Ar = np.einsum("kij,kl,lmn->ijmn", Jr, _stretch_law(er)[1], Jr) + Gr
+    np.testing.assert_allclose(A, Ar, rtol=0, atol=1e-12 * np.abs(Ar).max())
+    # separated stretches do not use the law's tangent at all
+    if len(set(sig)) == 3:
+        np.testing.assert_array_equal(G, st.geometric(F, s))
+    else:  # without the law's tangent the coincident pairs lose their shear stiffness: visibly wrong
+        A0 = np.einsum("kij,kl,lmn->ijmn", J, K, J) + st.geometric(F, s)
+        assert np.abs(np.einsum("ijkl,kl->ij", A0, v) - fd).max() > 1e-2 * np.abs(fd).max()
+    with pytest.raises(InputError, match="law_tangent"):
+        st.geometric(F, s, law_tangent=np.eye(2))

@@ -42,7 +42,13 @@ where ``Xi`` is skew.  Both are the same "solve": split ``A`` into
   fails when F's columns are linearly dependent.
 
 E = sym(M) - I, so ``dE = sym(dM)`` and the geometric term is
-``S : d2M[e_ij, e_kl]`` for every pair of basis directions (45 solves).
+``S : d2M[e_ij, e_kl]`` for every pair of basis directions: 45 solves for QR
+(:func:`_corot_qr`); for polar / SVD the solves are done in closed form,
+reducing the 45 to one 9x9 bilinear form (:func:`_corot_polar`).
+
+The 3x3 SVDs come from :func:`voxflex.deform._svd3._svd3` (Jacobi rotations,
+no LAPACK call per sample); the numpy twins keep ``np.linalg.svd`` so that the
+tests compare two independent decompositions.
 """
 
 from __future__ import annotations
@@ -50,6 +56,8 @@ from __future__ import annotations
 import numpy as np
 
 from voxflex._jit import njit
+
+from ._svd3 import _svd3
 
 # private switches of the kernels below
 LINEAR, GREEN, SMALL = 0, 1, 2
@@ -216,8 +224,9 @@ def _corot_solve(method, A, sig, T, Tinv, Om, D, X):
 
 
 @njit(error_model="numpy")
-def _corot_kernel(F, s, method, want_j, want_g, E, J, G):
-    """E = sym(R^T F) - I with R from the polar decomposition, the signed SVD or QR."""
+def _corot_qr(F, s, want_j, want_g, E, J, G):
+    """E = sym(T) - I with F = R T (Gram-Schmidt), by the generic solves of the module docstring."""
+    method = QR
     n = F.shape[0]
     R = np.empty((3, 3))
     P = np.empty((3, 3))  # frame in which the solve is done (V or I)
@@ -240,61 +249,34 @@ def _corot_kernel(F, s, method, want_j, want_g, E, J, G):
     tmp2 = np.empty((3, 3))
     for e in range(n):
         f = F[e]
-        if method == QR:
-            # modified Gram-Schmidt on the columns: F = R T
-            for a in range(3):
-                for b in range(3):
-                    R[a, b] = f[a, b]
-                    T[a, b] = 0.0
-                    P[a, b] = 1.0 if a == b else 0.0
-            for c in range(3):
-                for d in range(c):
-                    dot = 0.0
-                    for a in range(3):
-                        dot += R[a, d] * R[a, c]
-                    T[d, c] = dot
-                    for a in range(3):
-                        R[a, c] -= dot * R[a, d]
-                nrm = np.sqrt(R[0, c] ** 2 + R[1, c] ** 2 + R[2, c] ** 2)
-                T[c, c] = nrm
+        # modified Gram-Schmidt on the columns: F = R T
+        for a in range(3):
+            for b in range(3):
+                R[a, b] = f[a, b]
+                T[a, b] = 0.0
+                P[a, b] = 1.0 if a == b else 0.0
+        for c in range(3):
+            for d in range(c):
+                dot = 0.0
                 for a in range(3):
-                    R[a, c] /= nrm
-            Tinv[0, 0] = 1.0 / T[0, 0]
-            Tinv[1, 1] = 1.0 / T[1, 1]
-            Tinv[2, 2] = 1.0 / T[2, 2]
-            Tinv[0, 1] = -T[0, 1] / (T[0, 0] * T[1, 1])
-            Tinv[1, 2] = -T[1, 2] / (T[1, 1] * T[2, 2])
-            Tinv[0, 2] = (T[0, 1] * T[1, 2] - T[0, 2] * T[1, 1]) / (T[0, 0] * T[1, 1] * T[2, 2])
+                    dot += R[a, d] * R[a, c]
+                T[d, c] = dot
+                for a in range(3):
+                    R[a, c] -= dot * R[a, d]
+            nrm = np.sqrt(R[0, c] ** 2 + R[1, c] ** 2 + R[2, c] ** 2)
+            T[c, c] = nrm
             for a in range(3):
-                for b in range(3):
-                    Mf[a, b] = T[a, b]
-                    Mw[a, b] = T[a, b]
-        else:
-            u, sv, vh = np.linalg.svd(np.ascontiguousarray(f))
-            for a in range(3):
-                sig[a] = sv[a]
-                for b in range(3):
-                    P[a, b] = vh[b, a]
-            if method == SVD:
-                # move reflections into the smallest singular value (Irving et al. 2004)
-                if _det3(u) < 0.0:
-                    for a in range(3):
-                        u[a, 2] = -u[a, 2]
-                    sig[2] = -sig[2]
-                if _det3(P) < 0.0:
-                    for a in range(3):
-                        P[a, 2] = -P[a, 2]
-                    sig[2] = -sig[2]
-            for a in range(3):
-                for b in range(3):
-                    acc = 0.0
-                    accm = 0.0
-                    for c in range(3):
-                        acc += u[a, c] * P[b, c]
-                        accm += P[a, c] * sig[c] * P[b, c]
-                    R[a, b] = acc
-                    Mw[a, b] = accm
-                    Mf[a, b] = sig[a] if a == b else 0.0
+                R[a, c] /= nrm
+        Tinv[0, 0] = 1.0 / T[0, 0]
+        Tinv[1, 1] = 1.0 / T[1, 1]
+        Tinv[2, 2] = 1.0 / T[2, 2]
+        Tinv[0, 1] = -T[0, 1] / (T[0, 0] * T[1, 1])
+        Tinv[1, 2] = -T[1, 2] / (T[1, 1] * T[2, 2])
+        Tinv[0, 2] = (T[0, 1] * T[1, 2] - T[0, 2] * T[1, 1]) / (T[0, 0] * T[1, 1] * T[2, 2])
+        for a in range(3):
+            for b in range(3):
+                Mf[a, b] = T[a, b]
+                Mw[a, b] = T[a, b]
         for k in range(6):
             a, b = _VA[k], _VB[k]
             E[e, k] = Mw[a, a] - 1.0 if a == b else Mw[a, b] + Mw[b, a]
@@ -353,6 +335,129 @@ def _corot_kernel(F, s, method, want_j, want_g, E, J, G):
                             v += Sf[a, b] * D2[a, b]
                     G[e, h1 // 3, h1 % 3, h2 // 3, h2 % 3] = v
                     G[e, h2 // 3, h2 % 3, h1 // 3, h1 % 3] = v
+
+
+@njit(error_model="numpy")
+def _corot_polar(F, s, signed, want_j, want_g, E, J, G):
+    """E = V diag(sig) V^T - I from the SVD F = U diag(sig) V^T (R = U V^T); closed forms.
+
+    The solves of the module docstring in the frame V, with ``A = outer(U[i], V[j])``
+    for the direction ``e_ij``, give per direction the rotation vector ``w``
+    (``Omega = [w]x``, ``w_r = Omega[r+2, r+1]``, indices mod 3) and the
+    symmetric ``D``; ``J`` is the Voigt vector of ``V D V^T``.  The geometric term
+    ``S : d2M[h1, h2]`` reduces to a bilinear form in (w, D)::
+
+        G[h1, h2] = w1 . K w2 - w1 . l(D2) - w2 . l(D1)
+
+    with ``Sh_pp = Sf_pp``, ``Sh_pq = 2 sig_p Sf_pq / (sig_p + sig_q)`` (``Sf = V^T S V``),
+    ``K = tr(Y) I - (Y + Y^T) / 2`` for ``Y = diag(sig) Sh^T``, and
+    ``l_r(D) = (Sh D)[r+2, r+1] - (Sh D)[r+1, r+2]``
+    (from ``[a]x [b]x = b a^T - (a . b) I`` and ``<Sh, [w]x D> = w . l(D)``).
+    """
+    n = F.shape[0]
+    U = np.empty((3, 3))
+    V = np.empty((3, 3))
+    sig = np.empty(3)
+    cinv = np.empty(3)  # 1 / (sig_p + sig_q) for the pair opposite to axis r
+    W = np.empty((6, 6))  # J_k = sum_m W[k, m] D_m, D_m in the order 00, 11, 22, 12, 20, 01
+    Dv = np.empty((9, 6))
+    w = np.empty((9, 3))
+    Sf = np.empty((3, 3))
+    Sh = np.empty((3, 3))
+    K = np.empty((3, 3))
+    Kw = np.empty((9, 3))
+    ell = np.empty((9, 3))
+    SD = np.empty((3, 3))
+    tmp = np.empty((3, 3))
+    Dm = np.empty((3, 3))
+    for e in range(n):
+        f = F[e]
+        _svd3(f, signed, U, sig, V)
+        for k in range(6):
+            a, b = _VA[k], _VB[k]
+            m = V[a, 0] * sig[0] * V[b, 0] + V[a, 1] * sig[1] * V[b, 1] + V[a, 2] * sig[2] * V[b, 2]
+            E[e, k] = m - 1.0 if a == b else 2.0 * m
+        if not (want_j or want_g):
+            continue
+        for r in range(3):
+            cinv[r] = 1.0 / (sig[(r + 1) % 3] + sig[(r + 2) % 3])
+        if want_j:
+            for k in range(6):
+                a, b = _VA[k], _VB[k]
+                fac = 1.0 if a == b else 2.0
+                for p in range(3):
+                    W[k, p] = fac * V[a, p] * V[b, p]
+                    p1, p2 = (p + 1) % 3, (p + 2) % 3
+                    W[k, 3 + p] = fac * (V[a, p1] * V[b, p2] + V[a, p2] * V[b, p1])
+        for i in range(3):
+            for j in range(3):
+                h = 3 * i + j
+                for p in range(3):
+                    Dv[h, p] = U[i, p] * V[j, p]
+                for r in range(3):
+                    p, q = (r + 1) % 3, (r + 2) % 3
+                    apq = U[i, p] * V[j, q]
+                    aqp = U[i, q] * V[j, p]
+                    # w_r = Omega[q, p] = (A_qp - A_pq) / (sig_p + sig_q)
+                    w[h, r] = (aqp - apq) * cinv[r]
+                    Dv[h, 3 + r] = (sig[p] * apq + sig[q] * aqp) * cinv[r]
+                if want_j:
+                    for k in range(6):
+                        acc = 0.0
+                        for m in range(6):
+                            acc += W[k, m] * Dv[h, m]
+                        J[e, k, i, j] = acc
+        if not want_g:
+            continue
+        _stress_matrix(s[e], Sf)
+        _matmul(Sf, V, tmp)
+        for a in range(3):
+            for b in range(a, 3):
+                acc = 0.0
+                for c in range(3):
+                    acc += V[c, a] * tmp[c, b]
+                Sf[a, b] = acc
+                Sf[b, a] = acc
+        trY = sig[0] * Sf[0, 0] + sig[1] * Sf[1, 1] + sig[2] * Sf[2, 2]
+        for a in range(3):
+            Sh[a, a] = Sf[a, a]
+            K[a, a] = trY - sig[a] * Sf[a, a]
+        for r in range(3):
+            p, q = (r + 1) % 3, (r + 2) % 3
+            Sh[p, q] = 2.0 * sig[p] * Sf[p, q] * cinv[r]
+            Sh[q, p] = 2.0 * sig[q] * Sf[p, q] * cinv[r]
+            K[p, q] = K[q, p] = -2.0 * sig[p] * sig[q] * Sf[p, q] * cinv[r]
+        for h in range(9):
+            for r in range(3):
+                Kw[h, r] = K[r, 0] * w[h, 0] + K[r, 1] * w[h, 1] + K[r, 2] * w[h, 2]
+            for p in range(3):
+                Dm[p, p] = Dv[h, p]
+            for r in range(3):
+                p, q = (r + 1) % 3, (r + 2) % 3
+                Dm[p, q] = Dm[q, p] = Dv[h, 3 + r]
+            for a in range(3):
+                for b in range(3):
+                    if a != b:
+                        SD[a, b] = Sh[a, 0] * Dm[0, b] + Sh[a, 1] * Dm[1, b] + Sh[a, 2] * Dm[2, b]
+            for r in range(3):
+                p, q = (r + 1) % 3, (r + 2) % 3
+                ell[h, r] = SD[q, p] - SD[p, q]
+        for h1 in range(9):
+            for h2 in range(h1, 9):
+                v = 0.0
+                for r in range(3):
+                    v += w[h2, r] * Kw[h1, r] - w[h1, r] * ell[h2, r] - w[h2, r] * ell[h1, r]
+                G[e, h1 // 3, h1 % 3, h2 // 3, h2 % 3] = v
+                G[e, h2 // 3, h2 % 3, h1 // 3, h1 % 3] = v
+
+
+@njit(error_model="numpy")
+def _corot_kernel(F, s, method, want_j, want_g, E, J, G):
+    """E = sym(R^T F) - I with R from the polar decomposition, the signed SVD or QR."""
+    if method == QR:
+        _corot_qr(F, s, want_j, want_g, E, J, G)
+    else:
+        _corot_polar(F, s, method == SVD, want_j, want_g, E, J, G)
 
 
 # ----------------------------------------------------------------------------- invariants
@@ -452,11 +557,24 @@ def _invariant_kernel(F, s, deviatoric, want_j, want_g, E, J, G):
 
 # ----------------------------------------------------------------------------- principal stretches
 @njit(error_model="numpy")
-def _stretch_kernel(F, s, gap, want_j, want_g, E, J, G):
-    """Singular values of F (descending); ``gap`` is the relative floor of divided differences."""
+def _stretch_kernel(F, s, gap, want_j, want_g, E, J, G, K):
+    """Singular values of F (descending); ``gap`` is the relative floor of divided differences.
+
+    ``K`` (n, 3, 3) is the law's tangent ds/dsig, or an empty (0, 3, 3) array: when given,
+    pairs closer than the floor use the limit ``(K_pp + K_qq)/2 - (K_pq + K_qp)/2`` of
+    ``(s_p - s_q)/(sig_p - sig_q)`` (exact for laws symmetric in the stretches).
+    """
     n = F.shape[0]
+    use_k = K.shape[0] > 0
+    u = np.empty((3, 3))
+    sv = np.empty(3)
+    v = np.empty((3, 3))
+    vh = np.empty((3, 3))
     for e in range(n):
-        u, sv, vh = np.linalg.svd(np.ascontiguousarray(F[e]))
+        _svd3(F[e], False, u, sv, v)
+        for a in range(3):
+            for b in range(3):
+                vh[a, b] = v[b, a]
         for k in range(3):
             E[e, k] = sv[k]
         if want_j:
@@ -482,7 +600,10 @@ def _stretch_kernel(F, s, gap, want_j, want_g, E, J, G):
                     else:
                         dm = min(dm, -floor)
                     dp = max(sv[p] + sv[q], floor)
-                    alpha = (s[e, p] - s[e, q]) / dm
+                    if use_k and abs(sv[p] - sv[q]) <= floor:
+                        alpha = 0.5 * (K[e, p, p] + K[e, q, q] - K[e, p, q] - K[e, q, p])
+                    else:
+                        alpha = (s[e, p] - s[e, q]) / dm
                     beta = (s[e, p] + s[e, q]) / dp
                     dg = 0.5 * (alpha + beta)  # coefficient of a_pq a_pq
                     od = 0.5 * (alpha - beta)  # coefficient of a_pq a_qp
@@ -665,8 +786,8 @@ def np_invariant(F, s, deviatoric):
     return E, J, out
 
 
-def np_stretch(F, s, gap):
-    """Numpy twin of :func:`_stretch_kernel`."""
+def np_stretch(F, s, gap, K=None):
+    """Numpy twin of :func:`_stretch_kernel` (``K``: the law's tangent (n, 3, 3) or None)."""
     U, sv, Vh = np.linalg.svd(F)
     J = np.einsum("nik,nkj->nkij", U, Vh)
     if s is None:
@@ -682,6 +803,10 @@ def np_stretch(F, s, gap):
             dm = np.maximum(dm, floor) if p < q else np.minimum(dm, -floor)
             dp = np.maximum(sv[:, p] + sv[:, q], floor)
             alpha = (s[:, p] - s[:, q]) / dm
+            if K is not None:
+                close = np.abs(sv[:, p] - sv[:, q]) <= floor
+                limit = 0.5 * (K[:, p, p] + K[:, q, q] - K[:, p, q] - K[:, q, p])
+                alpha = np.where(close, limit, alpha)
             beta = (s[:, p] + s[:, q]) / dp
             x = np.einsum("ni,nj->nij", U[:, :, p], Vh[:, q, :])
             y = np.einsum("nk,nl->nkl", U[:, :, q], Vh[:, p, :])

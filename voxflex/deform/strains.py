@@ -53,8 +53,11 @@ Degenerate cases
   ``max(sig_p - sig_q, STRETCH_GAP * sig_1)`` (STRETCH_GAP = 1e-8) as
   denominator, so it is exact for gaps above that floor and equals 0 when
   ``s_p = s_q`` exactly; for a smooth isotropic energy the true limit is
-  ``psi_pp - psi_pq`` which this split cannot recover from s alone -- use the
-  invariant measures for materials that reach coincident stretches.
+  ``psi_pp - psi_pq`` which this split cannot recover from s alone: pass the
+  law's tangent ``law_tangent = ds/dsig`` to :meth:`Strain.geometric` /
+  :meth:`Strain.evaluate` and pairs within the floor use
+  ``(K_pp + K_qq)/2 - (K_pq + K_qp)/2`` instead (exact for laws symmetric in
+  the stretches, e.g. at F = I).
 
 References
 ----------
@@ -146,7 +149,20 @@ class Strain:
         return self.name if self.size == 3 else "tensor"
 
     # -- compiled path ---------------------------------------------------------------
-    def _run(self, F, s, want_j, want_g):
+    def _check_law_tangent(self, K, n, single):
+        """law_tangent -> contiguous (n, m, m) for principal-stretch, an empty (0, m, m) when unused."""
+        m = self.size
+        if K is None or self.family != "stretch":
+            return np.empty((0, m, m))
+        K = np.asarray(K, dtype=np.float64)
+        if single and K.shape == (m, m):
+            K = K[None]
+        if K.shape != (n, m, m):
+            raise InputError(f"law_tangent must have shape ({n}, {m}, {m}) for strain '{self.name}', got {K.shape}; "
+                             "pass ds_k/de_l of the law, one (m, m) matrix per sample")
+        return np.ascontiguousarray(K)
+
+    def _run(self, F, s, want_j, want_g, law_tangent=None):
         F, single = _as_batch(F)
         n, m = F.shape[0], self.size
         E = np.empty((n, m))
@@ -161,8 +177,11 @@ class Strain:
             s = np.empty((0, m))
             G = np.empty((0, 3, 3, 3, 3))
         kernel = _KERNELS[self.family][0]
-        switch = self.switch if self.family == "stretch" else int(self.switch)
-        kernel(F, s, switch, want_j, want_g, E, J, G)
+        if self.family == "stretch":
+            K = self._check_law_tangent(law_tangent if want_g else None, n, single)
+            kernel(F, s, self.switch, want_j, want_g, E, J, G, K)
+        else:
+            kernel(F, s, int(self.switch), want_j, want_g, E, J, G)
         if single:
             return E[0], (J[0] if want_j else None), (G[0] if want_g else None)
         return E, (J if want_j else None), (G if want_g else None)
@@ -175,26 +194,35 @@ class Strain:
         """dE_k/dF_ij: (n, 3, 3) -> (n, m, 3, 3)."""
         return self._run(F, None, True, False)[1]
 
-    def geometric(self, F, s) -> np.ndarray:
-        """sum_k s_k d2E_k/dF_ij dF_kl: F (n, 3, 3), s (n, m) -> (n, 3, 3, 3, 3), symmetric in (ij), (kl)."""
-        return self._run(F, s, False, True)[2]
+    def geometric(self, F, s, *, law_tangent=None) -> np.ndarray:
+        """sum_k s_k d2E_k/dF_ij dF_kl: F (n, 3, 3), s (n, m) -> (n, 3, 3, 3, 3), symmetric in (ij), (kl).
 
-    def evaluate(self, F, s=None):
+        ``law_tangent`` (n, m, m), optional: the law's ``ds_k/de_l``.  Used only by
+        ``principal-stretch``, where it gives the exact limit at coincident
+        stretches (see the module docstring); ignored by the other measures,
+        whose geometric term is exact without it.
+        """
+        return self._run(F, s, False, True, law_tangent)[2]
+
+    def evaluate(self, F, s=None, *, law_tangent=None):
         """Fused E, dE/dF and, when ``s`` is given, the geometric term.
 
         Returns ``(E, J)`` or ``(E, J, G)`` with the shapes of :meth:`apply`,
-        :meth:`jacobian` and :meth:`geometric`.
+        :meth:`jacobian` and :meth:`geometric` (``law_tangent`` as in :meth:`geometric`).
         """
-        E, J, G = self._run(F, s, True, s is not None)
+        E, J, G = self._run(F, s, True, s is not None, law_tangent)
         return (E, J) if s is None else (E, J, G)
 
     # -- numpy twin (reference for the tests) ----------------------------------------------
-    def evaluate_reference(self, F, s=None):
+    def evaluate_reference(self, F, s=None, *, law_tangent=None):
         """Same as :meth:`evaluate`, computed by the plain numpy twin (slow, for tests)."""
         F, single = _as_batch(F)
-        sw = self.switch if self.family == "stretch" else int(self.switch)
         s2 = None if s is None else np.asarray(s, dtype=np.float64).reshape(F.shape[0], self.size)
-        E, J, G = _KERNELS[self.family][1](F, s2, sw)
+        if self.family == "stretch":
+            K = self._check_law_tangent(law_tangent if s is not None else None, F.shape[0], single)
+            E, J, G = _k.np_stretch(F, s2, self.switch, K if K.shape[0] else None)
+        else:
+            E, J, G = _KERNELS[self.family][1](F, s2, int(self.switch))
         if single:
             E, J, G = E[0], J[0], (None if G is None else G[0])
         return (E, J) if s is None else (E, J, G)
