@@ -89,6 +89,9 @@ def test_layout_matches_the_spec_after_a_real_simulation(cantilever):
                 assert f[name].compression == "gzip", name
         assert np.allclose(f["image/labels"].attrs["spacing"], [0.5, 0.5, 0.5])
         assert np.allclose(f["image/labels"].attrs["origin"], [0.0, 0.0, 0.0])
+        for where in (f["image"], f["image/labels"]):  # geometry on the group and on the dataset
+            assert np.allclose(where.attrs["direction"], np.eye(3))
+            assert np.allclose(where.attrs["spacing"], [0.5, 0.5, 0.5])
         assert np.issubdtype(f["surface/faces"].dtype, np.integer)
         np.testing.assert_array_equal(f["time"][()], [0.0, 1.0])  # static: load factors
         # the surface is the node set seen through vertex_node: positions agree with the node states

@@ -231,6 +231,7 @@ class Result:
                 d.attrs["direction"] = self.image_direction
                 g.attrs["spacing"] = self.image_spacing
                 g.attrs["origin"] = self.image_origin
+                g.attrs["direction"] = self.image_direction
         return path
 
     @classmethod
@@ -263,7 +264,7 @@ class Result:
                 labels = labels_ds[()]
                 spacing = labels_ds.attrs.get("spacing", f["image"].attrs.get("spacing", np.ones(3)))
                 origin = labels_ds.attrs.get("origin", f["image"].attrs.get("origin", np.zeros(3)))
-                direction = labels_ds.attrs.get("direction", np.eye(3))
+                direction = labels_ds.attrs.get("direction", f["image"].attrs.get("direction", np.eye(3)))
             else:
                 labels, spacing, origin, direction = np.zeros((1, 1, 1), np.uint8), np.ones(3), np.zeros(3), np.eye(3)
             zeros = np.zeros(T)
