@@ -192,6 +192,10 @@ class ObjectSpec:
         Lower corner of the shape's bounding box (shape only).
     axis : {"x", "y", "z"}
         Cylinder axis (extension; default "z").
+    occupancy : bool
+        Partial volume (extension; default false): shapes and meshes are
+        voxelized with occupancy fractions, and every voxel's volume and mass
+        are weighted by its fraction; an image uses the fractions it carries.
     """
 
     shape: str | None = None
@@ -201,9 +205,12 @@ class ObjectSpec:
     voxel_size: float | None = None
     origin: tuple[float, float, float] | None = None
     axis: str | None = None
+    occupancy: bool | None = None
 
     def __post_init__(self):
         t = "object"
+        if self.occupancy is not None:
+            _boolean(t, "occupancy", self.occupancy)
         given = [k for k in ("shape", "mesh", "image") if getattr(self, k) is not None]
         if len(given) != 1:
             raise InputError(

@@ -36,8 +36,9 @@ def build_image(scene: Scene):
         return LabelImage.load(obj.image)
     from .rasterize.voxelize import voxelize
 
+    occupancy = bool(obj.occupancy)
     if obj.mesh is not None:
-        return voxelize(obj.mesh, obj.voxel_size, progress=False)
+        return voxelize(obj.mesh, obj.voxel_size, occupancy=occupancy, progress=False)
     from .rasterize.primitives import Box, Cylinder, Sphere
 
     origin = obj.origin if obj.origin is not None else (0.0, 0.0, 0.0)
@@ -47,7 +48,7 @@ def build_image(scene: Scene):
         prim = Cylinder(obj.size[0], obj.size[1], origin=origin, axis=obj.axis or "z")
     else:
         prim = Sphere(obj.size[0], origin=origin)
-    return voxelize(prim, obj.voxel_size, progress=False)
+    return voxelize(prim, obj.voxel_size, occupancy=occupancy, progress=False)
 
 
 def build_materials(scene: Scene, labels_present) -> dict:
@@ -132,7 +133,9 @@ def simulate(scene, *, progress: bool = True, output=None) -> Result:
     image = build_image(scene)
     labels_present = np.unique(image.labels[image.labels > 0])
     materials = build_materials(scene, labels_present)
-    model = VoxelModel.from_image(image, materials, quadrature=scene.elasticity.quadrature)
+    model = VoxelModel.from_image(
+        image, materials, quadrature=scene.elasticity.quadrature, use_occupancy=bool(scene.object.occupancy)
+    )
 
     fixed = [
         FixedRegion(
