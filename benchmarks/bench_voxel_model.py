@@ -8,12 +8,18 @@ Problems (beam [0,4]x[0,1]x[0,1], x = 0 clamped, rho g = 9.81 along -z, nu = 0.3
 Each is timed end to end in voxflex and in scikit-fem (trilinear hexahedra,
 2x2x2 Gauss, the same linear solver so that the comparison isolates the model
 and assembly), columns build / assemble / solve / total, and the ratio.  Then
-the linear solvers on the 56k-DOF clamped stiffness matrix.
+the linear solvers on the 56k-DOF clamped stiffness matrix.  voxflex columns:
+build = model and sparsity pattern; assemble = one energy, gradient and
+Hessian at rest (for a constant-tangent material this is the cached stiffness
+that the solve then reuses, so total = what a user's run costs); solve =
+load steps, with every Newton assembly of a nonlinear material inside it.
 
-    python benchmarks/bench_voxel_model.py [--quick] [--colamd]
+    python benchmarks/bench_voxel_model.py [--quick] [--colamd] [--memory NXxNYxNZ]
 
 ``--quick`` runs 32x8x8 / 16x4x4 instead; ``--colamd`` adds scipy's default
-splu ordering (slow: ~40 s).
+splu ordering (slow: ~40 s); ``--memory 128x44x44`` only measures time and
+peak resident memory (``resource.getrusage``) of building, assembling and
+solving a linear beam of that many voxels (2.5e5 here) in this fresh process.
 """
 
 from __future__ import annotations
@@ -44,9 +50,10 @@ def voxflex_run(nx, mat, steps, linear_solver):
     model = VoxelModel.from_image(_beam_image(nx), {1: mat})
     model._ensure_pattern()
     t1 = time.perf_counter()
-    model.energy_gradient_hessian(model.rest)  # one assembly, timed alone (the solve assembles again)
+    # one assembly, timed alone; a constant stiffness is cached by the model, so the solve reuses it
+    # (a nonlinear material reassembles at every Newton iteration, inside "solve")
+    model.energy_gradient_hessian(model.rest)
     t2 = time.perf_counter()
-    model._constant_data = None  # the solve pays its own assembly, as a user's first run does
     rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81], densities={1: 1.0},
                 options=SolverOptions(steps=steps, linear_solver=linear_solver))
     t3 = time.perf_counter()
@@ -159,11 +166,52 @@ def solver_table(nx):
     return len(free), rows
 
 
+def memory_run(shape):
+    """Peak resident memory after each phase of the linear beam of ``shape`` voxels (fresh process)."""
+    import resource
+
+    from voxflex.deform.boundary import FixedRegion
+    from voxflex.deform.materials import material
+    from voxflex.deform.solvers import SolverOptions, solve
+    from voxflex.deform.voxel_model import VoxelModel
+    from voxflex.image.label_image import LabelImage
+
+    def peak():
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB -> MB on Linux
+
+    nx, ny, nz = shape
+    rows = [("start (python, numpy, scipy, numba imported)", 0.0, peak())]
+    t = time.perf_counter()
+    image = LabelImage(np.ones((nx, ny, nz), dtype=np.uint8), spacing=(4 / nx, 1 / ny, 1 / nz))
+    model = VoxelModel.from_image(image, {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
+    rows.append(("image + model", time.perf_counter() - t, peak()))
+    t = time.perf_counter()
+    model._ensure_pattern()
+    rows.append(("sparsity pattern", time.perf_counter() - t, peak()))
+    t = time.perf_counter()
+    H = model.hessian(model.rest)
+    rows.append(("stiffness (cached)", time.perf_counter() - t, peak()))
+    del H
+    t = time.perf_counter()
+    rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81], densities={1: 1.0},
+                options=SolverOptions(linear_solver="cg"))
+    rows.append((f"static solve (cg, {rec[-1].linear_iterations} iterations)", time.perf_counter() - t, peak()))
+    print(f"\n| linear beam {nx}x{ny}x{nz}: {model.n_elements} voxels, {3 * model.n_nodes} DOF | seconds | "
+          f"peak RSS MB |")
+    print("|---|---|---|")
+    for name, sec, mb in rows:
+        print(f"| {name} | {sec:.2f} | {mb:.0f} |", flush=True)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--colamd", action="store_true")
+    parser.add_argument("--memory", default="", metavar="NXxNYxNZ")
     args = parser.parse_args()
+    if args.memory:
+        memory_run(tuple(int(v) for v in args.memory.lower().split("x")))
+        return
     from voxflex.deform.materials import material
 
     nl, nn = (32, 16) if args.quick else (64, 32)

@@ -141,3 +141,39 @@ def test_non_convergence_and_bad_input_are_reported():
         SolverOptions(kind="explicit")
     with pytest.raises(InputError, match="linear solver"):
         SolverOptions(linear_solver="lu")
+
+
+def test_free_block_gather_equals_scipy_slicing_and_follows_pattern_changes():
+    import scipy.sparse as sp
+
+    from voxflex.deform.solvers import _FreeBlock
+
+    rng = np.random.default_rng(0)
+    N = 40
+    free = np.sort(rng.choice(N, 27, replace=False))
+    reduce = _FreeBlock(free, N)
+
+    def random_symmetric(density):
+        A = sp.random(N, N, density=density, random_state=rng, format="csr")
+        keep = np.ones(N)
+        keep[5] = 0.0  # an empty row and column
+        A = sp.csr_matrix(sp.diags(keep) @ (A + A.T) @ sp.diags(keep))
+        A.eliminate_zeros()
+        return A
+
+    A = random_symmetric(0.2)
+    B = random_symmetric(0.05)
+    cases = [
+        A,  # builds the map
+        sp.csr_matrix((rng.standard_normal(A.nnz), A.indices, A.indptr), shape=A.shape),  # same arrays: reuse
+        sp.csr_matrix((rng.standard_normal(A.nnz), A.indices.copy(), A.indptr.copy()), shape=A.shape),  # equal
+        B,  # another pattern: rebuild
+    ]
+    for M in cases:
+        # a gather of the same entries: exactly equal, structure included
+        got = reduce(M)
+        ref = M[free][:, free]
+        assert got.shape == ref.shape and (got != ref).nnz == 0
+        assert np.array_equal(got.toarray(), M.toarray()[np.ix_(free, free)])
+    with pytest.raises(ValueError, match="sorted"):
+        _FreeBlock(free[::-1], N)

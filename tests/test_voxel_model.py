@@ -198,3 +198,88 @@ def test_input_errors():
     model = VoxelModel.from_image(_image(), MATS)
     with pytest.raises(InputError, match="shape"):
         model.energy(np.zeros((3, 3)))
+
+
+def _random_image(seed=0, shape=(7, 6, 5), fill=0.45):
+    """Scattered occupancy (isolated voxels, holes, edge and corner contacts) with two labels."""
+    rng = np.random.default_rng(seed)
+    labels = np.where(rng.random(shape) < fill, rng.integers(1, 3, shape), 0).astype(np.uint8)
+    labels[0, 0, 0] = 1
+    labels[-1, -1, -1] = 2
+    occ = np.where(labels > 0, 0.2 + 0.8 * rng.random(shape), 0.0)
+    return LabelImage(labels, spacing=(0.3, 0.5, 0.2), occupancy=occ)
+
+
+@pytest.mark.parametrize("seed, fill", [(0, 0.45), (1, 0.15), (2, 1.0)])
+def test_grid_pattern_equals_the_sorting_reference(seed, fill):
+    grid = VoxelModel.from_image(_random_image(seed, fill=fill), {1: MATS[1], 2: MATS[2]}).grid
+    ref = kern.block_csr_pattern(grid.element_nodes, grid.n_nodes)
+    new = kern.grid_block_pattern(grid.element_nodes, grid.n_nodes)
+    # the same sparsity, block map and index types: exact equality, not a tolerance
+    for a, b in zip(ref, new):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+
+
+def test_scatter_kernel_matches_numpy_twin_with_shared_matrix_and_scale():
+    grid = VoxelModel.from_image(_random_image(3), {1: MATS[1], 2: MATS[2]}).grid
+    indptr, indices, indptr_b, blockmap = kern.grid_block_pattern(grid.element_nodes, grid.n_nodes)
+    rng = np.random.default_rng(4)
+    m = grid.n_elements
+    for Ke, scale in ((rng.standard_normal((m, 24, 24)), None), (rng.standard_normal((1, 24, 24)), rng.random(m))):
+        a = np.zeros(len(indices))
+        b = np.zeros(len(indices))
+        kern.scatter_blocks(Ke, grid.element_nodes, blockmap, indptr_b, a, scale=scale)
+        kern.scatter_blocks_numpy(Ke, grid.element_nodes, blockmap, indptr_b, b, scale=scale)
+        # same products summed in a different order: round-off of a few terms (1e-13 of the largest)
+        assert np.abs(a - b).max() <= 1e-13 * np.abs(b).max()
+
+
+def test_constant_stiffness_equals_per_element_assembly_with_occupancy():
+    image = _random_image(5)
+    hooke1 = material("hooke", young=1e4, poisson=0.3, strain="linear")
+    hooke2 = material("hooke", young=2e3, poisson=0.1, strain="linear")
+    model = VoxelModel.from_image(image, {1: hooke1, 2: hooke2})
+    oracle = VoxelModel.from_image(image, {1: _SmallStrainHooke(1e4, 0.3), 2: _SmallStrainHooke(2e3, 0.1)})
+    assert model.constant_tangent and not oracle.constant_tangent
+    q = _state(model)
+    E, g, H = model.energy_gradient_hessian(q)
+    Eo, go, Ho = oracle.energy_gradient_hessian(q)  # per-sample tangents, per-element 24x24 matrices
+    # one unit matrix x volume weight vs per-sample sums: round-off only (1e-12 relative)
+    assert abs(H - Ho).max() <= 1e-12 * abs(Ho).max()
+    # energy and gradient from the cached quadratic form E0 + g0.u + u.Ku/2 equal the sample sums
+    assert E == pytest.approx(Eo, rel=1e-12)
+    assert np.abs(g - go).max() <= 1e-12 * np.abs(go).max()
+    # a translated, unstrained body: the voxel-wise centred quadratic form keeps the energy at
+    # second-order round-off (strain ~1e-15 gives ~1e-26 of young * volume; a global u.Ku would
+    # leave eps |K| |u|^2 ~ 1e-13 of it), the forces at first-order round-off
+    volume = float(model.element_volume.sum())
+    Et, gt, _ = model.energy_gradient_hessian(model.rest + [30.0, -10.0, 20.0], hessian=False)
+    assert abs(Et) <= 1e-20 * 1e4 * volume
+    assert np.abs(gt).max() <= 1e-9 * np.abs(g).max()
+    Ku = model.unit_stiffness(1)
+    assert np.allclose(Ku, Ku.T, rtol=0, atol=1e-14 * np.abs(Ku).max())
+    # a rigid translation of one voxel is a zero mode of its unit stiffness
+    assert np.abs(Ku @ np.tile([1.0, -2.0, 0.5], 8)).max() <= 1e-12 * np.abs(Ku).max()
+    with pytest.raises(InputError, match="constant-tangent"):
+        VoxelModel.from_image(image, MATS).unit_stiffness(1)
+
+
+def test_mixed_constant_and_nonlinear_labels_match_finite_differences():
+    image = _random_image(6)
+    hooke = material("hooke", young=1e4, poisson=0.3, strain="linear")
+    model = VoxelModel.from_image(image, {1: hooke, 2: MATS[1]})
+    oracle = VoxelModel.from_image(image, {1: _SmallStrainHooke(1e4, 0.3), 2: MATS[1]})
+    q = _state(model, seed=2)
+    E, g, H = model.energy_gradient_hessian(q)
+    Eo, go, Ho = oracle.energy_gradient_hessian(q)
+    assert E == pytest.approx(Eo, rel=1e-12)  # round-off of two summation orders
+    assert np.abs(g - go).max() <= 1e-12 * np.abs(go).max()
+    assert abs(H - Ho).max() <= 1e-12 * abs(Ho).max()
+    v = np.random.default_rng(7).standard_normal(q.shape)
+    h = 1e-6
+    # central differences: truncation ~h^2 and round-off ~1e-16 E/h, both < 1e-7 relative
+    fd = (model.energy(q + h * v) - model.energy(q - h * v)) / (2 * h)
+    assert np.vdot(g, v) == pytest.approx(fd, rel=1e-7)
+    fdg = (model.gradient(q + h * v) - model.gradient(q - h * v)) / (2 * h)
+    Hv = (H @ v.ravel()).reshape(-1, 3)
+    assert np.linalg.norm(Hv - fdg) <= 1e-6 * np.linalg.norm(Hv)

@@ -12,8 +12,14 @@ and the energy, forces and stiffness are ``E = sum vol W(F)``,
 the weight gradients at the quadrature points are the same in every voxel, so
 ``J`` is never stored: a table ``G (Q, 8, 3)`` and the voxel connectivity
 replace it.  The Hessian is assembled by a compiled kernel straight into a CSR
-pattern computed once; contributions of materials whose tangent does not depend
-on F (Hooke with linear strain) are cached.
+pattern computed once from the grid structure (no sort).  Materials whose
+tangent does not depend on F (Hooke with linear strain) have a quadratic
+energy: every voxel of such a label has the same unit stiffness (24, 24) times
+its volume weight, assembled once and cached together with the energy and
+gradient at rest, so that ``dE/dq = g0 + K u`` (u = q - rest) costs one sparse
+product and ``E = E0 + g0 . u + u^T K u / 2`` one small product per voxel
+(on displacements relative to the voxel's mean, so that a translated body
+keeps round-off-free energy).
 
 Mid-point quadrature: one sample per voxel cannot see the voxel's hourglass
 motions (bilinear "checkerboard" modes), so the stiffness has zero modes
@@ -42,6 +48,7 @@ from ..errors import InputError, check_choice
 from ..sampling.quadrature import RULES, unit_cube_rule
 from ..voronoi.trilinear import CORNER_OFFSETS, TrilinearGrid, trilinear_weights
 from . import _voxel_kernels as kern
+from .linear_solvers import vdot
 
 CHUNK_ELEMENTS = 16384
 """Voxels evaluated per batch (bounds the memory of F, P, A: ~80 MB of tangents with 8 samples each)."""
@@ -97,6 +104,13 @@ class PointMapping:
         return np.einsum("mp,mpk->mk", v.w, q[idx])
 
 
+def _as_slice(ids):
+    """A slice for a run of consecutive element ids (views instead of copies), else ``ids``."""
+    if len(ids) and int(ids[-1]) - int(ids[0]) + 1 == len(ids):
+        return slice(int(ids[0]), int(ids[-1]) + 1)
+    return ids
+
+
 class VoxelModel:
     """Trilinear voxel model of a labelled image (see the module docstring).
 
@@ -129,12 +143,16 @@ class VoxelModel:
         self._local = local
         self._qweights = weights
         self._G = np.ascontiguousarray(grid.reference_gradients(local))  # (Q, 8, 3)
+        nq = len(weights)
+        # the same table as matrices for batched products: Gm[a, 3q + j] = Gf[3q + j, a] = G[q, a, j]
+        self._Gm = np.ascontiguousarray(self._G.transpose(1, 0, 2).reshape(8, 3 * nq))
+        self._Gf = np.ascontiguousarray(self._Gm.T)
         self._groups = []  # (label, element ids, constant tangent)
         for label in np.unique(self.element_label):
             ids = np.flatnonzero(self.element_label == label)
             self._groups.append((int(label), ids, tangent_is_constant(self.materials[int(label)])))
         self._pattern = None
-        self._constant_data = None
+        self._constant = None  # (data, E0, g0) of the constant-tangent groups, built on first use
 
     # -- construction -------------------------------------------------------
     @classmethod
@@ -216,17 +234,20 @@ class VoxelModel:
         return q
 
     # -- kinematics ------------------------------------------------------------
-    def _chunks(self, only_variable=False):
+    def _chunks(self, only_variable=False, only_constant=False):
         for label, ids, const in self._groups:
-            if only_variable and const:
+            if (only_variable and const) or (only_constant and not const):
                 continue
             for start in range(0, len(ids), CHUNK_ELEMENTS):
-                yield label, ids[start : start + CHUNK_ELEMENTS], const
+                yield label, _as_slice(ids[start : start + CHUNK_ELEMENTS]), const
 
     def _deformation_gradient(self, q, elements):
         """F (k * Q, 3, 3) at the samples of ``elements`` (element-major)."""
         X = q[self.grid.element_nodes[elements]]  # (k, 8, 3)
-        F = np.einsum("eai,qaj->eqij", X, self._G, optimize=True)
+        # F[e, q] = X[e]^T G[q] as one batch of small products: each stays single-threaded in BLAS
+        # (einsum's optimised path makes one large threaded product, 5-10x slower on a busy 2-core machine)
+        k = len(X)
+        F = np.matmul(X.transpose(0, 2, 1), self._Gm).reshape(k, 3, -1, 3).transpose(0, 2, 1, 3)
         return F.reshape(-1, 3, 3)
 
     def _sample_volumes(self, elements):
@@ -268,50 +289,129 @@ class VoxelModel:
         energy = 0.0
         grad = np.zeros((n, 3)) if gradient else None
         data = None
-        if hessian:
+        has_constant = any(const for _, _, const in self._groups)
+        if hessian or has_constant:
             self._ensure_pattern()
-            indptr, indices, indptr_b, blockmap = self._pattern
-            if self._constant_data is None and any(const for _, _, const in self._groups):
-                self._constant_data = self._assemble_constant(q)
-            data = self._constant_data.copy() if self._constant_data is not None else np.zeros(len(indices))
-        conn = self.grid.element_nodes
-        for label, elements, const in self._chunks():
-            mat = self.materials[label]
-            F = self._deformation_gradient(q, elements)
-            vol = self._sample_volumes(elements)
-            need_tangent = hessian and not const
-            W, P, A = mat.evaluate(F, tangent=need_tangent)
-            energy += float(np.dot(vol, W))
+        if has_constant:
+            data_c, E0, g0, units = self._constant_part()
+            u = q - self.rest
+            energy += E0 + vdot(g0.ravel(), u.ravel()) + self._constant_quadratic_energy(u, units)
             if gradient:
-                VP = (P * vol[:, None, None]).reshape(len(elements), -1, 3, 3)
-                fe = np.einsum("eqij,qaj->eai", VP, self._G, optimize=True)  # (k, 8, 3)
-                nodes = conn[elements].ravel()
-                for c in range(3):
-                    grad[:, c] += np.bincount(nodes, weights=fe[:, :, c].ravel(), minlength=n)
-            if need_tangent:
-                Ke = kern.element_stiffness(self._G, A, vol)
-                kern.scatter_blocks(Ke, conn[elements], blockmap[elements], indptr_b, data)
+                Hc = sp.csr_matrix((data_c, self._pattern[1], self._pattern[0]), shape=(3 * n, 3 * n))
+                grad += g0 + (Hc @ u.ravel()).reshape(n, 3)
+            if hessian:
+                data = data_c.copy()
+        if hessian and data is None:
+            data = np.zeros(len(self._pattern[1]))
+        energy += self._sample_pass(q, grad, data, only_variable=True)
         H = None
         if hessian:
+            indptr, indices = self._pattern[:2]
             H = sp.csr_matrix((data, indices, indptr), shape=(3 * n, 3 * n))
         return energy, grad, H
 
+    def _sample_pass(self, q, grad, data, *, only_variable=False, only_constant=False):
+        """Energy of the selected groups from their samples; adds their gradient into ``grad``
+        (n, 3) and their stiffness into the CSR ``data`` when those are not None."""
+        energy = 0.0
+        n = self.n_nodes
+        conn = self.grid.element_nodes
+        for label, elements, const in self._chunks(only_variable=only_variable, only_constant=only_constant):
+            mat = self.materials[label]
+            F = self._deformation_gradient(q, elements)
+            vol = self._sample_volumes(elements)
+            need_tangent = data is not None
+            W, P, A = mat.evaluate(F, tangent=need_tangent)
+            energy += vdot(vol, W)
+            if grad is not None:
+                VP = (P * vol[:, None, None]).reshape(-1, len(self._qweights), 3, 3)
+                k = len(VP)
+                VP = VP.transpose(0, 2, 1, 3).reshape(k, 3, -1)  # [e, i, 3q + j]
+                fe = np.matmul(VP, self._Gf).transpose(0, 2, 1)  # (k, 8, 3): sum_qj vol P_ij G_qaj
+                dof = (3 * conn[elements])[:, :, None] + np.arange(3)
+                grad += np.bincount(dof.ravel(), weights=fe.ravel(), minlength=3 * n).reshape(n, 3)
+            if need_tangent:
+                indptr_b, blockmap = self._pattern[2:]
+                Ke = kern.element_stiffness(self._G, A, vol)
+                kern.scatter_blocks(Ke, conn[elements], blockmap[elements], indptr_b, data)
+        return energy
+
+    def _constant_quadratic_energy(self, u, units) -> float:
+        """``u^T K u / 2`` of the constant-tangent groups, voxel by voxel (J).
+
+        Each voxel's displacements are taken relative to their mean first: the
+        unit stiffness annihilates translations, and removing them before the
+        products keeps the round-off second order in the strain (a global
+        ``u . K u`` makes a translated, unstrained body show eps |K| |u|^2 of energy).
+        """
+        energy = 0.0
+        conn = self.grid.element_nodes
+        for label, elements, const in self._chunks(only_constant=True):
+            ue = u[conn[elements]]  # (k, 8, 3)
+            ue = (ue - ue.mean(axis=1, keepdims=True)).reshape(len(ue), 1, 24)
+            Ke_u = np.matmul(ue, units[label])  # (k, 1, 24), a batch of small products
+            energy += 0.5 * vdot(self.element_volume[elements], np.einsum("eri,eri->e", ue, Ke_u))
+        return energy
+
     def _ensure_pattern(self):
         if self._pattern is None:
-            self._pattern = kern.block_csr_pattern(self.grid.element_nodes, self.n_nodes)
+            self._pattern = kern.grid_block_pattern(self.grid.element_nodes, self.n_nodes)
 
-    def _assemble_constant(self, q):
-        indptr, indices, indptr_b, blockmap = self._pattern
-        data = np.zeros(len(indices))
-        conn = self.grid.element_nodes
-        for label, elements, const in self._chunks():
-            if not const:
-                continue
-            F = self._deformation_gradient(q, elements)
-            _, _, A = self.materials[label].evaluate(F, tangent=True)
-            Ke = kern.element_stiffness(self._G, A, self._sample_volumes(elements))
-            kern.scatter_blocks(Ke, conn[elements], blockmap[elements], indptr_b, data)
-        return data
+    def unit_stiffness(self, label) -> np.ndarray:
+        """Stiffness (24, 24) of one voxel of constant-tangent ``label`` per unit volume weight (N/m^4).
+
+        Every voxel of the label has ``element_volume * unit_stiffness``
+        (DOF ``3 * corner + component``): the tangent and the gradient table
+        are the same in every voxel of a regular grid.
+        """
+        return self._unit_terms(label)[2]
+
+    def _unit_terms(self, label):
+        """Energy (J/m^3), forces (8, 3) (N/m^3) and stiffness (24, 24) of one voxel at rest per unit volume.
+
+        At rest F = I at every sample, so one evaluation of the material at the
+        Q quadrature points serves every voxel of the label.
+        """
+        label = int(label)
+        if label not in self.materials or not tangent_is_constant(self.materials[label]):
+            consts = [lab for lab, _, c in self._groups if c]
+            raise InputError(f"label {label} has no constant-tangent material; labels with one: {consts}")
+        F = np.broadcast_to(np.eye(3), (len(self._qweights), 3, 3)).copy()
+        W, P, A = self.materials[label].evaluate(F, tangent=True)
+        w0 = float(self._qweights @ W)
+        f0 = np.einsum("q,qij,qaj->ai", self._qweights, P, self._G)
+        return w0, f0, kern.element_stiffness(self._G, A, self._qweights)[0]
+
+    def _constant_part(self):
+        """Stiffness data, energy and gradient at rest, unit stiffness per label (constant-tangent groups, cached).
+
+        For a quadratic energy ``E(q) = E0 + g0 . u + u^T K u / 2`` exactly, with
+        ``E0``, ``g0`` the energy and gradient at rest (zero for a stress-free rest state).
+        """
+        if self._constant is None:
+            self._ensure_pattern()
+            _, indices, indptr_b, blockmap = self._pattern
+            data = np.zeros(len(indices))
+            conn = self.grid.element_nodes
+            n = self.n_nodes
+            E0 = 0.0
+            g0 = np.zeros(3 * n)
+            units = {}
+            for label, ids, const in self._groups:
+                if not const:
+                    continue
+                w0, f0, Ku = self._unit_terms(label)
+                units[label] = Ku
+                for start in range(0, len(ids), 4 * CHUNK_ELEMENTS):
+                    el = _as_slice(ids[start : start + 4 * CHUNK_ELEMENTS])
+                    vol = self.element_volume[el]
+                    kern.scatter_blocks(Ku[None], conn[el], blockmap[el], indptr_b, data, scale=vol)
+                    E0 += w0 * float(vol.sum())
+                    if np.any(f0 != 0.0):
+                        dof = (3 * conn[el])[:, :, None] + np.arange(3)
+                        g0 += np.bincount(dof.ravel(), weights=(vol[:, None, None] * f0).ravel(), minlength=3 * n)
+            self._constant = (data, E0, g0.reshape(n, 3), units)
+        return self._constant
 
     # -- points, mass, loads ---------------------------------------------------
     def point_mapping(self, points) -> PointMapping:
