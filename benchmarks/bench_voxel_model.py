@@ -5,8 +5,9 @@ Problems (beam [0,4]x[0,1]x[0,1], x = 0 clamped, rho g = 9.81 along -z, nu = 0.3
 1. linear (Hooke, small strain), E = 1e4, 64x16x16 voxels (56k DOF), one solve;
 2. large-deflection Neo-Hooke, E = 1e3, 32x8x8 voxels, 5 load steps, Newton.
 
-Each is timed end to end in voxflex and in scikit-fem (trilinear hexahedra,
-2x2x2 Gauss, the same linear solver so that the comparison isolates the model
+Each is timed end to end in voxflex, in scikit-fem and, when warp-lang is
+installed (``pip install warp-lang``; CPU is fine), in warp.fem (trilinear
+hexahedra, 2x2x2 Gauss, the same linear solver so that the comparison isolates the model
 and assembly), columns build / assemble / solve / total, and the ratio.  Then
 the linear solvers on the 56k-DOF clamped stiffness matrix.  voxflex columns:
 build = model and sparsity pattern; assemble = one energy, gradient and
@@ -221,24 +222,38 @@ def main():
     voxflex_run(8, material("neo-hookean", young=1e3, poisson=0.3), 1, "auto")
     hooke = material("hooke", young=1e4, poisson=0.3, strain="linear")
     nh = material("neo-hookean", young=1e3, poisson=0.3)
+    try:  # optional peer: warp.fem on the CPU (compiles its kernels once, timed apart)
+        from _warp_cantilever import warp_run
+    except ImportError:
+        warp_run = None
+        print("warp.fem: not installed (pip install warp-lang) - its rows are skipped")
     problems = [
         (f"linear {nl}x{nl // 4}x{nl // 4}", lambda: voxflex_run(nl, hooke, 1, "cg"),
-         lambda: skfem_run(nl, 1e4, 0.3, "linear", 1, "cg")),
+         lambda: skfem_run(nl, 1e4, 0.3, "linear", 1, "cg"),
+         lambda: warp_run(nl, 1e4, 0.3, "linear", 1, "cg")),
         (f"neo-hooke E=1e3 {nn}x{nn // 4}x{nn // 4} 5 steps", lambda: voxflex_run(nn, nh, 5, "auto"),
-         lambda: skfem_run(nn, 1e3, 0.3, "neo-hooke", 5, "direct")),
+         lambda: skfem_run(nn, 1e3, 0.3, "neo-hooke", 5, "direct"),
+         lambda: warp_run(nn, 1e3, 0.3, "neo-hooke", 5, "direct")),
     ]
     print("\n| problem | code | build s | assemble s | solve s | total s | newton | u_z tip | solver |")
     print("|---|---|---|---|---|---|---|---|---|")
-    for name, ours, theirs in problems:
+    compile_notes = []
+    for name, ours, skfem, warp in problems:
         res = {}
-        for code, fn in (("voxflex", ours), ("scikit-fem", theirs)):
+        codes = [("voxflex", ours), ("scikit-fem", skfem)] + ([("warp.fem", warp)] if warp_run else [])
+        for code, fn in codes:
             r = fn()
             r["total"] = r["build"] + r["assemble"] + r["solve"]
             res[code] = r
+            if "compile" in r:
+                compile_notes.append(f"{code} {name}: kernel compile/warm-up {r['compile']:.2f} s (not in total)")
             print(f"| {name} | {code} | {r['build']:.2f} | {r['assemble']:.2f} | {r['solve']:.2f} | {r['total']:.2f} | "
                   f"{r['newton']} | {r['uz']:.6f} | {r['solver']} |", flush=True)
-        print(f"| {name} | ratio scikit-fem / voxflex (total) | | | | {res['scikit-fem']['total'] / res['voxflex']['total']:.1f}x "
-              f"| | | |", flush=True)
+        for peer in [c for c, _ in codes[1:]]:
+            print(f"| {name} | ratio {peer} / voxflex (total) | | | | {res[peer]['total'] / res['voxflex']['total']:.1f}x "
+                  f"| | | |", flush=True)
+    for note in compile_notes:
+        print(note)
     n, rows = solver_table(nl)
     print(f"\n| linear solver on the {n}-DOF clamped beam stiffness | seconds | iterations | relative residual |")
     print("|---|---|---|---|")
