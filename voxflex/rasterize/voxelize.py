@@ -16,22 +16,27 @@ signed distance (< 0 inside).  Meshes use the generalized winding number
 (:mod:`voxflex.rasterize.winding`), inside where ``|w| > 0.5``, so that open
 meshes (holes, duplicated seams) and inverted meshes voxelize sensibly.
 
-For meshes the winding number is evaluated exactly (fast hierarchical
-method) only in a band of voxels near the surface and at the corners of
-4 x 4 x 4-voxel cells elsewhere; a cell that the surface band does not touch
-is filled from its corners (trilinear interpolation of w, which is smooth
-away from the surface; a closed surface gives integer corner values).
+For meshes the winding number is evaluated with the fast hierarchical method
+at the corners of 4 x 4 x 4-voxel cells and, voxel by voxel, in the cells
+where it may not be smooth: cells whose corner-node box the surface may meet
+(found by rasterizing each triangle's bounding box, cut by its plane, into the
+grid; large triangles are bisected first) and cells whose corners disagree on
+the side (near a hole of an open mesh).  Every other cell has all corners on
+one side and no surface between them, and takes that side.
 
 Occupancy (``occupancy=True``)
 ------------------------------
 Each voxel that the surface may cross (primitives: ``|sd(centre)|`` below
-half the voxel diagonal; meshes: a voxel holding a point of the surface
-sampled at a third of the voxel size) gets the fraction of a ``k x k x k``
-lattice of sub-points (k = ``subsamples``, default 4) that lies inside; the
-other voxels are 0 or 1.  The rule for labels: a voxel is material when its
-occupancy is > 0 -- boundary voxels whose centre is outside but that hold
-some material become material with their fraction -- so that
-``occupancy.sum() * voxel_volume`` estimates the volume.
+half the voxel diagonal; meshes: a voxel that a triangle's bounding box and
+plane meet) gets the fraction of a ``k x k x k`` lattice of sub-points
+(k = ``subsamples``, default 4) that lies inside; the other voxels are 0 or
+1.  For meshes, w at a sub-point is w at the centre plus the signed crossings
+of the segment between them with the voxel's own triangles (exact), or the
+fast winding number where w at the centre is not near an integer.  The rule
+for labels: a voxel is material when its occupancy is > 0 -- boundary voxels
+whose centre is outside but that hold some material become material with
+their fraction -- so that ``occupancy.sum() * voxel_volume`` estimates the
+volume.
 
 Several objects
 ---------------
@@ -56,9 +61,10 @@ from ..errors import InputError
 from ..image.label_image import LabelImage
 from .mesh import MESH_EXTENSIONS, SurfaceMesh, as_mesh
 from .primitives import PRIMITIVES, SPEC_FORMS, Box, Cylinder, Sphere, parse_spec
-from .winding import _fast_impl, build_tree
+from .winding import DEFAULT_BETA, _fast_impl, build_tree
 
 CELL = 4  # coarse cell size (voxels) for the winding-number evaluation away from the surface
+SPLIT = 4.0  # triangles whose bounding box spans more voxels than this are bisected before rasterizing
 CHUNK = 1 << 16  # points per evaluation call (progress granularity)
 DEFAULT_MAX_BYTES = 4 * 1024**3
 
@@ -87,7 +93,7 @@ def voxelize(
     max_bytes: int | None = None,
     progress: bool = True,
     subsamples: int = 4,
-    beta: float = 2.0,
+    beta: float = DEFAULT_BETA,
 ) -> LabelImage:
     """Rasterize primitives and/or surface meshes into a label image.
 
@@ -118,7 +124,8 @@ def voxelize(
     subsamples : int
         k: sub-points per axis for occupancy fractions (k^3 per boundary voxel).
     beta : float
-        Accuracy of the fast winding number (>= 1).
+        Accuracy of the fast winding number (>= 1): a triangle cluster of
+        radius r is replaced by its expansion beyond ``beta * r``.
 
     Returns
     -------
@@ -343,6 +350,11 @@ class _Bar:
         if self.bar is not None:
             self.bar.update(n)
 
+    def set_total(self, total: int):
+        if self.bar is not None:
+            self.bar.total = total
+            self.bar.refresh()
+
     def close(self):
         if self.bar is not None:
             self.bar.close()
@@ -398,104 +410,157 @@ def _primitive_impl(prim, grid, i0, i1, occupancy, k, bar):
     return inside, frac
 
 
-def _surface_voxels(tri: np.ndarray, origin: np.ndarray, h: np.ndarray, dims):
-    """Voxels holding a sample of the triangles (lattice spacing <= min(h)/3).
+def _corner_min(g: np.ndarray) -> np.ndarray:
+    """(F, 3) smallest coordinates of the corners ``g`` (F, 3, 3) (elementwise: faster than a reduction)."""
+    return np.minimum(np.minimum(g[:, 0], g[:, 1]), g[:, 2])
+
+
+def _corner_max(g: np.ndarray) -> np.ndarray:
+    """(F, 3) largest coordinates of the corners ``g`` (F, 3, 3)."""
+    return np.maximum(np.maximum(g[:, 0], g[:, 1]), g[:, 2])
+
+
+def _split_large(g: np.ndarray, limit: float):
+    """Bisect triangles ``g`` (F, 3, 3) at their longest edge until every bounding box is <= ``limit`` per axis.
+
+    Returns the pieces (P, 3, 3) and the index (P,) of the triangle each came from.
+    """
+    parent = np.arange(len(g))
+    done_g, done_p = [], []
+    while len(g):
+        ext = _corner_max(g) - _corner_min(g)
+        big = np.maximum(np.maximum(ext[:, 0], ext[:, 1]), ext[:, 2]) > limit
+        done_g.append(g[~big])
+        done_p.append(parent[~big])
+        g, parent = g[big], parent[big]
+        if not len(g):
+            break
+        edge = np.linalg.norm(g - np.roll(g, -1, axis=1), axis=2)  # edge c -> c + 1
+        c = np.argmax(edge, axis=1)
+        rows = np.arange(len(g))
+        a, b, o = g[rows, c], g[rows, (c + 1) % 3], g[rows, (c + 2) % 3]
+        mid = 0.5 * (a + b)
+        g = np.concatenate([np.stack([a, mid, o], axis=1), np.stack([mid, b, o], axis=1)])
+        parent = np.concatenate([parent, parent])
+    return np.concatenate(done_g), np.concatenate(done_p)
+
+
+def _surface_pairs(tri: np.ndarray, origin: np.ndarray, h: np.ndarray, dims):
+    """Voxels that the triangles may meet, with the triangles of each (a conservative superset).
+
+    Each triangle (bisected first while its bounding box spans more than
+    ``SPLIT`` voxels) is rasterized by its bounding box, and the candidate
+    voxels whose box its plane misses are dropped.  Both tests are
+    conservative, so every voxel the surface meets is listed, with every
+    triangle that meets it.
 
     Returns
     -------
-    mask : bool array (dims)
     keys : (m,) int64
         Sorted flat ids of those voxels.
     row_ptr : (m + 1,) int64, tri_ids : int64
-        CSR lists of the triangles sampled in each voxel.
+        CSR lists of the triangles (indices into ``tri``) of each voxel.
     """
-    mask = np.zeros(dims, dtype=bool)
-    delta = float(h.min()) / 3.0
-    edge = np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2), axis=1)
-    nsub = np.maximum(np.ceil(edge / delta).astype(np.int64), 1)
-    dims_arr = np.asarray(dims)
-    pairs = []
-    for n in np.unique(nsub):
-        sel = np.flatnonzero(nsub == n)
-        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
-        keep = (i + j) <= n
-        u, v = i[keep] / n, j[keep] / n
-        bary = np.stack([1.0 - u - v, u, v], axis=1)  # (L, 3)
-        per = max(1, (1 << 21) // len(bary))
-        for s in range(0, len(sel), per):
-            ids = sel[s : s + per]
-            pts = np.einsum("lc,mcx->mlx", bary, tri[ids]).reshape(-1, 3)
-            ijk = np.clip(np.floor((pts - origin) / h).astype(np.int64), 0, dims_arr - 1)
-            flat = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
-            pairs.append(np.unique(flat * len(tri) + np.repeat(ids, len(bary))))
-    pairs = np.unique(np.concatenate(pairs))
+    dims_arr = np.asarray(dims, dtype=np.int64)
+    g, parent = _split_large((tri - origin) / h, SPLIT)  # voxel units: voxel ijk is the unit cube at ijk
+    eps = 1e-7
+    lo = np.clip(np.floor(_corner_min(g) - eps).astype(np.int64), 0, dims_arr - 1)
+    hi = np.clip(np.floor(_corner_max(g) + eps).astype(np.int64), 0, dims_arr - 1)
+    span = hi - lo + 1
+    count = span[:, 0] * span[:, 1] * span[:, 2]
+    normal = np.cross(g[:, 1] - g[:, 0], g[:, 2] - g[:, 0])
+    half = (0.5 + eps) * (np.abs(normal[:, 0]) + np.abs(normal[:, 1]) + np.abs(normal[:, 2]))
+    # candidates in chunks of about CHUNK * 64 (voxel, piece) pairs, to bound the work arrays
+    ends = np.cumsum(count)
+    budget = CHUNK * 64
+    cuts = np.searchsorted(ends, np.arange(1, ends[-1] // budget + 1) * budget)
+    found = []
+    begin = 0
+    for last in np.unique(np.append(cuts, len(g))):
+        if last <= begin:
+            continue
+        c = count[begin:last]
+        piece = begin + np.repeat(np.arange(last - begin), c)
+        local = np.arange(c.sum()) - np.repeat(np.cumsum(c) - c, c)
+        sy, sz = span[piece, 1], span[piece, 2]
+        ijk = lo[piece] + np.stack([local // (sy * sz), (local // sz) % sy, local % sz], axis=1)
+        # plane test: the unit box centred at x meets the plane n.(y - g0) = 0 iff |n.(x - g0)| <= |n|_1 / 2
+        dist = np.einsum("px,px->p", normal[piece], ijk + 0.5 - g[piece, 0])
+        keep = np.abs(dist) <= half[piece]
+        flat = (ijk[keep, 0] * dims[1] + ijk[keep, 1]) * dims[2] + ijk[keep, 2]
+        found.append(flat * len(tri) + parent[piece[keep]])
+        begin = last
+    pairs = np.sort(np.concatenate(found))  # by voxel, then triangle
+    if len(pairs) > 1:  # pieces of one split triangle may share voxels (np.unique hashes: slow on big arrays)
+        pairs = pairs[np.append(True, pairs[1:] != pairs[:-1])]
     vox, tri_ids = np.divmod(pairs, len(tri))
-    keys, first = np.unique(vox, return_index=True)
-    mask.reshape(-1)[keys] = True
+    first = np.flatnonzero(np.append(True, vox[1:] != vox[:-1])) if len(vox) else np.zeros(0, np.int64)
     row_ptr = np.append(first, len(vox)).astype(np.int64)
-    return mask, keys, row_ptr, tri_ids.astype(np.int64)
+    return vox[first], row_ptr, tri_ids.astype(np.int64)
 
 
 def _mesh_impl(mesh, grid, i0, i1, occupancy, k, beta, bar):
-    from scipy import ndimage
-
     h = grid.h
     dims = tuple(int(b - a) for a, b in zip(i0, i1))
     sub_origin = grid.origin + i0 * h
     tree = build_tree(mesh.vertices, mesh.faces)
-    surface, keys, row_ptr, tri_ids = _surface_voxels(tree.tri, sub_origin, h, dims)
-    band = ndimage.binary_dilation(surface, structure=np.ones((3, 3, 3), dtype=bool))
+    keys, row_ptr, tri_ids = _surface_pairs(tree.tri, sub_origin, h, dims)
 
-    # coarse cells of CELL^3 voxels; a cell is dirty when the band touches it or its upper corner nodes
+    # coarse cells of CELL^3 voxels: exact evaluation where the surface may pass (dirty) or where the
+    # corners disagree (near a hole of an open mesh), interpolation from the corner nodes elsewhere
     cells = tuple(-(-d // CELL) for d in dims)
-    padded = np.zeros(tuple(c * CELL + 1 for c in cells), dtype=bool)
-    padded[: dims[0], : dims[1], : dims[2]] = band
-    near = padded.copy()
-    for a in range(3):
-        lead = [slice(None)] * 3
-        lead[a] = slice(0, -1)
-        nxt = [slice(None)] * 3
-        nxt[a] = slice(1, None)
-        near[tuple(lead)] |= near[tuple(nxt)]
-    near = near[: cells[0] * CELL, : cells[1] * CELL, : cells[2] * CELL]
-    dirty = near.reshape(cells[0], CELL, cells[1], CELL, cells[2], CELL).any(axis=(1, 3, 5))
-
-    exact_mask = np.repeat(np.repeat(np.repeat(dirty, CELL, 0), CELL, 1), CELL, 2)[: dims[0], : dims[1], : dims[2]]
-    exact_idx = np.flatnonzero(exact_mask)
     node_axes = [sub_origin[a] + (np.arange(cells[a] + 1) * CELL + 0.5) * h[a] for a in range(3)]
     nodes = np.stack([x.reshape(-1) for x in np.meshgrid(*node_axes, indexing="ij")], axis=1)
-    bar.start(len(nodes) + len(exact_idx) + (len(keys) if occupancy else 0))
-
+    bar.start(len(nodes) + len(keys) * CELL)  # a guess, set once the exact points are known
     w_nodes = _evaluate(tree, nodes, beta, bar).reshape(tuple(c + 1 for c in cells))
-    centres_of = _centre_fn(sub_origin, h, dims)
-    w_exact = _evaluate(tree, centres_of(exact_idx), beta, bar)
-
-    # clean cells: filled from their corner values (convex combinations keep the side when all corners agree)
     corners = np.stack(
         [w_nodes[a : a + cells[0], b : b + cells[1], c : c + cells[2]] for a in (0, 1) for b in (0, 1) for c in (0, 1)],
         axis=-1,
     )
     all_in = np.all(corners > 0.5, axis=-1) | np.all(corners < -0.5, axis=-1)
     all_out = np.all(np.abs(corners) < 0.5, axis=-1)
-    inside_cells = all_in & ~dirty
-    inside = np.repeat(np.repeat(np.repeat(inside_cells, CELL, 0), CELL, 1), CELL, 2)
-    mixed = np.argwhere(~dirty & ~all_in & ~all_out)
-    if len(mixed):
-        t = np.arange(CELL) / CELL
-        wt = np.stack([1 - t, t], axis=1)  # (CELL, 2)
-        cv = corners[mixed[:, 0], mixed[:, 1], mixed[:, 2]].reshape(-1, 2, 2, 2)
-        vals = np.einsum("ia,jb,kc,mabc->mijk", wt, wt, wt, cv)
-        for m, (cx, cy, cz) in enumerate(mixed):
-            inside[cx * CELL : (cx + 1) * CELL, cy * CELL : (cy + 1) * CELL, cz * CELL : (cz + 1) * CELL] = (
-                np.abs(vals[m]) > 0.5
-            )
-    inside = np.ascontiguousarray(inside[: dims[0], : dims[1], : dims[2]])
-    inside.reshape(-1)[exact_idx] = np.abs(w_exact) > 0.5
+    # cell c's corner nodes are the centres of voxels CELL * c and CELL * (c + 1): its node box is cell c of a
+    # grid of CELL-voxel cells shifted by half a voxel; the surface may meet it where it meets that grid's cell
+    touched = _surface_pairs(tree.tri, sub_origin + 0.5 * h, CELL * h, cells)[0]
+    dirty = ~(all_in | all_out)
+    dirty.reshape(-1)[touched] = True
+
+    dcell = np.argwhere(dirty)  # (nd, 3)
+    lattice = np.stack(np.meshgrid(*[np.arange(CELL)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    full = np.zeros(tuple(c * CELL for c in cells), dtype=bool)
+    blocks = full.reshape(cells[0], CELL, cells[1], CELL, cells[2], CELL)  # a view: cell x local voxel
+    # clean cells: all corners on one side, and w is smooth there (no surface): the cell takes that side
+    blocks[...] = (all_in & ~dirty)[:, None, :, None, :, None]
+    # dirty cells, voxel by voxel, in chunks; w is kept (cell by cell) only for the occupancy fractions
+    w_dirty = np.full(len(dcell) * CELL**3, np.nan) if occupancy else None
+    n_exact = int(np.minimum(np.asarray(dims) - dcell * CELL, CELL).prod(axis=1).sum())  # the grid cuts the last cells
+    bar.set_total(len(nodes) + n_exact)
+    per = max(1, CHUNK * 4 // CELL**3)
+    for s in range(0, len(dcell), per):
+        dc = dcell[s : s + per]
+        vox = (dc[:, None, :] * CELL + lattice[None]).reshape(-1, 3)  # cell by cell
+        valid = np.all(vox < np.asarray(dims), axis=1)
+        w = np.full(len(vox), np.nan)  # NaN (outside the grid) -> outside
+        w[valid] = _evaluate(tree, sub_origin + (vox[valid] + 0.5) * h, beta, bar)
+        blocks[dc[:, 0], :, dc[:, 1], :, dc[:, 2], :] = (np.abs(w) > 0.5).reshape(-1, CELL, CELL, CELL)
+        if occupancy:
+            w_dirty[s * CELL**3 : s * CELL**3 + len(w)] = w
+    inside = np.ascontiguousarray(full[: dims[0], : dims[1], : dims[2]])
 
     frac = None
     if occupancy:
+        # w at the surface voxels' centres: already evaluated where they lie in a dirty cell (nearly all)
+        rank = np.full(cells, -1, dtype=np.int64)
+        rank[dcell[:, 0], dcell[:, 1], dcell[:, 2]] = np.arange(len(dcell))
+        ijk = np.stack(np.unravel_index(keys, dims), axis=1)
+        cell, loc = np.divmod(ijk, CELL)
+        r = rank[cell[:, 0], cell[:, 1], cell[:, 2]]
+        pos = r * CELL**3 + (loc[:, 0] * CELL + loc[:, 1]) * CELL + loc[:, 2]
+        w_c = np.where(r >= 0, w_dirty[np.maximum(pos, 0)], np.nan)
+        missing = np.flatnonzero(r < 0)
+        w_c[missing] = _evaluate(tree, sub_origin + (ijk[missing] + 0.5) * h, beta, _Bar(False, ""))
         frac = inside.astype(np.float32)
-        frac.reshape(-1)[keys] = _surface_fractions(tree, keys, row_ptr, tri_ids, sub_origin, h, dims, k, beta, bar)
+        frac.reshape(-1)[keys] = _surface_fractions(tree, ijk, w_c, row_ptr, tri_ids, sub_origin, h, k, beta)
     return inside, frac
 
 
@@ -503,25 +568,22 @@ def _mesh_impl(mesh, grid, i0, i1, occupancy, k, beta, bar):
 _JITTER = np.array([0.31830988618, 0.27182818284, 0.14142135623]) * 1e-6
 
 
-def _surface_fractions(tree, keys, row_ptr, tri_ids, origin, h, dims, k, beta, bar) -> np.ndarray:
-    """Occupancy (m,) of the voxels ``keys`` that hold surface samples.
+def _surface_fractions(tree, ijk, w_c, row_ptr, tri_ids, origin, h, k, beta) -> np.ndarray:
+    """Occupancy (m,) of the voxels ``ijk`` (m, 3) that the surface may meet.
 
-    w at the (jittered) centre comes from the fast winding number; each of the
-    k^3 sub-points adds the signed crossings of the segment from the centre
-    (exact, local triangles only).  Where w at the centre is not near an
-    integer (open meshes near holes, a centre on the surface), the sub-points
-    are evaluated with the fast winding number instead.
+    ``w_c`` is the winding number at the voxel centres.  Each of the k^3
+    sub-points adds the signed crossings of the segment from the (jittered)
+    centre -- exact, with the voxel's own triangles.  Where w at the centre is
+    not near an integer (open meshes near holes, a centre on the surface; this
+    also covers the jitter crossing the surface), the sub-points are evaluated
+    with the fast winding number instead.
     """
     from .winding import _crossing_fraction_kernel
 
-    ijk = np.stack(np.unravel_index(keys, dims), axis=1).astype(np.int64)
     centres = origin + (ijk + 0.5 + _JITTER) * h
-    w_c = _evaluate(tree, centres, beta, bar)
     offsets = _sub_offsets(k, h)
-    out = np.empty(len(keys))
-    _crossing_fraction_kernel(
-        centres, w_c, ijk, offsets, keys.astype(np.int64), row_ptr, tri_ids, tree.tri, np.asarray(dims, np.int64), out
-    )
+    out = np.empty(len(ijk))
+    _crossing_fraction_kernel(centres, np.ascontiguousarray(w_c), offsets, row_ptr, tri_ids, tree.tri, out)
     unsure = np.flatnonzero(np.abs(w_c - np.round(w_c)) > 0.25)
     per = max(1, (CHUNK * 4) // len(offsets))
     for s in range(0, len(unsure), per):
@@ -530,14 +592,6 @@ def _surface_fractions(tree, keys, row_ptr, tri_ids, origin, h, dims, k, beta, b
         w = _evaluate(tree, sub, beta, _Bar(False, ""))
         out[idx] = (np.abs(w.reshape(len(idx), -1)) > 0.5).mean(axis=1)
     return out.astype(np.float32)
-
-
-def _centre_fn(origin, h, dims):
-    def centres(flat_idx):
-        ijk = np.stack(np.unravel_index(flat_idx, dims), axis=1)
-        return origin + (ijk + 0.5) * h
-
-    return centres
 
 
 def _evaluate(tree, points, beta, bar) -> np.ndarray:
