@@ -1,6 +1,6 @@
 """Time voxelizing a ~100k-triangle mesh at 128^3 and 256^3 grids, with and without occupancy.
 
-Uses /work/shared/meshes/stanford-bunny.obj (69,451 triangles, open at the
+Uses ../shared/meshes/stanford-bunny.obj beside the repository (or $VOXFLEX_SHARED/meshes) (69,451 triangles, open at the
 base) when present, else a pyvista sphere subdivided to ~100k triangles.  The
 voxel size is the longest extent / N.  The first (compiling) call is excluded
 by a warm-up on a small grid.
@@ -23,7 +23,7 @@ import numpy as np
 
 from voxflex.rasterize import load_mesh, voxelize
 
-BUNNY = Path("/work/shared/meshes/stanford-bunny.obj")
+BUNNY = Path(os.environ.get("VOXFLEX_SHARED", Path(__file__).resolve().parents[2] / "shared")) / "meshes" / "stanford-bunny.obj"
 
 
 def _mesh(path):
