@@ -19,6 +19,7 @@ from voxflex.deform.materials import material
 from voxflex.deform.nodes import Points
 from voxflex.deform.voxel_model import VoxelModel
 from voxflex.image import LabelImage
+from voxflex.sampling.quadrature import unit_cube_rule
 
 
 def _model_and_chain(quadrature):
@@ -28,7 +29,8 @@ def _model_and_chain(quadrature):
     image = LabelImage(labels, spacing=(0.3, 0.2, 0.25), origin=(0.1, -0.2, 0.0))
     mats = {1: material("neo-hookean", young=1e4, poisson=0.3), 2: material("stvk", young=3e4, poisson=0.2)}
     model = VoxelModel.from_image(image, mats, quadrature=quadrature)
-    shape, weights = model.grid.quadrature_shape_values(quadrature)
+    local, weights = unit_cube_rule(quadrature)
+    shape = model.grid.quadrature_shape_values(local)
     mapping = DeformationGradientMapping(Points(model.rest), shape)
     vol = (model.element_volume[:, None] * weights[None, :]).ravel()
     label = np.repeat(model.element_label, len(weights))

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..sampling.quadrature import unit_cube_rule
 
 CORNER_OFFSETS = np.array([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)], dtype=np.int64)
 """(8, 3) int: offset of voxel corner c from the voxel's lower corner."""
@@ -232,17 +231,19 @@ class TrilinearGrid:
             )
         return self._shape_values_impl(element, local, points, hessian=hessian)
 
-    def quadrature_shape_values(self, rule: str = "gauss-legendre", *, hessian: bool = False):
-        """ShapeValues at every quadrature point of every element, element-major (m * Q rows).
+    def quadrature_shape_values(self, local, *, hessian: bool = False):
+        """ShapeValues at the same local points (Q, 3) of every element, element-major (m * Q rows).
 
-        Also returns the rule's weights (Q,) (summing to one per voxel).
+        ``local`` are coordinates in the unit cube, e.g. the points of
+        :func:`voxflex.sampling.quadrature.unit_cube_rule` (shape functions come
+        before quadrature in the pipeline, so the rule is the caller's).
         """
-        local, weights = unit_cube_rule(rule)
+        local = np.asarray(local, dtype=float).reshape(-1, 3)
         q = len(local)
         element = np.repeat(np.arange(self.n_elements), q)
         loc = np.tile(local, (self.n_elements, 1))
         rest = self.index_to_world(self.element_ijk[element] + loc)
-        return self._shape_values_impl(element, loc, rest, hessian=hessian), weights
+        return self._shape_values_impl(element, loc, rest, hessian=hessian)
 
     def _shape_values_impl(self, element, local, rest, *, hessian=False):
         from .shape_functions import ShapeValues
