@@ -163,3 +163,32 @@ def test_occupancy_fractions_weight_the_mass():
     err_fraction = abs(_falling_sphere_mass(True) / exact - 1)
     assert err_fraction < 0.01
     assert err_fraction < 0.25 * err_binary
+
+
+def test_midpoint_static_failure_names_the_hourglass_modes():
+    # one sample per voxel: trilinear voxels keep hourglass modes, the clamped beam's tangent is
+    # singular and Newton cannot converge; the error must point at the cause and the fix
+    text = """
+[object]
+shape = "box"
+size = [2.0, 0.5, 0.5]
+voxel_size = 0.25
+[[material]]
+model = "neo-hookean"
+young = 1e4
+poisson = 0.3
+density = 1.0
+[elasticity]
+quadrature = "midpoint"
+[[fixed]]
+min = [-1.0, -1.0, -1.0]
+max = [1e-6, 1.0, 1.0]
+[[load]]
+kind = "gravity"
+vector = [0.0, 0.0, -9.81]
+[solver]
+max_iterations = 8
+"""
+    with pytest.raises(vf.ConvergenceError, match="hourglass") as exc:
+        vf.simulate(Scene.from_toml_text(text), progress=False)
+    assert 'quadrature = "gauss-legendre"' in str(exc.value)

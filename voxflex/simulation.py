@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ._version import __version__
-from .errors import InputError
+from .errors import ConvergenceError, InputError
 from .result import Result
 from .scene import Scene
 
@@ -190,6 +190,14 @@ def simulate(scene, *, progress: bool = True, output=None) -> Result:
             options=options,
             callback=callback,
         )
+    except ConvergenceError as exc:
+        if scene.elasticity.quadrature != "midpoint":
+            raise
+        # one sample per voxel leaves hourglass (zero-energy) modes: the likely cause
+        raise ConvergenceError(
+            f"{exc}; note: mid-point quadrature leaves hourglass (zero-energy) modes in trilinear voxels, "
+            'use [elasticity] quadrature = "gauss-legendre"'
+        ) from None
     finally:
         if bar is not None:
             bar.close()
