@@ -139,3 +139,16 @@ def test_render_cli(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not found" in err[0]
     assert os.environ.get("PYVISTA_OFF_SCREEN") == "true"
+
+
+def test_missing_opengl_is_a_one_line_error(monkeypatch, tmp_path, default_result):
+    # a machine without GL libraries makes VTK crash; the probe in a child process turns that
+    # into an InputError naming the packages to install, and the caller survives
+    from voxflex import rendering
+
+    monkeypatch.setattr(rendering, "_PROBE_CODE", "import os\nos.abort()\n")
+    monkeypatch.setattr(rendering, "_probe_status", None)
+    with pytest.raises(InputError, match="libegl1") as exc:
+        rendering.render(default_result, tmp_path / "x.png")
+    assert "\n" not in str(exc.value)
+    assert not list(tmp_path.iterdir())

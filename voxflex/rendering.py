@@ -34,6 +34,41 @@ _MOVIES = (".gif", ".mp4")
 def _offscreen_env() -> None:
     os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
     os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    _check_offscreen_gl()
+
+
+# a tiny render in a child process: a machine without the GL libraries makes VTK
+# segfault (NOTES), which must not take the caller (and its unsaved work) down
+_PROBE_CODE = (
+    "import pyvista as pv\n"
+    "p = pv.Plotter(off_screen=True, window_size=(32, 24))\n"
+    "p.add_mesh(pv.Cube())\n"
+    "p.screenshot(return_img=True)\n"
+    "p.close()\n"
+)
+_probe_status: int | None = None
+
+
+def _check_offscreen_gl() -> None:
+    """Raise a one-line InputError when offscreen OpenGL cannot work here (probed once per process)."""
+    global _probe_status
+    if _probe_status is None:
+        import subprocess
+        import sys
+
+        try:
+            proc = subprocess.run(
+                [sys.executable, "-c", _PROBE_CODE], capture_output=True, timeout=300, env=dict(os.environ)
+            )
+            _probe_status = proc.returncode
+        except subprocess.TimeoutExpired:
+            _probe_status = -1
+    if _probe_status != 0:
+        raise InputError(
+            f"offscreen rendering is not available on this machine (OpenGL probe exited {_probe_status}); "
+            "install EGL (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or OSMesa (libosmesa6 with "
+            "VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow)"
+        )
 
 
 def _as_result(result):

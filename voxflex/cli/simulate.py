@@ -52,9 +52,13 @@ def run(args) -> int:
     if args.vtk:
         result.export_vtk(args.vtk)
     if args.render:
+        from ..errors import VoxflexError
         from ..rendering import render
 
-        render(result, args.render)
+        try:
+            render(result, args.render)
+        except VoxflexError as exc:
+            raise VoxflexError(f"{exc} (the result itself was saved to {output})") from None
     if not args.quiet:
         print(summary(result, scene_path=path, output=output, wall=wall, extras=[args.render, args.vtk]))
     return 0
