@@ -285,3 +285,21 @@ def test_mixed_constant_and_nonlinear_labels_match_finite_differences():
     fdg = (model.gradient(q + h * v) - model.gradient(q - h * v)) / (2 * h)
     Hv = (H @ v.ravel()).reshape(-1, 3)
     assert np.linalg.norm(Hv - fdg) <= 1e-6 * np.linalg.norm(Hv)
+
+
+def test_constant_model_shares_its_cached_stiffness_read_only():
+    # an all-constant (linear) model hands out the cached stiffness data without copying it,
+    # protected against writes; a model with a nonlinear label gets a fresh array per call
+    image = LabelImage(np.ones((3, 2, 2)), spacing=0.5)
+    lin = VoxelModel.from_image(image, {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
+    H1, H2 = lin.hessian(lin.rest), lin.hessian(lin.rest + 0.01)
+    assert H1.data is H2.data and not H1.data.flags.writeable
+    labels = np.ones((3, 2, 2), dtype=np.uint8)
+    labels[2] = 2
+    mixed = VoxelModel.from_image(
+        LabelImage(labels, spacing=0.5),
+        {1: material("hooke", young=1e4, poisson=0.3, strain="linear"), 2: material("neo-hookean", young=1e4, poisson=0.3)},
+    )
+    M1, M2 = mixed.hessian(mixed.rest), mixed.hessian(mixed.rest)
+    assert M1.data is not M2.data and M1.data.flags.writeable
+    np.testing.assert_array_equal(M1.data, M2.data)

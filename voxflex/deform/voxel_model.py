@@ -300,10 +300,13 @@ class VoxelModel:
                 Hc = sp.csr_matrix((data_c, self._pattern[1], self._pattern[0]), shape=(3 * n, 3 * n))
                 grad += g0 + (Hc @ u.ravel()).reshape(n, 3)
             if hessian:
-                data = data_c.copy()
+                # an all-constant model returns the cached (read-only) data itself: no copy per call
+                all_constant = all(const for _, _, const in self._groups)
+                data = data_c if all_constant else data_c.copy()
         if hessian and data is None:
             data = np.zeros(len(self._pattern[1]))
-        energy += self._sample_pass(q, grad, data, only_variable=True)
+        if any(not const for _, _, const in self._groups):
+            energy += self._sample_pass(q, grad, data, only_variable=True)
         H = None
         if hessian:
             indptr, indices = self._pattern[:2]
@@ -410,6 +413,7 @@ class VoxelModel:
                     if np.any(f0 != 0.0):
                         dof = (3 * conn[el])[:, :, None] + np.arange(3)
                         g0 += np.bincount(dof.ravel(), weights=(vol[:, None, None] * f0).ravel(), minlength=3 * n)
+            data.setflags(write=False)  # shared by every Hessian of an all-constant model
             self._constant = (data, E0, g0.reshape(n, 3), units)
         return self._constant
 
