@@ -31,6 +31,8 @@ CASES = {
     "neo-hookean": ("neo-hookean", dict(young=1e4, poisson=0.3)),
     "stable-neo-hookean": ("stable-neo-hookean", dict(young=1e4, poisson=0.3)),
     "mooney-rivlin": ("mooney-rivlin", dict(young=1e4, poisson=0.3)),
+    "arruda-boyce": ("arruda-boyce", dict(young=1e4, poisson=0.3)),
+    "veronda-westmann": ("veronda-westmann", dict(young=1e4, poisson=0.3)),
     "volume-log": ("volume-log", dict(young=1e4, poisson=0.3)),
     "volume-quadratic": ("volume-quadratic", dict(young=1e4, poisson=0.3)),
     "ogden": ("ogden", dict(young=1e4, poisson=0.3)),

@@ -53,6 +53,8 @@ MATERIAL_SPECS = {
     "neo-hookean": ("neo-hookean", dict(young=E, poisson=NU)),
     "stable-neo-hookean": ("stable-neo-hookean", dict(young=E, poisson=NU)),
     "mooney-rivlin": ("mooney-rivlin", dict(young=E, poisson=NU, c2=500.0)),
+    "arruda-boyce": ("arruda-boyce", dict(young=E, poisson=NU, lambda_m=1.9)),
+    "veronda-westmann": ("veronda-westmann", dict(young=E, poisson=NU, c2=1.3)),
     "volume-log": ("volume-log", dict(young=E, poisson=NU)),
     "volume-quadratic": ("volume-quadratic", dict(young=E, poisson=NU)),
     "ogden": ("ogden", dict(young=E, poisson=NU)),

@@ -14,6 +14,8 @@ LAWS = {
     "neo-hookean": L.NeoHookeanLaw(1.3, 2.1),
     "stable-neo-hookean": L.StableNeoHookeanLaw(1.3, 2.1),
     "mooney-rivlin": L.MooneyRivlinLaw(0.4, 0.25, 3.0),
+    "arruda-boyce": L.ArrudaBoyceLaw(0.8, 1.6, 3.0),
+    "veronda-westmann": L.VerondaWestmannLaw(0.4, 1.7, 3.0),
     "volume-log": L.VolumeLogLaw(2.5),
     "volume-quadratic": L.VolumeQuadraticLaw(2.5),
     "ogden": L.OgdenLaw((0.6, 0.01, -0.02), (1.3, 5.0, -2.0), 2.0),
@@ -128,3 +130,23 @@ def test_bad_strain_shape():
         LAWS["neo-hookean"].energy(np.zeros((2, 6)))
     with pytest.raises(InputError, match="backend"):
         LAWS["neo-hookean"].evaluate(np.ones((2, 3)), backend="cuda")
+
+
+def test_arruda_boyce_shear_modulus_series():
+    # 2 dW/dI1bar at rest against the closed-form series of the brief (exact rationals: round-off, 1e-14)
+    for lm in [1.2, 2.8, 7.0]:
+        law = L.ArrudaBoyceLaw(1.7, lm, 1.0)
+        factor = 1 + 3 / (5 * lm**2) + 99 / (175 * lm**4) + 513 / (875 * lm**6) + 42039 / (67375 * lm**8)
+        assert abs(law.shear_modulus - 1.7 * factor) <= 1e-14 * 1.7 * factor
+        assert abs(2 * law.stress(np.array([[3.0, 3.0, 1.0]]))[0, 0] - 1.7 * factor) <= 1e-14 * 1.7 * factor
+    # the five-term series is the Taylor expansion of the Langevin chain in 1/lambda_m^2: as lambda_m grows
+    # it tends to neo-Hooke mu/2 (I1bar - 3); at lambda_m = 1e4 the next term is 1e-8 of the first
+    e = _strains(LAWS["arruda-boyce"], seed=4)
+    w = L.ArrudaBoyceLaw(1.7, 1e4, 0.0).energy(e)
+    assert _relerr(w, 0.85 * (e[:, 0] - 3.0)) < 1e-7
+
+
+@pytest.mark.parametrize("lm", [1.0, 0.5, float("nan")])
+def test_arruda_boyce_locking_stretch_range(lm):
+    with pytest.raises(InputError, match="lambda_m"):
+        L.ArrudaBoyceLaw(1.0, lm, 1.0)

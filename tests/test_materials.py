@@ -223,6 +223,66 @@ def test_uniaxial_mooney_rivlin_incompressible_limit(lam, c2):
     assert abs(nominal - expected) <= 1e-10 * abs(expected)
 
 
+def _incompressible_nominal(mat, lam):
+    """Nominal uniaxial stress at the isochoric stretch diag(lam, lam^-1/2, lam^-1/2), pressure removed."""
+    t = lam**-0.5
+    P = mat.stress(_diag(lam, t))[0]
+    return (P[0, 0] * lam - P[1, 1] * t) / lam
+
+
+@pytest.mark.parametrize("lam", STRETCHES)
+@pytest.mark.parametrize("lambda_m", [1.9, 2.8])
+def test_uniaxial_arruda_boyce_incompressible_limit(lam, lambda_m):
+    # as for Mooney-Rivlin: at J = 1 the (J - 1)^2 term is silent and the nominal stress with the pressure
+    # removed is 2 (lam - lam^-2)(dW/dI1 + dW/dI2 / lam), here dW/dI2 = 0 and
+    # dW/dI1 = mu sum_i i C_i / lambda_m^(2i-2) I1^(i-1) at I1 = lam^2 + 2/lam, written out independently:
+    # exact identity, round-off only (1e-10)
+    mat = material("arruda-boyce", young=E, poisson=NU, lambda_m=lambda_m)
+    mu = mat.parameters["mu"]
+    C = [1 / 2, 1 / 20, 11 / 1050, 19 / 7000, 519 / 673750]
+    i1 = lam**2 + 2 / lam
+    w1 = mu * sum((i + 1) * c / lambda_m ** (2 * i) * i1**i for i, c in enumerate(C))
+    expected = 2 * (lam - lam**-2) * w1
+    assert abs(_incompressible_nominal(mat, lam) - expected) <= 1e-10 * abs(expected)
+
+
+@pytest.mark.parametrize("lam", STRETCHES)
+@pytest.mark.parametrize("c2", [0.5, 1.0, 3.0])
+def test_uniaxial_veronda_westmann_incompressible_limit(lam, c2):
+    # dW/dI1 = c1 c2 exp(c2 (I1 - 3)), dW/dI2 = -c1 c2 / 2 at I1 = lam^2 + 2/lam: exact identity (1e-10)
+    mat = material("veronda-westmann", young=E, poisson=NU, c2=c2)
+    c1 = mat.parameters["c1"]
+    assert c1 * c2 == pytest.approx(MU, rel=1e-15)
+    i1 = lam**2 + 2 / lam
+    expected = 2 * (lam - lam**-2) * (c1 * c2 * np.exp(c2 * (i1 - 3)) - 0.5 * c1 * c2 / lam)
+    assert abs(_incompressible_nominal(mat, lam) - expected) <= 1e-10 * abs(expected)
+
+
+def test_arruda_boyce_and_veronda_westmann_constants():
+    # their own constants reproduce the young/poisson build (round-off, 1e-14), and the summaries invert
+    F = f_large()
+    ab = make("arruda-boyce")
+    p = ab.parameters
+    assert p["shear_modulus"] == pytest.approx(MU, rel=1e-14) and p["bulk"] == pytest.approx(LM + 2 * MU / 3, rel=1e-15)
+    same = material("arruda-boyce", mu=p["mu"], lambda_m=1.9, bulk=p["bulk"])
+    assert _rel(same.energy(F), ab.energy(F)) < 1e-14
+    assert same.parameters["young"] == pytest.approx(E, rel=1e-14)
+    assert same.parameters["poisson"] == pytest.approx(NU, rel=1e-14)
+    assert material("arruda-boyce", young=E, poisson=NU).law.lambda_m == 2.8  # the documented default
+    vw = make("veronda-westmann")
+    same = material("veronda-westmann", c1=vw.parameters["c1"], c2=1.3, bulk=vw.parameters["bulk"])
+    assert _rel(same.energy(F), vw.energy(F)) < 1e-14
+    assert same.parameters["young"] == pytest.approx(E, rel=1e-14)
+    assert same.parameters["poisson"] == pytest.approx(NU, rel=1e-14)
+    assert material("veronda-westmann", young=E, poisson=NU).law.c2 == 1.0  # the documented default
+    # the stiffening the models exist for: at 80 % isochoric stretch both carry a larger deviatoric nominal
+    # stress than neo-Hooke of the same moduli, mu (lam - lam^-2) (checked first, 1e-10)
+    p_nh = _incompressible_nominal(make("neo-hookean"), 1.8)
+    assert abs(p_nh - MU * (1.8 - 1.8**-2)) <= 1e-10 * p_nh
+    assert _incompressible_nominal(make("arruda-boyce"), 1.8) > 1.1 * p_nh
+    assert _incompressible_nominal(make("veronda-westmann"), 1.8) > 1.1 * p_nh
+
+
 @pytest.mark.parametrize("lam", STRETCHES)
 def test_confined_volume_laws(lam):
     # confined compression/extension F = diag(lam, 1, 1): J = lam;
@@ -289,7 +349,8 @@ def test_spec_entry_point_and_constants():
     custom = Material(get_strain("invariant"), NeoHookeanLaw(MU, LM))
     assert _rel(custom.energy(F), make("neo-hookean").energy(F)) == 0
     assert set(MATERIALS) >= {"hooke", "hooke-orthotropic", "stvk", "neo-hookean", "stable-neo-hookean",
-                              "mooney-rivlin", "volume-log", "volume-quadratic", "ogden"}
+                              "mooney-rivlin", "volume-log", "volume-quadratic", "ogden",
+                              "arruda-boyce", "veronda-westmann"}
 
 
 BAD = [
@@ -310,6 +371,16 @@ BAD = [
     ("mooney-rivlin", dict(c1=-1.0, c2=0.0, bulk=1.0), r"c1 \+ c2 > 0"),
     ("ogden", dict(mu_p=[1.0], alpha_p=[2.0, 3.0], lmbda=1.0), r"same length"),
     ("volume-log", dict(bulk=0.0), r"bulk = 0.0 is out of range"),
+    ("arruda-boyce", dict(young=1.0, poisson=0.3, lambda_m=1.0), r"lambda_m = 1.0 is out of range; valid: \(1, inf\)"),
+    ("arruda-boyce", dict(mu=-1.0, bulk=1.0), r"mu = -1.0 is out of range; valid: \(0, inf\)"),
+    ("arruda-boyce", dict(mu=1.0, bulk=0.0), r"bulk = 0.0 is out of range; valid: \(0, inf\)"),
+    ("arruda-boyce", dict(mu=1.0, bulk=0.5), r"arruda-boyce needs bulk >= 2/3 of the shear modulus"),
+    ("arruda-boyce", dict(mu=1.0), r"missing bulk"),
+    ("arruda-boyce", dict(young=1.0, poisson=0.3, c2=1.0), r"unknown parameter 'c2'.*valid: .*lambda_m"),
+    ("veronda-westmann", dict(young=1.0, poisson=0.3, c2=0.0), r"c2 = 0.0 is out of range; valid: \(0, inf\)"),
+    ("veronda-westmann", dict(c1=-2.0, bulk=1.0), r"c1 = -2.0 is out of range; valid: \(0, inf\)"),
+    ("veronda-westmann", dict(c1=1.0, c2=2.0, bulk=1.0), r"veronda-westmann needs bulk >= 2/3 of the shear modulus"),
+    ("veronda-westmann", dict(young=1.0, poisson=0.3, c1=1.0), r"either young/poisson or c1, bulk"),
 ]
 
 

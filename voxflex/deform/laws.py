@@ -41,6 +41,8 @@ __all__ = [
     "NeoHookeanLaw",
     "StableNeoHookeanLaw",
     "MooneyRivlinLaw",
+    "ArrudaBoyceLaw",
+    "VerondaWestmannLaw",
     "VolumeLogLaw",
     "VolumeQuadraticLaw",
     "OgdenLaw",
@@ -240,6 +242,108 @@ def _mooney_rivlin_numpy(e, params):
     s = np.zeros((n, 3))
     s[:, 0], s[:, 1], s[:, 2] = c1, c2, kb * d
     K = np.zeros((n, 3, 3))
+    K[:, 2, 2] = kb
+    return W, s, K
+
+
+# Arruda-Boyce eight-chain series: W = mu sum_i C_i / lambda_m^(2i-2) (I1bar^i - 3^i)
+ARRUDA_BOYCE_SERIES = (1.0 / 2.0, 1.0 / 20.0, 11.0 / 1050.0, 19.0 / 7000.0, 519.0 / 673750.0)
+"""The coefficients C_i of the five-term eight-chain series (Arruda & Boyce 1993)."""
+
+
+@njit
+def _arruda_boyce_kernel(e, params, W, s, K, with_tangent):
+    # W = sum_p a_p (I1bar^p - 3^p) + bulk/2 (J - 1)^2, p = 1..5, params = [a_1..a_5, bulk];
+    # I1bar^p - 3^p = (I1bar - 3) g_p with g_1 = 1, g_p = 3^(p-1) + I1bar g_(p-1) (no cancellation at rest)
+    kb = params[5]
+    n = e.shape[0]
+    for q in range(n):
+        x = e[q, 0]
+        g = 1.0
+        t3 = 1.0
+        xp1 = 0.0  # x^(p-2)
+        xp = 1.0  # x^(p-1)
+        w = 0.0
+        d1 = 0.0
+        d2 = 0.0
+        for i in range(5):
+            p = i + 1.0
+            a = params[i]
+            if i > 0:
+                t3 *= 3.0
+                g = t3 + x * g
+                xp1 = xp
+                xp = xp * x
+            w += a * g
+            d1 += p * a * xp
+            d2 += p * (p - 1.0) * a * xp1
+        d = e[q, 2] - 1.0
+        W[q] = w * (x - 3.0) + 0.5 * kb * d * d
+        s[q, 0] = d1
+        s[q, 1] = 0.0
+        s[q, 2] = kb * d
+        if with_tangent:
+            for a in range(3):
+                for b in range(3):
+                    K[q, a, b] = 0.0
+            K[q, 0, 0] = d2
+            K[q, 2, 2] = kb
+
+
+def _arruda_boyce_numpy(e, params):
+    a, kb = params[:5], params[5]
+    n = e.shape[0]
+    x = e[:, 0]
+    p = np.arange(1.0, 6.0)
+    xp = x[:, None] ** (p - 1.0)  # (n, 5): x^(p-1)
+    g = np.empty((n, 5))
+    g[:, 0] = 1.0
+    for i in range(1, 5):
+        g[:, i] = 3.0**i + x * g[:, i - 1]
+    d = e[:, 2] - 1.0
+    W = (g @ a) * (x - 3.0) + 0.5 * kb * d * d
+    s = np.zeros((n, 3))
+    s[:, 0] = xp @ (p * a)
+    s[:, 2] = kb * d
+    K = np.zeros((n, 3, 3))
+    xpm = np.concatenate([np.zeros((n, 1)), xp[:, :4]], axis=1)  # x^(p-2), its p = 1 entry unused
+    K[:, 0, 0] = xpm @ (p * (p - 1.0) * a)
+    K[:, 2, 2] = kb
+    return W, s, K
+
+
+@njit
+def _veronda_westmann_kernel(e, params, W, s, K, with_tangent):
+    # W = c1 (exp(c2 (I1bar - 3)) - 1) - c1 c2/2 (I2bar - 3) + bulk/2 (J - 1)^2
+    c1, c2, kb = params[0], params[1], params[2]
+    n = e.shape[0]
+    for q in range(n):
+        z = c2 * (e[q, 0] - 3.0)
+        x = np.exp(z)
+        d = e[q, 2] - 1.0
+        W[q] = c1 * np.expm1(z) - 0.5 * c1 * c2 * (e[q, 1] - 3.0) + 0.5 * kb * d * d
+        s[q, 0] = c1 * c2 * x
+        s[q, 1] = -0.5 * c1 * c2
+        s[q, 2] = kb * d
+        if with_tangent:
+            for a in range(3):
+                for b in range(3):
+                    K[q, a, b] = 0.0
+            K[q, 0, 0] = c1 * c2 * c2 * x
+            K[q, 2, 2] = kb
+
+
+def _veronda_westmann_numpy(e, params):
+    c1, c2, kb = params
+    n = e.shape[0]
+    z = c2 * (e[:, 0] - 3.0)
+    x = np.exp(z)
+    d = e[:, 2] - 1.0
+    W = c1 * np.expm1(z) - 0.5 * c1 * c2 * (e[:, 1] - 3.0) + 0.5 * kb * d * d
+    s = np.zeros((n, 3))
+    s[:, 0], s[:, 1], s[:, 2] = c1 * c2 * x, -0.5 * c1 * c2, kb * d
+    K = np.zeros((n, 3, 3))
+    K[:, 0, 0] = c1 * c2 * c2 * x
     K[:, 2, 2] = kb
     return W, s, K
 
@@ -582,6 +686,126 @@ class MooneyRivlinLaw(Law):
     @property
     def params(self):
         return np.array([self.c1, self.c2, self.bulk], dtype=np.float64)
+
+
+def _higher_in_I1(e, t, q):
+    """Third and fourth derivatives of a law whose only non-quadratic part is f(I1bar)."""
+    n, m = e.shape
+    T = np.zeros((n, m, m, m))
+    Q = np.zeros((n, m, m, m, m))
+    T[:, 0, 0, 0] = t
+    Q[:, 0, 0, 0, 0] = q
+    return T, Q
+
+
+@dataclass(frozen=True, eq=False)
+class ArrudaBoyceLaw(Law):
+    """Arruda-Boyce (eight-chain) over ``(I1bar, I2bar, J)``.
+
+    ``W = mu sum_{i=1..5} C_i / lambda_m^(2i-2) (I1bar^i - 3^i) + bulk/2 (J - 1)^2`` with
+    ``C = (1/2, 1/20, 11/1050, 19/7000, 519/673750)`` (:data:`ARRUDA_BOYCE_SERIES`).  The
+    volumetric part is the quadratic ``bulk/2 (J - 1)^2`` (as Mooney-Rivlin here): defined for
+    any J, bulk modulus ``bulk`` at rest.  ``mu`` is the series coefficient; the small-strain
+    shear modulus is :attr:`shear_modulus` ``= mu (1 + 3/(5 lm^2) + 99/(175 lm^4)
+    + 513/(875 lm^6) + 42039/(67375 lm^8))``, ``lm = lambda_m``.
+
+    Parameters
+    ----------
+    mu : float
+        Series coefficient [Pa], > 0.
+    lambda_m : float
+        Locking stretch, > 1.
+    bulk : float
+        Bulk modulus [Pa], > 0.
+
+    References
+    ----------
+    E. M. Arruda, M. C. Boyce, "A three-dimensional constitutive model for the large stretch
+    behavior of rubber elastic materials", J. Mech. Phys. Solids 41(2), 1993.
+    """
+
+    mu: float = 1.0
+    lambda_m: float = 2.8
+    bulk: float = 1.0
+    strain_kind = "invariant-deviatoric"
+    accepts = ("invariant-deviatoric",)
+    size = 3
+    _kernel = staticmethod(_arruda_boyce_kernel)
+    _twin = staticmethod(_arruda_boyce_numpy)
+
+    def __post_init__(self):
+        for name in ("mu", "lambda_m", "bulk"):
+            v = getattr(self, name)
+            if not np.isfinite(v):
+                raise InputError(f"Arruda-Boyce {name} must be finite, got {v!r}")
+        if not self.lambda_m > 1.0:
+            raise InputError(f"Arruda-Boyce lambda_m = {self.lambda_m!r} is out of range; valid: (1, inf)")
+        a = [self.mu * c / self.lambda_m ** (2 * i) for i, c in enumerate(ARRUDA_BOYCE_SERIES)]
+        object.__setattr__(self, "_params", np.array([*a, self.bulk], dtype=np.float64))
+
+    @property
+    def params(self):
+        return self._params
+
+    @property
+    def shear_modulus(self) -> float:
+        """Small-strain shear modulus [Pa]: ``2 dW/dI1bar`` at rest."""
+        p = np.arange(1.0, 6.0)
+        return float(2.0 * np.sum(p * self._params[:5] * 3.0 ** (p - 1.0)))
+
+    def higher(self, e):
+        e = self.check(e)
+        a = self._params[:5]
+        p = np.arange(1.0, 6.0)
+        x = e[:, :1]
+        # p(p-1)(p-2) a_p x^(p-3) and p(p-1)(p-2)(p-3) a_p x^(p-4): the falling factorials vanish
+        # where the power would be negative, so the clipped power never matters
+        c3 = p * (p - 1) * (p - 2) * a
+        c4 = c3 * (p - 3)
+        t = np.sum(c3 * x ** np.maximum(p - 3.0, 0.0), axis=1)
+        q = np.sum(c4 * x ** np.maximum(p - 4.0, 0.0), axis=1)
+        return _higher_in_I1(e, t, q)
+
+
+@dataclass(frozen=True, eq=False)
+class VerondaWestmannLaw(Law):
+    """Veronda-Westmann over ``(I1bar, I2bar, J)``.
+
+    ``W = c1 (exp(c2 (I1bar - 3)) - 1) - c1 c2/2 (I2bar - 3) + bulk/2 (J - 1)^2``;
+    small-strain shear modulus ``c1 c2``, bulk modulus ``bulk``.
+
+    Parameters
+    ----------
+    c1 : float
+        Stress scale [Pa], > 0.
+    c2 : float
+        Exponential stiffening (dimensionless), > 0.
+    bulk : float
+        Bulk modulus [Pa], > 0.
+
+    References
+    ----------
+    D. R. Veronda, R. A. Westmann, "Mechanical characterization of skin - finite deformations",
+    J. Biomech. 3(1), 1970.
+    """
+
+    c1: float = 1.0
+    c2: float = 1.0
+    bulk: float = 1.0
+    strain_kind = "invariant-deviatoric"
+    accepts = ("invariant-deviatoric",)
+    size = 3
+    _kernel = staticmethod(_veronda_westmann_kernel)
+    _twin = staticmethod(_veronda_westmann_numpy)
+
+    @property
+    def params(self):
+        return np.array([self.c1, self.c2, self.bulk], dtype=np.float64)
+
+    def higher(self, e):
+        e = self.check(e)
+        x = self.c1 * np.exp(self.c2 * (e[:, 0] - 3.0))
+        return _higher_in_I1(e, x * self.c2**3, x * self.c2**4)
 
 
 @dataclass(frozen=True, eq=False)

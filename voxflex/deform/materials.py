@@ -422,6 +422,76 @@ def _mooney_rivlin(young=None, poisson=None, strain=None, **constants):
     return Material(_strain(model, strain, "invariant-deviatoric"), _laws.MooneyRivlinLaw(c1, c2, bulk), model, params)
 
 
+ARRUDA_BOYCE_LAMBDA_M = 2.8
+"""Default locking stretch of ``arruda-boyce`` built from young/poisson."""
+VERONDA_WESTMANN_C2 = 1.0
+"""Default exponent c2 of ``veronda-westmann`` built from young/poisson."""
+
+
+def _moduli_summary(mu, bulk):
+    """(young, poisson, lmbda) of the small-strain shear modulus mu and bulk modulus."""
+    lm = bulk - 2.0 * mu / 3.0
+    return mu * (3 * lm + 2 * mu) / (lm + mu), lm / (2 * (lm + mu)), lm
+
+
+def _arruda_boyce(young=None, poisson=None, strain=None, **constants):
+    """Arruda-Boyce: ``mu`` is the series coefficient, the small-strain shear modulus is ``mu * factor``.
+
+    From young/poisson (and ``lambda_m``, default 2.8) ``mu = mu_0 / factor(lambda_m)`` with
+    ``mu_0`` the Lamé shear modulus and ``bulk = lmbda + 2 mu_0 / 3``, so the material linearizes
+    exactly to Hooke with that E and nu (``factor`` is the law's ``shear_modulus / mu``).
+    """
+    model = "arruda-boyce"
+    E, nu, c = _split(model, young, poisson, constants, ("mu", "bulk"), optional=("lambda_m",))
+    lam_m = _number("lambda_m", c.get("lambda_m", ARRUDA_BOYCE_LAMBDA_M), low=1.0, what=" (locking stretch)")
+    factor = _laws.ArrudaBoyceLaw(1.0, lam_m, 1.0).shear_modulus
+    if E is not None:
+        mu0, lm = lame(E, nu)
+        mu = mu0 / factor
+        bulk = lm + 2.0 * mu0 / 3.0
+    else:
+        _require(model, c, ("mu", "bulk"))
+        mu = _number("mu", c["mu"], low=0.0, what=" Pa")
+        bulk = _number("bulk", c["bulk"], low=0.0, what=" Pa")
+        mu0 = mu * factor
+        if bulk < 2.0 * mu0 / 3.0:
+            raise InputError(
+                f"arruda-boyce needs bulk >= 2/3 of the shear modulus mu*factor = {mu0:g} (poisson >= 0); "
+                f"got bulk={bulk:g}"
+            )
+        E, nu, lm = _moduli_summary(mu0, bulk)
+    law = _laws.ArrudaBoyceLaw(mu, lam_m, bulk)
+    params = {"young": E, "poisson": nu, "mu": mu, "lambda_m": lam_m, "bulk": bulk,
+              "shear_modulus": mu0, "lmbda": lm}
+    return Material(_strain(model, strain, "invariant-deviatoric"), law, model, params)
+
+
+
+def _veronda_westmann(young=None, poisson=None, strain=None, **constants):
+    """Veronda-Westmann: from young/poisson (and ``c2``, default 1) ``c1 = mu / c2``, ``bulk = lmbda + 2 mu / 3``."""
+    model = "veronda-westmann"
+    E, nu, c = _split(model, young, poisson, constants, ("c1", "bulk"), optional=("c2",))
+    c2 = _number("c2", c.get("c2", VERONDA_WESTMANN_C2), low=0.0, what=" (dimensionless)")
+    if E is not None:
+        mu, lm = lame(E, nu)
+        c1 = mu / c2
+        bulk = lm + 2.0 * mu / 3.0
+    else:
+        _require(model, c, ("c1", "bulk"))
+        c1 = _number("c1", c["c1"], low=0.0, what=" Pa")
+        bulk = _number("bulk", c["bulk"], low=0.0, what=" Pa")
+        mu = c1 * c2
+        if bulk < 2.0 * mu / 3.0:
+            raise InputError(
+                f"veronda-westmann needs bulk >= 2/3 of the shear modulus c1*c2 = {mu:g} (poisson >= 0); "
+                f"got bulk={bulk:g}"
+            )
+        E, nu, lm = _moduli_summary(mu, bulk)
+    params = {"young": E, "poisson": nu, "c1": c1, "c2": c2, "bulk": bulk, "mu": mu, "lmbda": lm}
+    law = _laws.VerondaWestmannLaw(c1, c2, bulk)
+    return Material(_strain(model, strain, "invariant-deviatoric"), law, model, params)
+
+
 def _volume(model, law_type):
     def factory(young=None, poisson=None, strain=None, **constants):
         E, nu, c = _split(model, young, poisson, constants, ("bulk",))
@@ -481,6 +551,8 @@ MATERIALS: dict[str, Callable[..., Material]] = {
     "neo-hookean": _neo_hookean,
     "stable-neo-hookean": _stable_neo_hookean,
     "mooney-rivlin": _mooney_rivlin,
+    "arruda-boyce": _arruda_boyce,
+    "veronda-westmann": _veronda_westmann,
     "volume-log": _volume("volume-log", _laws.VolumeLogLaw),
     "volume-quadratic": _volume("volume-quadratic", _laws.VolumeQuadraticLaw),
     "ogden": _ogden,
@@ -498,8 +570,10 @@ def material(name: str, *, young=None, poisson=None, strain=None, **constants) -
         ``strain="linear"`` is small-strain elasticity, ``"green"`` is StVK),
         ``hooke-orthotropic`` (``E1, E2, E3, nu12, nu13, nu23, G12, G23, G13``),
         ``stvk``, ``neo-hookean``, ``stable-neo-hookean``, ``mooney-rivlin``
-        (``c1, c2, bulk``), ``volume-log``, ``volume-quadratic`` (``bulk``),
-        ``ogden`` (``mu_p, alpha_p, lmbda``).
+        (``c1, c2, bulk``), ``arruda-boyce`` (``mu, lambda_m, bulk``; young/poisson
+        with an optional ``lambda_m``, default 2.8), ``veronda-westmann`` (``c1, c2, bulk``;
+        young/poisson with an optional ``c2``, default 1), ``volume-log``,
+        ``volume-quadratic`` (``bulk``), ``ogden`` (``mu_p, alpha_p, lmbda``).
     young : float, optional
         Young's modulus [Pa], > 0.
     poisson : float, optional
