@@ -13,6 +13,7 @@ Example
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -155,17 +156,8 @@ def simulate(scene, *, progress: bool = True, output=None) -> Result:
     dynamic = scene.solver.kind == "implicit-euler"
     densities = {m.label: m.density for m in scene.materials} if (gravity is not None or dynamic) else None
     s = scene.solver
-    options = SolverOptions(
-        kind=s.kind,
-        steps=s.steps,
-        dt=s.dt,
-        tolerance=s.tolerance,
-        max_iterations=s.max_iterations,
-        line_search=s.line_search,
-        linear_solver=s.linear_solver,
-        rayleigh_mass=s.rayleigh_mass,
-        rayleigh_stiffness=s.rayleigh_stiffness,
-    )
+    # [solver] mirrors SolverOptions key for key (the scene is its file form)
+    options = SolverOptions(**dataclasses.asdict(s))
     probe_map = None
     if scene.probes:
         points = np.array([p.point for p in scene.probes], dtype=float)

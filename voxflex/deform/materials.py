@@ -409,15 +409,11 @@ def _mooney_rivlin(young=None, poisson=None, strain=None, **constants):
         c1 = _number("c1", c["c1"], what=" Pa")
         bulk = _number("bulk", c["bulk"], low=0.0, what=" Pa")
         mu = 2.0 * (c1 + c2)
-        lm = bulk - 2.0 * mu / 3.0
-        E, nu = None, None
-    if not (c1 + c2 > 0):
-        raise InputError(f"mooney-rivlin needs c1 + c2 > 0 (shear modulus 2(c1 + c2)); got c1={c1:g}, c2={c2:g}")
-    if lm < 0:
-        raise InputError("mooney-rivlin needs bulk >= 4(c1 + c2)/3 (poisson >= 0)")
-    if E is None:
-        E = mu * (3 * lm + 2 * mu) / (lm + mu)
-        nu = lm / (2 * (lm + mu))
+        if not (mu > 0):
+            raise InputError(
+                f"mooney-rivlin needs c1 + c2 > 0 (shear modulus 2(c1 + c2)); got c1={c1:g}, c2={c2:g}"
+            )
+        E, nu, lm = _moduli_summary(model, mu, bulk, "2(c1 + c2)")
     params = {"young": E, "poisson": nu, "c1": c1, "c2": c2, "bulk": bulk, "mu": mu, "lmbda": lm}
     return Material(_strain(model, strain, "invariant-deviatoric"), _laws.MooneyRivlinLaw(c1, c2, bulk), model, params)
 
@@ -428,9 +424,17 @@ VERONDA_WESTMANN_C2 = 1.0
 """Default exponent c2 of ``veronda-westmann`` built from young/poisson."""
 
 
-def _moduli_summary(mu, bulk):
-    """(young, poisson, lmbda) of the small-strain shear modulus mu and bulk modulus."""
+def _moduli_summary(model, mu, bulk, shear):
+    """(young, poisson, lmbda) of the small-strain shear modulus mu and bulk modulus.
+
+    Poisson's ratio must stay >= 0 (SPEC), i.e. ``bulk >= 2 mu / 3``; ``shear``
+    names how the model's constants make mu, for the error message.
+    """
     lm = bulk - 2.0 * mu / 3.0
+    if lm < 0:
+        raise InputError(
+            f"{model} needs bulk >= 2/3 of the shear modulus {shear} = {mu:g} (poisson >= 0); got bulk={bulk:g}"
+        )
     return mu * (3 * lm + 2 * mu) / (lm + mu), lm / (2 * (lm + mu)), lm
 
 
@@ -454,12 +458,7 @@ def _arruda_boyce(young=None, poisson=None, strain=None, **constants):
         mu = _number("mu", c["mu"], low=0.0, what=" Pa")
         bulk = _number("bulk", c["bulk"], low=0.0, what=" Pa")
         mu0 = mu * factor
-        if bulk < 2.0 * mu0 / 3.0:
-            raise InputError(
-                f"arruda-boyce needs bulk >= 2/3 of the shear modulus mu*factor = {mu0:g} (poisson >= 0); "
-                f"got bulk={bulk:g}"
-            )
-        E, nu, lm = _moduli_summary(mu0, bulk)
+        E, nu, lm = _moduli_summary(model, mu0, bulk, "mu*factor")
     law = _laws.ArrudaBoyceLaw(mu, lam_m, bulk)
     params = {"young": E, "poisson": nu, "mu": mu, "lambda_m": lam_m, "bulk": bulk,
               "shear_modulus": mu0, "lmbda": lm}
@@ -481,12 +480,7 @@ def _veronda_westmann(young=None, poisson=None, strain=None, **constants):
         c1 = _number("c1", c["c1"], low=0.0, what=" Pa")
         bulk = _number("bulk", c["bulk"], low=0.0, what=" Pa")
         mu = c1 * c2
-        if bulk < 2.0 * mu / 3.0:
-            raise InputError(
-                f"veronda-westmann needs bulk >= 2/3 of the shear modulus c1*c2 = {mu:g} (poisson >= 0); "
-                f"got bulk={bulk:g}"
-            )
-        E, nu, lm = _moduli_summary(mu, bulk)
+        E, nu, lm = _moduli_summary(model, mu, bulk, "c1*c2")
     params = {"young": E, "poisson": nu, "c1": c1, "c2": c2, "bulk": bulk, "mu": mu, "lmbda": lm}
     law = _laws.VerondaWestmannLaw(c1, c2, bulk)
     return Material(_strain(model, strain, "invariant-deviatoric"), law, model, params)
