@@ -26,8 +26,11 @@ _LAZY = {
     "strain": "voxflex.deform",
     "Scene": "voxflex.scene",
     "simulate": "voxflex.simulation",
+    "model": "voxflex.build",
     "Result": "voxflex.result",
     "render": "voxflex.rendering",
+    "sample": "voxflex.sampling",
+    "Samples": "voxflex.sampling",
 }
 
 __all__ = ["__version__", "VoxflexError", "InputError", "ConvergenceError", *_LAZY]
