@@ -1,0 +1,144 @@
+"""Rank check of a frame model's quadrature: count the zero-energy modes of a free body.
+
+A free body of affine frames integrated with linear isotropic elasticity at
+the samples has exactly six zero-energy modes (three translations, three
+infinitesimal rotations) when the samples are enough; with too few samples
+the stiffness ``K = sum_s J_s^T (V_s C) J_s`` is rank-deficient and the extra
+null vectors are spurious (hourglass) modes.  Each mid-point sample adds at most
+6 to the rank (the symmetric strain components); an elaston with gradient
+terms adds at most 24 (strain and its gradient).
+
+>>> import numpy as np                                              # doctest: +SKIP
+>>> zero_energy_modes(frames, samples)                              # doctest: +SKIP
+6
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ..errors import InputError
+from .mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping
+from .nodes import AffineFrames
+
+__all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness"]
+
+
+class SpuriousModesWarning(UserWarning):
+    """The samples leave zero-energy modes beyond the six rigid ones."""
+
+
+def _unit_hooke_F() -> np.ndarray:
+    """(9, 9) tangent d2W/dF2 of ``W = mu |sym(F)|^2 + lambda/2 tr(F)^2`` with mu = lambda = 1."""
+    I = np.eye(3)
+    C = np.einsum("ij,kl->ijkl", I, I) + np.einsum("ik,jl->ijkl", I, I) + np.einsum("il,jk->ijkl", I, I)
+    return C.reshape(9, 9)
+
+
+def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.ndarray:
+    """Dense stiffness (12n, 12n) of affine frames at rest with unit linear isotropic elasticity at the samples.
+
+    Parameters
+    ----------
+    frames : (n, 3) float
+        Rest positions of the frames [m].
+    samples : Samples
+        Integration samples (their ``values`` are the shape functions on these frames).
+    gradient : bool, optional
+        Include the strain-gradient terms of elastons (``∇F`` with the moments
+        M1, M2); default: when ``samples.kind == "elaston"`` and the values have Hessians.
+
+    Returns
+    -------
+    (12n, 12n) float, symmetric positive semi-definite [Pa m^3].
+    """
+    X = np.asarray(frames, dtype=np.float64)
+    if X.ndim != 2 or X.shape[1] != 3:
+        raise InputError(f"frames must be an (n, 3) array, got shape {X.shape}")
+    for attr in ("values", "volume", "M1", "M2"):
+        if not hasattr(samples, attr):
+            raise InputError(f"samples must be a voxflex Samples (missing '{attr}'); build them with vf.sample")
+    values = samples.values
+    if gradient is None:
+        gradient = getattr(samples, "kind", None) == "elaston" and values.ddw is not None
+    nodes = AffineFrames(X)
+    C = _unit_hooke_F()
+    V = np.asarray(samples.volume, dtype=np.float64)
+    m = len(V)
+    if gradient:
+        mapping = DeformationGradientWithGradientMapping(nodes, values)
+        M1, M2 = np.asarray(samples.M1), np.asarray(samples.M2)
+        # E = 1/2 int C[dF(x)]^2, dF(x) = F + ∇F (x - p): blocks over (F 9 | ∇F 27 = (ij)*3 + a)
+        H = np.zeros((m, 36, 36))
+        H[:, :9, :9] = V[:, None, None] * C
+        FdF = np.einsum("pq,sb->spqb", C, M1).reshape(m, 9, 27)
+        H[:, :9, 9:] = FdF
+        H[:, 9:, :9] = FdF.transpose(0, 2, 1)
+        H[:, 9:, 9:] = np.einsum("pq,sab->spaqb", C, M2).reshape(m, 27, 27)
+        width = 36
+    else:
+        mapping = DeformationGradientMapping(nodes, values)
+        H = V[:, None, None] * C
+        width = 9
+    J = mapping.jacobian(nodes.rest)
+    import scipy.sparse as sp
+
+    Hb = sp.block_diag(list(H), format="csr") if m else sp.csr_matrix((0, 0))
+    assert Hb.shape[0] == J.shape[0] == m * width
+    K = (J.T @ Hb @ J).toarray()
+    return 0.5 * (K + K.T)
+
+
+def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None) -> int:
+    """Number of zero eigenvalues of the free-body stiffness (six for a sound quadrature).
+
+    Parameters
+    ----------
+    frames : (n, 3) float
+        Rest positions of the frames [m].
+    samples : Samples
+    tol : float, keyword-only
+        An eigenvalue counts as zero below ``tol * max eigenvalue``.
+    gradient : bool, optional
+        See :func:`free_body_stiffness`.
+
+    Returns
+    -------
+    int
+    """
+    tol = float(tol)
+    if not 0 < tol < 1:
+        raise InputError(f"tol must be in (0, 1), got {tol}")
+    K = free_body_stiffness(frames, samples, gradient=gradient)
+    ev = np.linalg.eigvalsh(K)
+    top = float(ev.max()) if ev.size else 0.0
+    if top <= 0:
+        return int(ev.size)
+    return int((ev < tol * top).sum())
+
+
+def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None) -> int:
+    """Count zero-energy modes and warn (:class:`SpuriousModesWarning`) when there are more than six.
+
+    The warning names how many samples to add at least (each mid-point sample
+    removes at most 6 modes, an elaston with gradient terms at most 24).
+
+    Returns
+    -------
+    int : the number of zero-energy modes.
+    """
+    if gradient is None:
+        gradient = getattr(samples, "kind", None) == "elaston" and samples.values.ddw is not None
+    zero = zero_energy_modes(frames, samples, tol=tol, gradient=gradient)
+    if zero > 6:
+        per = 24 if gradient else 6
+        add = -(-(zero - 6) // per)
+        warnings.warn(
+            f"the quadrature leaves {zero - 6} spurious zero-energy modes ({zero} zero eigenvalues, a free body has 6); "
+            f"add at least {add} samples (each adds at most {per} independent strain components)",
+            SpuriousModesWarning,
+            stacklevel=2,
+        )
+    return zero
