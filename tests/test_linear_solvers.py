@@ -25,12 +25,13 @@ def test_methods_agree_to_their_tolerance():
     model, K, free, A, b = _system()
     ref, info = solve_linear(A, b, method="cholesky")
     assert info.residual < 1e-12
-    for method in ("direct", "cg", "amg"):
-        x, info = solve_linear(A, b, method=method, rtol=1e-10, near_null=rigid_body_modes(model.rest)[free])
+    for method in ("direct", "cg", "amg", "multigrid"):
+        x, info = solve_linear(A, b, method=method, rtol=1e-10, near_null=rigid_body_modes(model.rest)[free],
+                               grid=model.grid, free=free)
         assert info.method == method and info.residual <= 1e-10 * 1.01
         # solution error <= condition number x residual; kappa ~ 1e4 here, so 1e-5 is the bound
         assert np.linalg.norm(x - ref) <= 1e-5 * np.linalg.norm(ref)
-        if method in ("cg", "amg"):
+        if method in ("cg", "amg", "multigrid"):
             assert info.iterations > 0
     # amg with rigid modes needs far fewer iterations than Jacobi-CG
     nn = rigid_body_modes(model.rest)[free]
@@ -49,6 +50,10 @@ def test_auto_selection_and_errors():
     assert choose_method(DENSE_MAX) == "cholesky"
     assert choose_method(DENSE_MAX + 1) == "direct" and choose_method(DIRECT_MAX) == "direct"
     assert choose_method(DIRECT_MAX + 1) == "cg"
+    # with the voxel grid, multigrid-CG beyond the direct range (the grid only changes the large-system choice)
+    model, _, free, _, _ = _system()
+    assert choose_method(DIRECT_MAX + 1, grid=model.grid) == "multigrid"
+    assert choose_method(DIRECT_MAX, grid=model.grid) == "direct"
     _, _, _, A, b = _system()
     x, info = solve_linear(A, b)  # 7 * 4 * 4 * 3 = 336 unknowns -> direct
     assert info.method == "direct"

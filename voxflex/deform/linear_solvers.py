@@ -9,7 +9,13 @@
   11.6 s at 56k DOF, see NOTES).
 * ``"cg"``: conjugate gradients with the Jacobi (diagonal) preconditioner.
 * ``"amg"``: conjugate gradients preconditioned by pyamg smoothed aggregation
-  with the rigid-body modes as near-null space (needs node positions).  Its
+  with the rigid-body modes as near-null space (needs node positions).
+* ``"multigrid"``: conjugate gradients preconditioned by one V-cycle of the
+  geometric voxel multigrid of :mod:`voxflex.deform.multigrid` (needs the
+  voxel grid: ``grid=model.grid, free=...``).  Its prolongations are cached
+  per grid and free-DOF set, so Newton iterations redo only the Galerkin
+  products.  Iterations at rtol 1e-8 on the clamped beam: 8, 12, 12 at
+  32x8x8, 64x16x16, 128x32x32 (Jacobi-CG: 158, 318, 651).  Its
   setup is seeded, so two runs give bitwise identical answers.
 * ``"auto"``: ``"cholesky"`` up to :data:`DENSE_MAX` unknowns, ``"direct"`` up
   to :data:`DIRECT_MAX`, ``"cg"`` beyond.  Measured on the clamped voxel beam
@@ -42,7 +48,7 @@ import scipy.sparse.linalg as spla
 
 from ..errors import ConvergenceError, InputError, check_choice
 
-METHODS = ("auto", "cholesky", "direct", "cg", "amg")
+METHODS = ("auto", "cholesky", "direct", "cg", "amg", "multigrid")
 DENSE_MAX = 64
 DIRECT_MAX = 5000
 
@@ -76,24 +82,24 @@ def rigid_body_modes(positions) -> np.ndarray:
     return B.reshape(3 * n, 6)
 
 
-def choose_method(n: int) -> str:
-    """The method ``"auto"`` picks for ``n`` unknowns."""
+def choose_method(n: int, *, grid=None) -> str:
+    """The method ``"auto"`` picks for ``n`` unknowns (``grid``: the voxel grid, when there is one)."""
     if n <= DENSE_MAX:
         return "cholesky"
     if n <= DIRECT_MAX:
         return "direct"
-    return "cg"
+    return "cg" if grid is None else "multigrid"
 
 
 def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: int | None = None,
-                 x0=None, near_null=None):
+                 x0=None, near_null=None, grid=None, free=None):
     """Solve the symmetric system ``A x = b``.
 
     Parameters
     ----------
     A : (N, N) sparse or dense symmetric matrix
     b : (N,) float
-    method : {"auto", "cholesky", "direct", "cg", "amg"}
+    method : {"auto", "cholesky", "direct", "cg", "amg", "multigrid"}
     rtol : float
         Relative residual for the iterative methods.
     maxiter : int, optional
@@ -102,6 +108,12 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
         Initial guess (iterative methods).
     near_null : (N, k) float, optional
         Near-null space for ``"amg"`` (rigid-body modes restricted to the unknowns).
+    grid : TrilinearGrid, optional
+        The voxel grid the unknowns live on (``model.grid``); needed by
+        ``"multigrid"``, and lets ``"auto"`` pick it on large systems.
+    free : (N,) int, optional
+        With ``grid``: the DOFs (``3 * node + component``, sorted) that the
+        unknowns are, i.e. ``A = H[free][:, free]``; default all ``3 * grid.n_nodes``.
 
     Returns
     -------
@@ -113,10 +125,20 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
     N = b.shape[0]
     if A.shape != (N, N):
         raise InputError(f"matrix shape {A.shape} does not match right-hand side length {N}")
+    if grid is not None:
+        from .multigrid import TrilinearGrid
+
+        if not isinstance(grid, TrilinearGrid):
+            raise InputError(f"grid must be the voxel model's TrilinearGrid (model.grid), got {type(grid).__name__}")
+        free = np.arange(3 * grid.n_nodes) if free is None else np.asarray(free)
+        if free.shape != (N,):
+            raise InputError(f"free has {free.size} DOFs but the system has {N} unknowns; pass A = H[free][:, free]")
+    elif method == "multigrid":
+        raise InputError("linear solver 'multigrid' needs the voxel grid: pass grid=model.grid (and free=...)")
     if N == 0:
         return np.zeros(0), LinearSolveInfo(method, 0, 0.0, 0.0)
     if method == "auto":
-        method = choose_method(N)
+        method = choose_method(N, grid=grid)
     t0 = time.perf_counter()
     bnorm = vnorm(b)
     if bnorm == 0.0:
@@ -131,6 +153,8 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
         maxiter = maxiter or max(1000, N // 4)
         if method == "cg":
             x, its, ok = _cg_jacobi(A, b, rtol, maxiter, x0)
+        elif method == "multigrid":
+            x, its, ok = _cg_multigrid(A, b, rtol, maxiter, x0, grid, free)
         else:
             x, its, ok = _cg_amg(A, b, rtol, maxiter, x0, near_null)
         note = ""
@@ -280,6 +304,29 @@ def _cg_jacobi(A, b, rtol, maxiter, x0):
 
 
 _AMG_SEED = 20240601
+
+
+def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free):
+    from threadpoolctl import threadpool_limits
+
+    from .multigrid import multigrid_preconditioner
+
+    A = sp.csr_matrix(A)
+    if np.any(A.diagonal() <= 0):
+        return np.zeros_like(b), 0, False
+    # BLAS on one thread for the coarse factorisation and the small dense coarse solves of every cycle
+    with threadpool_limits(limits=1, user_api="blas"):
+        apply, _ = multigrid_preconditioner(A, grid, free)
+        x, its, ok = _pcg(A, b, None, rtol, maxiter, x0, precond=apply)
+        target = rtol * vnorm(b)
+        # the recursive residual drifts from the true one over a hundred iterations (2 % on a thin plate):
+        # restart from x until the true residual meets rtol, so the reported residual is what was asked
+        for _ in range(3):
+            if not ok or vnorm(A @ x - b) <= target:
+                break
+            x, more, ok = _pcg(A, b, None, rtol, maxiter - its, x, precond=apply)
+            its += more
+        return x, its, ok
 
 
 def _cg_amg(A, b, rtol, maxiter, x0, near_null):
