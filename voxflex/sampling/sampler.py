@@ -49,7 +49,7 @@ from ..voronoi.shape_functions import ShapeValues
 from ._geodesic import VoxelGraph
 from .quadrature import gauss_legendre_cube
 from .samples import KINDS, Samples
-from .volume_moments import _region_moments_impl, box_moment_table, monomials, shift_table
+from .volume_moments import EXPONENT_INDEX, EXPONENTS, _region_moments_impl, box_moment_table, monomials, shift_table
 
 __all__ = ["sample", "SamplingCountWarning", "LLOYD_ITERATIONS"]
 
@@ -441,6 +441,26 @@ def _basis(u):
     return phi, D, D2
 
 
+def _normal_table(D2TD2):
+    """(35, 10, 10) table: the Gram matrix of the fit is ``sum_v vol_v (phi phi^T + D^T D + D2^T D2) = S_u @ table``.
+
+    Entries of phi phi^T and D^T D are monomials of u of degree <= 4, so the Gram
+    matrix of a region follows from its 35 weighted monomial sums S_u.
+    """
+    E = EXPONENTS[:10]  # the quadratic basis, same order as _basis
+    T = np.zeros((len(EXPONENTS), 10, 10))
+    for i in range(10):
+        for j in range(10):
+            T[EXPONENT_INDEX[tuple(int(v) for v in E[i] + E[j])], i, j] += 1.0
+            for a in range(3):
+                if E[i][a] > 0 and E[j][a] > 0:
+                    e = E[i] + E[j]
+                    e[a] -= 2
+                    T[EXPONENT_INDEX[tuple(int(v) for v in e)], i, j] += float(E[i][a] * E[j][a])
+    T[0] += D2TD2
+    return T
+
+
 def fit_values(vv: ShapeValues, region, points, weights, h, n_frames, chunk=1 << 17) -> ShapeValues:
     """Shape values of regions fitted from voxel values (see the module docstring).
 
@@ -474,7 +494,7 @@ def fit_values(vv: ShapeValues, region, points, weights, h, n_frames, chunk=1 <<
     ukey, pair = np.unique(key, return_inverse=True)
     pair = pair.reshape(-1)
     npair = len(ukey)
-    Nmat = np.zeros((m, 10, 10))
+    Su = np.zeros((m, len(EXPONENTS)))
     rhs = np.zeros((npair, 10))
     D2 = _basis(np.zeros((1, 3)))[2]
     D2TD2 = D2.T @ D2
@@ -486,11 +506,9 @@ def fit_values(vv: ShapeValues, region, points, weights, h, n_frames, chunk=1 <<
         u = (vv.rest[start:stop] - points[r]) / h
         phi, D, _ = _basis(u)
         wt = weights[start:stop]
-        A = np.einsum("ki,kj->kij", phi, phi) + np.einsum("kai,kaj->kij", D, D) + D2TD2
-        A *= wt[:, None, None]
-        flat = A.reshape(len(r), 100)
-        for e in range(100):
-            Nmat.reshape(m, 100)[:, e] += np.bincount(r, weights=flat[:, e], minlength=m)
+        mono = monomials(u) * wt[:, None]
+        for e in range(mono.shape[1]):
+            Su[:, e] += np.bincount(r, weights=mono[:, e], minlength=m)
         lo, hi = np.searchsorted(pv, [start, stop])
         v = pv[lo:hi] - start
         s = ps[lo:hi]
@@ -501,6 +519,7 @@ def fit_values(vv: ShapeValues, region, points, weights, h, n_frames, chunk=1 <<
         b *= wt[v, None]
         for e in range(10):
             rhs[:, e] += np.bincount(pair[lo:hi], weights=b[:, e], minlength=npair)
+    Nmat = (Su @ _normal_table(D2TD2).reshape(len(EXPONENTS), 100)).reshape(m, 10, 10)
     scale = 1.0 / np.sqrt(np.einsum("mii->mi", Nmat))
     Ns = Nmat * scale[:, :, None] * scale[:, None, :]
     Ninv = np.linalg.inv(Ns) * scale[:, :, None] * scale[:, None, :]
