@@ -30,10 +30,34 @@ def test_info_on_an_image(image_file, capsys):
     assert "6 x 4 x 2" in out
     assert "[0.5, 0.25, 0.125] m" in out
     assert "[1, 2, 3] m" in out
-    rows = {line.split()[0]: line.split() for line in out.splitlines() if line.strip()[:1].isdigit()}
+    lines = out.splitlines()
+    table = lines[next(i for i, line in enumerate(lines) if "volume m^3" in line) + 1 :]
+    table = table[: next(i for i, line in enumerate(table) if line.strip().startswith("total"))]
+    rows = {line.split()[0]: line.split() for line in table}
     # label, voxels, volume (count x 1/64 m^3), share, parts
     assert rows["3"][1:3] == ["8", "0.125"] and rows["3"][4] == "1"
     assert rows["5"][1:3] == ["9", "0.140625"] and rows["5"][4] == "2"
+    # material components by face connectivity (the default): the two 2x2x2 blocks and the
+    # stray voxel (5, 0, 0), which shares no face with either; largest first
+    assert "components 3 (face connectivity" in out
+    comps = lines[next(i for i, line in enumerate(lines) if line.strip().startswith("#")) + 1 :][:3]
+    assert [c.split()[:3] for c in comps] == [["1", "8", "3"], ["2", "8", "5"], ["3", "1", "5"]]
+    assert comps[2].endswith("[5, 0, 0] to [5, 0, 0]")
+
+
+def test_info_connectivity_option(image_file, capsys):
+    # touching at all (26 neighbours), (5, 0, 0) still touches nothing: the blocks are 2 voxels apart
+    assert main(["info", str(image_file), "--connectivity", "vertex", "--largest", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "components 3 (vertex connectivity" in out
+    assert "... and 2 smaller component(s) with 9 voxels in all" in out
+
+
+def test_info_on_an_all_zero_image(tmp_path, capsys):
+    LabelImage(np.zeros((3, 2, 2), dtype=np.uint8), spacing=0.1).save(tmp_path / "empty.nrrd")
+    assert main(["info", str(tmp_path / "empty.nrrd")]) == 0
+    out = capsys.readouterr().out
+    assert "none: all 12 voxels are 0 (empty); the image holds no material" in out
 
 
 def test_info_with_spacing_for_a_bare_npy(tmp_path, capsys):

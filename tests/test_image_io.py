@@ -128,11 +128,14 @@ def test_npy_sidecar_and_its_absence(tmp_path):
     meta = json.loads((tmp_path / "a.npy.json").read_text())
     assert meta["spacing"] == image.spacing.tolist()
     os.remove(tmp_path / "a.npy.json")
-    bare = load_image(path)
-    np.testing.assert_array_equal(bare.spacing, [1.0, 1.0, 1.0])
-    np.testing.assert_array_equal(bare.origin, [0.0, 0.0, 0.0])
+    # without its sidecar a .npy records no voxel size: refused (it used to become 1 m voxels
+    # silently), with both fixes named
+    with pytest.raises(InputError, match=r"no sidecar 'a.npy.json'.*--spacing.*write the sidecar"):
+        load_image(path)
     given = load_image(path, spacing=[0.1, 0.2, 0.3])
     np.testing.assert_array_equal(given.spacing, [0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(given.origin, [0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(given.direction, np.eye(3))
 
 
 # -- files written by the formats' own tools -----------------------------------------

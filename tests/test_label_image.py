@@ -112,20 +112,41 @@ def test_memory():
 
 def test_describe_and_repr():
     image = two_boxes()
-    text = image.describe()
-    assert "10 x 8 x 6" in text
-    assert "[0.5, 0.25, 0.125] m" in text
-    assert "[1, -2, 0.5] m" in text
-    assert "identity" in text
-    lines = text.splitlines()
+    vertex = image.describe(connectivity="vertex")
+    assert "10 x 8 x 6" in vertex
+    assert "[0.5, 0.25, 0.125] m" in vertex
+    assert "[1, -2, 0.5] m" in vertex
+    assert "identity" in vertex
+    lines = vertex.splitlines()
     row1 = next(line for line in lines if line.split()[:2] == ["1", "20"])
     row2 = next(line for line in lines if line.split()[:2] == ["2", "97"])
-    assert row1.split()[2] == "0.3125" and row1.split()[4] == "1"  # volume, parts
+    assert row1.split()[2] == "0.3125" and row1.split()[4] == "1"  # volume, parts (vertex: label 1 is one part)
     assert row2.split()[2] == "1.51562" and row2.split()[4] == "2"
-    assert "3 component(s)" in text and "480 B" in text
-    assert "2 component(s)" not in text
-    face = image.describe(connectivity="face")
-    assert "5 component(s) (face connectivity)" in face  # label 1: 3 parts, label 2: 2 parts
+    # all material together by vertex (see test_connected_components): 116 voxels + (0,7,5)
+    assert "components 2 (vertex connectivity" in vertex and "480 B" in vertex
+    # face connectivity is the default: label 1 falls into 3 parts, the material into 5 components
+    face = image.describe()
+    assert face == image.describe(connectivity="face")
+    row1 = next(line for line in face.splitlines() if line.split()[:2] == ["1", "20"])
+    assert row1.split()[4] == "3"
+    assert "components 5 (face connectivity" in face
+
+
+def test_describe_lists_the_largest_components():
+    image = two_boxes()
+    text = image.describe(largest=2)
+    # face components, largest first: box 2 without its stray voxel (96 voxels, label 2,
+    # index box i 5..8, j 0..7, k 3..5), then box 1's block (18 voxels, label 1)
+    big = next(line for line in text.splitlines() if line.split()[:2] == ["1", "96"])
+    assert big.split()[2] == "2" and "[5, 0, 3] to [8, 7, 5]" in big
+    second = next(line for line in text.splitlines() if line.split()[:2] == ["2", "18"])
+    assert second.split()[2] == "1"
+    assert "... and 3 smaller component(s) with 3 voxels in all" in text
+    # the voxel counts of the listed components are brute-force counts of the component array
+    components, n = image.connected_components(None, connectivity="face")
+    assert sorted(np.bincount(components.ravel())[1:].tolist(), reverse=True) == [96, 18, 1, 1, 1]
+    with pytest.raises(InputError, match="largest"):
+        image.describe(largest=-1)
     short = repr(image)
     assert "\n" not in short and "10x8x6" in short and "labels=[1, 2]" in short
 
@@ -133,5 +154,6 @@ def test_describe_and_repr():
 def test_describe_empty_image():
     image = LabelImage(np.zeros((2, 3, 4), dtype=np.uint8), spacing=0.1)
     text = image.describe()
-    assert "0 material label(s), 24 empty voxels" in text
+    assert "none: all 24 voxels are 0 (empty); the image holds no material" in text
+    assert "labels present" not in text and "component" not in text
     assert image.label_counts() == {} and image.label_volumes() == {} and image.bounding_boxes() == {}

@@ -19,6 +19,7 @@ supported image files: .npy (+ NAME.npy.json) .npz .nii .nii.gz .nrrd .mha .mhd
                        .tif .tiff .h5 .hdf5 .vti
 examples:
   voxflex info scan.nii.gz
+  voxflex info scan.nii.gz --connectivity vertex --largest 10
   voxflex info stack.tif --spacing 1e-5 1e-5 2e-5     # a TIFF that records no voxel size
   voxflex info beam.toml                              # a scene
   voxflex info result.h5                              # a simulation result
@@ -30,7 +31,8 @@ def register(sub) -> None:
         "info",
         help="describe an image, a scene or a result file",
         description="Describe a label image (shape, spacing, origin, direction, labels with their "
-        "voxel counts, volumes and connected components, memory), a scene file (.toml) or a "
+        "voxel counts, volumes and parts, the connected components of the material by face "
+        "connectivity with the largest listed, memory), a scene file (.toml) or a "
         "result file (.h5 holding /time). Lengths are in metres; the world frame is LPS for "
         "medical formats (see voxflex.image.io).",
         epilog=_EPILOG,
@@ -46,10 +48,17 @@ def register(sub) -> None:
     )
     parser.add_argument(
         "--connectivity",
-        default="vertex",
-        choices=("vertex", "edge", "face"),
-        help="neighbourhood for counting connected parts: voxels touching by a corner (26 "
-        "neighbours, default), an edge (18) or a face (6)",
+        default="face",
+        choices=("face", "edge", "vertex"),
+        help="neighbourhood for connected parts and components: voxels sharing a face (6 neighbours, "
+        "default: what holds a body together mechanically), a face or an edge (18), or touching at all (26)",
+    )
+    parser.add_argument(
+        "--largest",
+        type=int,
+        default=5,
+        metavar="N",
+        help="list the N largest components with their voxel count, labels and box (default 5)",
     )
     parser.set_defaults(func=run)
 
@@ -90,6 +99,6 @@ def run(args) -> int:
         from ..image import LabelImage
 
         image = LabelImage.load(path, spacing=args.spacing)
-        text = f"{path}\n" + image.describe(connectivity=args.connectivity)
+        text = f"{path}\n" + image.describe(connectivity=args.connectivity, largest=args.largest)
     print(text)
     return 0

@@ -6,7 +6,8 @@ Formats
 extension          library and layout                          direction  occupancy
 =================  ==========================================  =========  =========
 ``.npy``           numpy; geometry in a JSON sidecar            yes        no
-                   ``NAME.npy.json`` (absent: ``spacing=`` or 1)
+                   ``NAME.npy.json`` (absent: ``spacing=`` is
+                   required, origin 0, no rotation)
 ``.npz``           numpy; ``labels``, ``spacing``, ``origin``,  yes        yes
                    ``direction``, ``occupancy`` arrays
 ``.nii .nii.gz``   nibabel (NIfTI-1, sform and qform set)       yes        no
@@ -71,7 +72,7 @@ import numpy as np
 
 from .._atomic import atomic_path
 from ..errors import InputError, did_you_mean
-from .label_image import LabelImage
+from .label_image import LabelImage, _as_labels
 
 
 def _require(module: str, what: str):
@@ -177,6 +178,63 @@ def load_image(path, *, spacing=None) -> LabelImage:
             f"cannot read '{path.name}' as {fmt}: {_one_line(exc)}; check that the file is a complete {fmt} image"
         ) from None
     return _build(path, fmt, given, **fields)
+
+
+def looks_like_image(path) -> bool:
+    """Whether the file at ``path`` carries the signature of the format its extension names.
+
+    A cheap check of the first bytes (no decoding), used before a file is
+    overwritten: a text file or a result named ``*.nrrd`` / ``*.h5`` is not an
+    image that can safely be replaced.  HDF5 files count only when they hold
+    ``/image/labels`` and no ``/time`` (a simulation result is not an image file).
+
+    Parameters
+    ----------
+    path : str or Path
+        An existing file with an image extension.
+
+    Returns
+    -------
+    bool
+        False for a missing file, an unknown extension or a wrong signature.
+    """
+    path = Path(path)
+    try:
+        fmt = image_format(path)
+        with open(path, "rb") as fh:
+            head = fh.read(1024)
+    except (InputError, OSError):
+        return False
+    name = path.name.lower()
+    if fmt == "NumPy":
+        return head.startswith(b"\x93NUMPY")
+    if fmt == "NumPy archive":
+        return head[:4] in (b"PK\x03\x04", b"PK\x05\x06")
+    if fmt == "NIfTI":
+        if name.endswith(".gz"):
+            return head.startswith(b"\x1f\x8b")
+        return len(head) >= 4 and (
+            int.from_bytes(head[:4], "little") in (348, 540) or int.from_bytes(head[:4], "big") in (348, 540)
+        )
+    if fmt == "NRRD":
+        return head.startswith(b"NRRD")
+    if fmt == "MetaImage":
+        return b"NDims" in head or b"ObjectType" in head
+    if fmt == "TIFF":
+        return head[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+    if fmt == "VTK ImageData":
+        return b"<VTKFile" in head and b"ImageData" in head
+    if fmt == "HDF5":
+        if not head.startswith(b"\x89HDF\r\n\x1a\n"):
+            return False
+        import h5py
+
+        try:
+            with h5py.File(str(path), "r") as f:
+                return "time" not in f and isinstance(f.get("image/labels"), h5py.Dataset)
+        except OSError:
+            return False
+    return False  # pragma: no cover - every format is listed above
 
 
 def save_image(image: LabelImage, path) -> None:
@@ -296,13 +354,20 @@ def _centre_affine(image: LabelImage) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _build(path, fmt, given, *, labels, spacing, origin=None, direction=None, occupancy=None,
-           default_spacing=None) -> LabelImage:  # fmt: skip
+           missing=None) -> LabelImage:  # fmt: skip
     labels = _spatial_array(labels, path)
     if spacing is None:
         if given is not None:
             spacing = given
-        elif default_spacing is not None:
-            spacing = np.asarray(default_spacing, dtype=float)
+        elif missing is not None:  # a bare .npy: report bad content before asking for the spacing
+            try:
+                _as_labels(labels)
+            except InputError as exc:
+                raise InputError(f"'{path.name}': {exc}") from None
+            raise InputError(
+                f"'{path.name}' {missing}; pass --spacing SX SY SZ (spacing= in Python), in metres, "
+                f"or write the sidecar with LabelImage(labels, spacing=...).save('{path.name}')"
+            )
         else:
             raise InputError(
                 f"'{path.name}' records no voxel size; pass --spacing SX SY SZ (spacing= in Python), in metres"
@@ -354,7 +419,8 @@ def _read_npy(path):
         labels = np.load(fh, allow_pickle=False)
     side = _sidecar(path)
     if not side.exists():
-        return dict(labels=labels, spacing=None, default_spacing=np.ones(3))
+        # a bare array records no geometry: the caller gives the spacing or the read is refused
+        return dict(labels=labels, spacing=None, missing=f"has no sidecar '{side.name}' recording its voxel size")
     try:
         meta = json.loads(side.read_text())
         geometry = {key: np.asarray(meta[key], dtype=float) for key in ("spacing", "origin", "direction")}

@@ -247,14 +247,28 @@ class LabelImage:
         occ = ", occupancy" if self.occupancy is not None else ""
         return f"LabelImage({shape} {self.labels.dtype}, spacing=[{spacing}] m, labels=[{lab}]{occ})"
 
-    def describe(self, *, connectivity: str = "vertex") -> str:
+    def describe(self, *, connectivity: str = "face", largest: int = 5) -> str:
         """A human-readable multi-line summary (what ``voxflex info`` prints).
 
         Shape, spacing, origin, direction, world extent, one line per label
-        (voxels, volume, share of the material, connected components, bounding
-        box) and the memory used.
+        (voxels, volume, share of the material, connected parts of that label
+        alone, bounding box), the connected components of the material (all
+        labels together: the bodies a simulation sees) with the voxel count,
+        labels and bounding box of the ``largest`` few, and the memory used.
+        An image without material says so.
+
+        Parameters
+        ----------
+        connectivity : {"face", "edge", "vertex"}
+            Neighbourhood for the parts and components.  ``"face"`` (6
+            neighbours, the default) matches mechanics: voxels that share only
+            an edge or a corner form a hinge, not a joint.
+        largest : int
+            How many of the largest components to list (>= 0).
         """
         check_choice("connectivity", connectivity, CONNECTIVITIES)
+        if int(largest) != largest or largest < 0:
+            raise InputError(f"largest must be a whole number >= 0, got {largest!r}")
 
         def vec(v):
             return "[" + ", ".join(f"{x:.6g}" for x in v) + "]"
@@ -275,28 +289,59 @@ class LabelImage:
             lines.append(f"  direction  [{rows}] (columns: array axes in the world)")
         lines.append(f"  extent     {vec(corners.min(axis=0))} to {vec(corners.max(axis=0))} m (world box)")
         counts = self.label_counts(include_empty=True)
+        material = [lab for lab in counts if lab > 0]
+        if not material:
+            lines.append(f"  labels     none: all {self.labels.size} voxels are 0 (empty); the image holds no material")
+            lines.append(f"  memory     {_human_bytes(self.nbytes)}")
+            return "\n".join(lines)
         volumes = self.label_volumes()
         total = sum(volumes.values())
-        material = [lab for lab in counts if lab > 0]
-        comps = self.component_counts(connectivity=connectivity)
+        parts = self.component_counts(connectivity=connectivity)
         boxes = self.bounding_boxes()
         lines.append(
             f"  labels     {len(material)} material label(s), {counts.get(0, 0)} empty voxels"
             + (" (volumes weighted by occupancy)" if self.occupancy is not None else "")
         )
-        if material:
-            lines.append(f"    {'label':>5} {'voxels':>10} {'volume m^3':>12} {'share':>7} {'parts':>6}  index box")
+        lines.append(f"    {'label':>5} {'voxels':>10} {'volume m^3':>12} {'share':>7} {'parts':>6}  index box")
         for lab in material:
             lo_i, hi_i = boxes[lab]
             share = volumes[lab] / total if total > 0 else 0.0
             lines.append(
-                f"    {lab:>5} {counts[lab]:>10} {volumes[lab]:>12.6g} {share:>7.1%} {comps[lab]:>6}  "
+                f"    {lab:>5} {counts[lab]:>10} {volumes[lab]:>12.6g} {share:>7.1%} {parts[lab]:>6}  "
                 f"{lo_i.tolist()} to {(hi_i - 1).tolist()}"
             )
-        n_parts = sum(comps.values())
-        lines.append(f"  total      {total:.6g} m^3 of material in {n_parts} component(s) ({connectivity} connectivity)")
+        lines.append(f"  total      {total:.6g} m^3 of material")
+        lines += self._describe_components(connectivity, int(largest))
         lines.append(f"  memory     {_human_bytes(self.nbytes)}")
         return "\n".join(lines)
+
+    def _describe_components(self, connectivity: str, largest: int) -> list[str]:
+        """Lines on the material's connected components (all labels together), largest first."""
+        from scipy import ndimage
+
+        components, n = self.connected_components(None, connectivity=connectivity)
+        how = {"face": "sharing a face", "edge": "sharing a face or an edge", "vertex": "touching at all"}
+        lines = [
+            f"  components {n} ({connectivity} connectivity: voxels {how[connectivity]}; all labels together)"
+        ]
+        if n <= 1 or largest == 0:
+            return lines
+        sizes = np.bincount(components.ravel(), minlength=n + 1)[1:]
+        order = np.argsort(-sizes, kind="stable")[:largest]
+        slices = ndimage.find_objects(components)
+        lines.append(f"    {'#':>5} {'voxels':>10}  {'labels':<12} index box")
+        for rank, c in enumerate(order, start=1):
+            slc = slices[c]
+            inside = components[slc] == c + 1
+            labs = np.unique(self.labels[slc][inside])
+            text = ", ".join(str(v) for v in labs[:4]) + (", ..." if labs.size > 4 else "")
+            lo = [s.start for s in slc]
+            hi = [s.stop - 1 for s in slc]
+            lines.append(f"    {rank:>5} {int(sizes[c]):>10}  {text:<12} {lo} to {hi}")
+        if n > len(order):
+            rest = int(sizes.sum() - sizes[order].sum())
+            lines.append(f"    ... and {n - len(order)} smaller component(s) with {rest} voxels in all")
+        return lines
 
     # -- files ----------------------------------------------------------------
     @classmethod

@@ -9,6 +9,8 @@ be watertight: the inside test is the generalized winding number.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -127,11 +129,17 @@ def load_mesh(path) -> SurfaceMesh:
         raise InputError(f"mesh file '{path}' is empty (0 bytes); re-export the mesh")
     import pyvista as pv
 
-    try:
-        data = pv.read(str(path))
-    except Exception as exc:  # the readers raise many types (OSError, ValueError, vtk errors)
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"could not read '{path}' as a {ext} mesh ({first}); check that it is a valid {ext} file") from None
+    with _quiet_vtk() as report:
+        try:
+            data = pv.read(str(path))
+        except Exception as exc:  # the readers raise many types (OSError, ValueError, vtk errors)
+            report.messages.append(str(exc) or type(exc).__name__)
+            report.failed = True
+    if report.failed:
+        reason = _first_reason(report.messages)
+        raise InputError(
+            f"could not read '{path}' as a {ext} mesh ({reason}); check that it is a valid {ext} file"
+        ) from None
     if isinstance(data, pv.MultiBlock):
         data = data.combine()
     if not isinstance(data, pv.PolyData):
@@ -151,6 +159,90 @@ def load_mesh(path) -> SurfaceMesh:
         tri = tri.extract_cells_by_type(5).extract_surface() if hasattr(tri, "extract_cells_by_type") else tri
     faces = _triangle_faces(tri, path)
     return SurfaceMesh(np.asarray(tri.points, dtype=np.float64), faces, name=str(path))
+
+
+# messages VTK prints around the real one: pipeline bookkeeping, not a reason
+_VTK_NOISE = ("Algorithm ", "No update piece number", "'NewDataObject' cannot create", "The VTK reader ",
+              "File reader failed")  # fmt: skip
+
+
+def _first_reason(messages) -> str:
+    """The first informative line of what VTK said, without object addresses (one line, <= 160 chars)."""
+    import re
+
+    lines = []
+    for message in messages:
+        for raw in str(message).splitlines():
+            line = raw.strip().strip('"')
+            # skip VTK's location headers and the indented dumps of pipeline information
+            if not line or raw[:1].isspace() or line.startswith(("ERROR: In ", "Warning: In ")):
+                continue
+            line = re.sub(r"\s*\(0x[0-9a-fA-F]+\)", "", line)
+            lines.append(re.sub(r"^vtk\w+: ", "", line))
+    useful = [line for line in lines if not line.startswith(_VTK_NOISE)]
+    text = (useful or lines or ["the reader produced no data"])[0]
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+class _Recorder(logging.Handler):
+    """A logging handler that keeps the messages (and whether one was an error) instead of printing them."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+        self.error = False
+
+    def emit(self, record):
+        self.messages.append(record.getMessage())
+        self.error |= record.levelno >= logging.ERROR
+
+
+class _VtkReport:
+    """What VTK said while a reader ran: ``messages`` (its own words first) and whether it ``failed``."""
+
+    def __init__(self):
+        self.messages: list[str] = []
+        self.failed = False
+
+
+@contextlib.contextmanager
+def _quiet_vtk():
+    """Silence VTK while a reader runs; yield a :class:`_VtkReport` filled in after the block.
+
+    VTK reports a reader's failure four ways: its output window, its logger
+    (coloured lines on stderr) and, through pyvista, Python logging and a
+    warning.  All are captured here and restored afterwards, so a broken file
+    gives voxflex's one-line error and nothing else.  The report's messages
+    are the output window's text first (VTK's own words), then the logged
+    messages, then the warnings; it has ``failed`` when VTK reported an error
+    (warnings alone do not fail a read).
+    """
+    import warnings
+
+    from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
+
+    report = _VtkReport()
+    cutoff = vtkLogger.GetCurrentVerbosityCutoff()  # no getter for stderr alone; equal without file sinks
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
+    window = vtkOutputWindow.GetInstance()
+    sink = vtkStringOutputWindow()
+    vtkOutputWindow.SetInstance(sink)
+    root = logging.getLogger()
+    handler = _Recorder()
+    root.addHandler(handler)  # also keeps logging.error from installing a stderr handler
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            yield report
+    finally:
+        root.removeHandler(handler)
+        vtkOutputWindow.SetInstance(window)
+        vtkLogger.SetStderrVerbosity(cutoff)
+    text = sink.GetOutput()
+    warned = [str(w.message) for w in caught]
+    found = [text, *handler.messages, *warned, *report.messages]
+    report.messages = [m for m in found if m and m.strip()]
+    report.failed |= handler.error or "ERROR: In " in text or any("raised an error" in w for w in warned)
 
 
 def _triangle_faces(poly, path) -> np.ndarray:
