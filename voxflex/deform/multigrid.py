@@ -207,8 +207,7 @@ class VoxelHierarchy:
         """The level matrices ``A_{l+1} = P_l^T A_l P_l`` (list of CSR, ``A`` first)."""
         mats = [sp.csr_matrix(A)]
         for P, R in zip(self.prolongations, self.restrictions):
-            Ac = R @ (mats[-1] @ P)
-            mats.append(sp.csr_matrix(Ac))
+            mats.append(_galerkin_impl(mats[-1], P, R))
         return mats
 
     def solver(self, A, *, smoother: str = "gauss-seidel", sweeps: int = 1):
@@ -249,6 +248,24 @@ class VoxelHierarchy:
         change_smoothers(ml, pre, post)
         self._last = ((A.copy(), smoother, sweeps), ml)
         return ml
+
+
+GALERKIN_CHUNK = 1 << 18
+"""Rows of A per block of the Galerkin product: ``A @ P`` has ~2x the entries of A, so the fine
+level's product is done by row blocks (peak ~1/20 of A at 6 million DOF instead of 1.5 A)."""
+
+
+def _galerkin_impl(A, P, R):
+    """``P^T A P`` (CSR), by row blocks of A when A is large."""
+    n = A.shape[0]
+    if n <= GALERKIN_CHUNK:
+        return sp.csr_matrix(R @ (A @ P))
+    out = None
+    for s in range(0, n, GALERKIN_CHUNK):
+        blk = slice(s, min(n, s + GALERKIN_CHUNK))
+        part = sp.csr_matrix(P[blk].T @ (A[blk] @ P))
+        out = part if out is None else out + part
+    return sp.csr_matrix(out)
 
 
 class _CoarseCholesky:
