@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from contract import MappingCase
-from voxflex.deform.elaston import box_moments, material_elaston_energy
+from voxflex.deform.elaston import material_elaston_energy
+from voxflex.sampling.moments import box_moments
 from voxflex.deform.materials import material
 
 

@@ -22,13 +22,13 @@ def test_fixed_dofs_components_and_prescribed_rotation():
     regions = [FixedRegion([-1, -1, -1], [1e-9, 9, 9]),
                FixedRegion.rotation([2 - 1e-9, -1, -1], [9, 9, 9], [2, 0.5, 0.5], [1, 0, 0], np.pi / 2),
                FixedRegion([-1, -1, -1], [1.9, 1e-9, 9], components="y")]
-    dofs, owner = fixed_dofs(model.rest, regions)
+    dofs, owner = fixed_dofs(model, regions)
     left = model.nodes_in_box([-1, -1, -1], [1e-9, 9, 9])
     assert set((3 * left[:, None] + np.arange(3)).ravel()) <= set(dofs.tolist())
     bottom_y = 3 * model.nodes_in_box([0.1, -1, -1], [1.9, 1e-9, 9]) + 1
     assert set(bottom_y.tolist()) <= set(dofs.tolist())
     assert not set((bottom_y - 1).tolist()) & set(dofs.tolist())  # x stays free on the sliding support
-    end = prescribed_positions(model.rest, regions, dofs, owner, 1.0)
+    end = prescribed_positions(model, regions, dofs, owner, 1.0)
     right = model.nodes_in_box([2 - 1e-9, -1, -1], [9, 9, 9])
     pos = dict(zip(dofs.tolist(), end.tolist()))
     X = model.rest[right]
@@ -36,7 +36,7 @@ def test_fixed_dofs_components_and_prescribed_rotation():
     got = np.array([[pos[3 * i + c] for c in range(3)] for i in right])
     assert np.allclose(got, expected, atol=1e-14)
     # linear interpolation from the identity in the load factor
-    half = prescribed_positions(model.rest, regions, dofs, owner, 0.5)
+    half = prescribed_positions(model, regions, dofs, owner, 0.5)
     assert np.allclose(half, 0.5 * (end + model.rest.ravel()[dofs]), atol=1e-14)
 
 
@@ -52,7 +52,7 @@ def test_force_regions_total_and_traction():
     assert np.allclose(region_forces(model, [trac]).sum(axis=0), [0, 4.0, 0], atol=1e-14)
     with pytest.raises(InputError, match="no boundary face"):
         region_forces(model, [ForceRegion([0.6, 0.1, 0.1], [0.9, 0.4, 0.4], [1, 0, 0], kind="traction")])
-    with pytest.raises(InputError, match="contains no node"):
+    with pytest.raises(InputError, match="contains no material"):
         region_forces(model, [ForceRegion([5, 5, 5], [6, 6, 6], [1, 0, 0])])
 
 

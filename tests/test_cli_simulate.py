@@ -52,8 +52,8 @@ def test_default_scene_runs_and_writes_a_result(tmp_path, capsys, monkeypatch):
         ("[object\n", "not valid TOML"),
         ('[object]\nshape = "box"\nsize = [1, 1, 1]\nvoxel_size = 0.5\n[[material]]\nyoung = 1e4\n[solver]\nstepz = 2\n',
          "did you mean 'steps'"),
-        ('[object]\nshape = "box"\nsize = [1, 1, 1]\nvoxel_size = 0.5\n[[material]]\n[nodes]\nkind = "affine"\n',
-         "not implemented"),
+        ('[object]\nshape = "box"\nsize = [1, 1, 1]\nvoxel_size = 0.5\n[[material]]\nyoung = 1e3\npoisson = 0.3\n'
+         '[nodes]\nkind = "rigid"\n', "not implemented"),
     ],
 )
 def test_bad_scene_files_give_one_line_errors(tmp_path, capsys, text, message):

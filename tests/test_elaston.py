@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from voxflex.deform import laws as L
-from voxflex.deform.elaston import box_moments, elaston_energy
+from voxflex.deform.elaston import elaston_energy
+from voxflex.sampling.moments import box_moments
 from voxflex.errors import InputError
 
 HOOKE = L.HookeLaw(L.isotropic_stiffness(1.3, 2.1))

@@ -81,12 +81,12 @@ def test_output_file_from_the_scene_and_probe_shape(tmp_path):
 
 def test_not_implemented_parts_say_so():
     scene = Scene.from_toml(EXAMPLES / "cantilever.toml")
-    with pytest.raises(NotImplementedError, match="affine-frame models are not implemented"):
-        vf.simulate(replace(scene, nodes=NodesSpec(kind="affine")), progress=False)
-    with pytest.raises(NotImplementedError, match="elaston"):
+    with pytest.raises(NotImplementedError, match='kind = "rigid" is not implemented yet'):
+        vf.simulate(replace(scene, nodes=NodesSpec(kind="rigid")), progress=False)
+    with pytest.raises(InputError, match="elaston quadrature needs regions"):
         vf.simulate(replace(scene, elasticity=ElasticitySpec(quadrature="elaston")), progress=False)
-    with pytest.raises(InputError, match="shape_function"):
-        vf.simulate(replace(scene, nodes=NodesSpec(shape_function="shepard")), progress=False)
+    with pytest.raises(InputError, match='shape_function = "shepard" does not apply to kind = "voxel"'):
+        NodesSpec(shape_function="shepard")
 
 
 def test_bad_scenes_are_input_errors(tmp_path):

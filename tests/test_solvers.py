@@ -54,7 +54,7 @@ def test_uniaxial_neo_hooke_total_force_matches_lateral_stress_free_root():
     t = brentq(p_lateral, 0.5, 1.0, xtol=1e-15)
     P = mu * (stretch - 1 / stretch) + lam * np.log(stretch * t * t) / stretch
     model = _block(2, material("neo-hookean", young=young, poisson=poisson))
-    load = ForceRegion([1 - 1e-9, -BIG, -BIG], [BIG, BIG, BIG], [P * 1.0, 0, 0], kind="total")
+    load = ForceRegion([1 - 1e-9, -BIG, -BIG], [BIG, BIG, BIG], [P * 1.0, 0, 0], kind="force")
     rec = solve(model, fixed=_sliding_supports(), forces=[load], options=SolverOptions(steps=3, tolerance=1e-12))
     # a uniform traction on a flat face of a homogeneous block gives the homogeneous state:
     # the stretches match the closed form to solver precision (residual 1e-12 relative)

@@ -26,6 +26,7 @@ _LAZY = {
     "strain": "voxflex.deform",
     "Scene": "voxflex.scene",
     "simulate": "voxflex.simulation",
+    "model": "voxflex.build",
     "Result": "voxflex.result",
     "render": "voxflex.rendering",
     "sample": "voxflex.sampling",

@@ -143,13 +143,24 @@ def render_frames(result, steps, *, window_size=(800, 450), title=None, cmap="vi
     return images
 
 
-def _solver_kind(result) -> str:
+def _scene_table(result) -> dict:
+    """The result's scene as parsed TOML; {} when the result carries no scene (built in code).
+
+    A scene text that is not valid TOML means a damaged result: InputError, not a guess.
+    """
     import tomllib
 
+    if not result.scene.strip():
+        return {}
     try:
-        return str(tomllib.loads(result.scene).get("solver", {}).get("kind", "static"))
-    except (tomllib.TOMLDecodeError, AttributeError):
-        return "static"
+        return tomllib.loads(result.scene)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"the result's scene attribute is not valid TOML ({exc}); the result file is damaged") from None
+
+
+def _solver_kind(result) -> str:
+    """``static`` or ``implicit-euler``: the scene's solver (a result without a scene is static)."""
+    return str(_scene_table(result).get("solver", {}).get("kind", "static"))
 
 
 def render(result, path, *, step: int = -1, window_size=(800, 450), title=None, cmap="viridis", fps: int = 8):
@@ -213,12 +224,7 @@ def render(result, path, *, step: int = -1, window_size=(800, 450), title=None, 
 
 
 def _scene_title(result) -> str:
-    import tomllib
-
-    try:
-        title = tomllib.loads(result.scene).get("title")
-    except tomllib.TOMLDecodeError:
-        title = None
+    title = _scene_table(result).get("title")
     return str(title) if title else "voxflex"
 
 

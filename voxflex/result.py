@@ -21,7 +21,9 @@ attrs ``voxflex_version``, ``scene``                     version string; the sce
 ``origin`` (+ ``direction``, extension)
 =========================================== ============ =======================================
 
-Extensions: root attr ``node_kind`` (``"voxel"``), attr ``format = "voxflex-result"``.
+Extensions: root attr ``node_kind`` (``"voxel"`` or ``"affine"``), attr ``format = "voxflex-result"``;
+the group ``/model`` whose attributes describe the model (``node_kind``, ``count``,
+``dofs``, ``quadrature``, ``samples``, ``shape_function``, ``precompute_seconds`` ...).
 Every dataset is gzip-compressed; the file is written atomically.
 """
 
@@ -76,7 +78,9 @@ class Result:
     version : str
         The voxflex version that produced it.
     node_kind : str
-        ``"voxel"`` (trilinear corner nodes) — or ``"affine"`` for reduced models.
+        ``"voxel"`` (trilinear corner nodes) or ``"affine"`` (reduced frame models).
+    model : dict
+        Scalar attributes describing the model (written as ``/model`` attributes).
     """
 
     time: np.ndarray
@@ -97,6 +101,7 @@ class Result:
     scene: str = ""
     version: str = __version__
     node_kind: str = "voxel"
+    model: dict = field(default_factory=dict)
 
     def __post_init__(self):
         s = object.__setattr__
@@ -152,6 +157,14 @@ class Result:
         s(self, "scene", str(self.scene))
         s(self, "version", str(self.version))
         s(self, "node_kind", str(self.node_kind))
+        model = {}
+        for key, value in dict(self.model).items():
+            if isinstance(value, (np.generic,)):
+                value = value.item()
+            if not isinstance(value, (str, int, float, bool)):
+                raise InputError(f"Result.model['{key}'] must be a string or a number, got {type(value).__name__}")
+            model[str(key)] = value
+        s(self, "model", model)
 
     # -- conveniences -----------------------------------------------------
     @property
@@ -208,6 +221,9 @@ class Result:
                 f.attrs["format"] = _FORMAT
                 f.attrs["node_kind"] = self.node_kind
                 put(f, "time", self.time)
+                g = f.create_group("model")
+                for key, value in self.model.items():
+                    g.attrs[key] = value
                 g = f.create_group("probes")
                 for name, pos in self.probes.items():
                     put(g, name, pos)
@@ -287,6 +303,8 @@ class Result:
                 scene=_text(f.attrs.get("scene", "")),
                 version=_text(f.attrs["voxflex_version"]),
                 node_kind=_text(f.attrs.get("node_kind", "voxel")),
+                model={k: (_text(v) if isinstance(v, (bytes, str)) else np.asarray(v).item())
+                       for k, v in (f["model"].attrs.items() if "model" in f else ())},
             )
 
     # -- ParaView ---------------------------------------------------------
@@ -362,8 +380,7 @@ def describe_result(path) -> str:
         f"result: {path} (voxflex {r.version})",
         f"  image: {' x '.join(map(str, r.image_labels.shape))} voxels, spacing {r.image_spacing.tolist()} m, "
         f"{r.n_voxels} occupied ({', '.join(f'label {a}: {b}' for a, b in zip(labels, counts))})",
-        f"  model: {r.node_kind} nodes, {r.n_nodes} nodes, {r.n_dofs} DOF; surface {r.surface_rest.shape[0]} vertices, "
-        f"{r.surface_faces.shape[0]} triangles",
+        f"  model: {_model_text(r)}; surface {r.surface_rest.shape[0]} vertices, {r.surface_faces.shape[0]} triangles",
         f"  states: {T} (time {r.time[0]:g} .. {r.time[-1]:g}); Newton iterations {int(r.newton_iterations.sum())}, "
         f"solve time {r.step_seconds.sum():.3g} s",
         f"  energy at the end: elastic {r.energy_elastic[-1]:.6g} J, kinetic {r.energy_kinetic[-1]:.6g} J",
@@ -375,6 +392,19 @@ def describe_result(path) -> str:
             f"  probe {name}: rest {_fmt(pos[0])} -> final {_fmt(pos[-1])} (displacement {_fmt(u)})"
         )
     return "\n".join(lines)
+
+
+def _model_text(r) -> str:
+    """One phrase naming the model: node kind and count, DOFs, shape functions and quadrature when known."""
+    m = r.model
+    if r.node_kind == "voxel":
+        text = f"voxel nodes, {r.n_nodes} nodes, {r.n_dofs} DOF"
+    else:
+        text = f"{r.n_nodes} {r.node_kind} frames, {r.n_dofs} DOF"
+    extra = [f"{k.replace('_', ' ')} {m[k]}" for k in ("shape_function", "quadrature", "samples") if k in m]
+    if "precompute_seconds" in m:
+        extra.append(f"precompute {float(m['precompute_seconds']):.3g} s")
+    return text + (f" ({', '.join(extra)})" if extra else "")
 
 
 def _fmt(v) -> str:

@@ -34,7 +34,16 @@ import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
+from .deform.boundary import FORCE_KINDS
+from .deform.linear_solvers import METHODS as LINEAR_SOLVERS
+from .deform.materials import MATERIALS, MODEL_CONSTANTS, POISSON_RANGE, check_constants
+from .deform.model import NODE_KINDS as _NODE_KINDS
+from .deform.solvers import KINDS as SOLVER_KINDS, MASS_KINDS
+from .deform.strains import STRAINS
 from .errors import InputError, did_you_mean
+from .rasterize.primitives import PRIMITIVES
+from .sampling.quadrature import QUADRATURES
+from .voronoi.shape_functions import SHAPE_FUNCTION_KINDS, VOXEL_SHAPE_FUNCTIONS
 
 __all__ = [
     "Scene",
@@ -51,45 +60,13 @@ __all__ = [
     "default_scene_path",
 ]
 
-SHAPES = {"box": 3, "cylinder": 2, "sphere": 1}
-NODE_KINDS = ("voxel", "affine")
-SHAPE_FUNCTIONS = ("natural-neighbour", "shepard", "barycentric", "trilinear")
-QUADRATURES = ("midpoint", "gauss-legendre", "elaston")
-STRAIN_NAMES = (
-    "linear",
-    "green",
-    "corotational",
-    "corotational-svd",
-    "corotational-qr",
-    "corotational-small",
-    "invariant",
-    "invariant-deviatoric",
-    "principal-stretch",
-)
-LOAD_KINDS = ("gravity", "traction", "force")
-SOLVER_KINDS = ("static", "implicit-euler")
-LINEAR_SOLVERS = ("auto", "cholesky", "direct", "cg", "amg")
-# model-specific constants a [[material]] table may carry besides young/poisson
-MATERIAL_CONSTANTS = (
-    "mu",
-    "lmbda",
-    "bulk",
-    "c1",
-    "c2",
-    "alpha",
-    "alphas",
-    "mus",
-    "n",
-    "E1",
-    "E2",
-    "E3",
-    "nu12",
-    "nu13",
-    "nu23",
-    "G12",
-    "G13",
-    "G23",
-)
+# every vocabulary is defined once, in the stage that owns it
+SHAPES = {name: entry[1] for name, entry in PRIMITIVES.items()}
+NODE_KINDS = _NODE_KINDS
+SHAPE_FUNCTIONS = SHAPE_FUNCTION_KINDS + VOXEL_SHAPE_FUNCTIONS
+LOAD_KINDS = ("gravity", *FORCE_KINDS)
+STRAIN_NAMES = tuple(STRAINS)
+DISTANCES = ("geodesic", "compliance")
 _INF = math.inf
 
 
@@ -276,7 +253,7 @@ def _size_help(shape: str) -> str:
 class MaterialSpec:
     """``[[material]]``: the material of one label.
 
-    ``young`` (Pa) and ``poisson`` in [0, 0.5) for every isotropic model, or the
+    ``young`` (Pa) and ``poisson`` in (-1, 0.5) for every isotropic model, or the
     model's own constants (``constants``, written as plain keys in TOML);
     ``density`` in kg/m^3; ``strain`` overrides ``[elasticity] strain`` for this
     label.
@@ -296,21 +273,22 @@ class MaterialSpec:
         if not 1 <= label <= 65535:
             raise InputError(f"[material] label must be in 1..65535 (0 is empty space), got {label}")
         object.__setattr__(self, "label", label)
-        _string(t, "model", self.model, _material_models())
+        _string(t, "model", self.model, tuple(MATERIALS))
         if self.young is not None:
             object.__setattr__(self, "young", _number(t, "young", self.young, positive=True))
         if self.poisson is not None:
             nu = _number(t, "poisson", self.poisson)
-            if not 0.0 <= nu < 0.5:
-                raise InputError(f"[material] poisson must be in [0, 0.5), got {nu!r}")
+            lo, hi = POISSON_RANGE
+            if not lo < nu < hi:
+                raise InputError(f"[material] poisson must be in ({lo:g}, {hi:g}), got {nu!r}")
             object.__setattr__(self, "poisson", nu)
         object.__setattr__(self, "density", _number(t, "density", self.density, positive=True))
         if self.strain is not None:
             _string(t, "strain", self.strain, STRAIN_NAMES)
         constants = dict(self.constants)
+        check_constants(self.model, sorted(constants))
         for name, value in constants.items():
-            _check_keys(t, {name: None}, MATERIAL_CONSTANTS)
-            if isinstance(value, list):
+            if isinstance(value, (list, tuple)):
                 constants[name] = tuple(_number(t, name, v) for v in value)
             else:
                 constants[name] = _number(t, name, value)
@@ -329,34 +307,48 @@ class MaterialSpec:
         return kwargs
 
 
-def _material_models() -> tuple[str, ...] | None:
-    """The registry's names when the materials module is importable (else no check here)."""
-    try:
-        from .deform.materials import MATERIALS
-    except ImportError:
-        return None
-    return tuple(MATERIALS)
-
-
 @dataclass(frozen=True)
 class NodesSpec:
-    """``[nodes]``: ``kind = "voxel"`` (trilinear nodes at voxel corners) or ``"affine"`` (frames).
+    """``[nodes]``: what carries the degrees of freedom.
 
-    The default is ``"voxel"`` — the SPEC's default ``"affine"`` names the
-    reduced model, which is not implemented yet.  ``count`` and
-    ``shape_function`` apply to affine frames (voxel nodes are trilinear;
-    ``None`` = the node kind's own: natural-neighbour for frames).
+    ``kind``: ``"voxel"`` (trilinear nodes at the voxel corners, the
+    full-resolution reference), ``"affine"`` (12-DOF frames) or ``"rigid"``
+    (6-DOF frames, not built yet).  The frame keys: ``count`` frames in all,
+    ``positions`` (frames given by the user, world, placed first),
+    ``shape_function`` (default natural-neighbour), ``parents`` (at most this
+    many frames influence a material point), ``distance`` (``geodesic`` or
+    ``compliance``) and ``seed`` (placement is deterministic for a seed).
+    Voxel nodes take ``shape_function = "trilinear"`` (or ``"barycentric"``) only.
     """
 
     kind: str = "voxel"
     count: int = 20
+    positions: tuple[tuple[float, float, float], ...] | None = None
     shape_function: str | None = None
+    parents: int = 4
+    distance: str = "geodesic"
+    seed: int = 0
 
     def __post_init__(self):
-        _string("nodes", "kind", self.kind, NODE_KINDS)
-        object.__setattr__(self, "count", _number("nodes", "count", self.count, integer=True, minimum=1))
+        t = "nodes"
+        _string(t, "kind", self.kind, NODE_KINDS)
+        object.__setattr__(self, "count", _number(t, "count", self.count, integer=True, minimum=1))
         if self.shape_function is not None:
-            _string("nodes", "shape_function", self.shape_function, SHAPE_FUNCTIONS)
+            valid = VOXEL_SHAPE_FUNCTIONS if self.kind == "voxel" else SHAPE_FUNCTION_KINDS
+            if self.shape_function in SHAPE_FUNCTIONS and self.shape_function not in valid:
+                raise InputError(
+                    f'[nodes] shape_function = "{self.shape_function}" does not apply to kind = "{self.kind}"; '
+                    f"valid for it: {', '.join(valid)}"
+                )
+            _string(t, "shape_function", self.shape_function, valid)
+        if self.positions is not None:
+            rows = self.positions
+            if isinstance(rows, (str, bytes)) or not hasattr(rows, "__len__") or len(rows) == 0:
+                raise InputError(f"[nodes] positions must be a list of [x, y, z] points, got {rows!r}")
+            object.__setattr__(self, "positions", tuple(_vector(t, "positions", r) for r in rows))
+        object.__setattr__(self, "parents", _number(t, "parents", self.parents, integer=True, minimum=1))
+        _string(t, "distance", self.distance, DISTANCES)
+        object.__setattr__(self, "seed", _number(t, "seed", self.seed, integer=True, minimum=0))
 
 
 @dataclass(frozen=True)
@@ -440,7 +432,9 @@ class LoadSpec:
 class SolverSpec:
     """``[solver]``: ``static`` (``steps`` load increments) or ``implicit-euler``
     (``steps`` time steps of ``dt`` seconds), Newton ``tolerance`` (relative
-    residual), ``max_iterations``, ``line_search``, ``linear_solver``, Rayleigh damping."""
+    residual), ``max_iterations``, ``line_search``, ``linear_solver``, Rayleigh damping,
+    ``mass`` (``lumped`` or ``consistent``, implicit Euler).  The keys mirror
+    :class:`voxflex.deform.solvers.SolverOptions` one for one."""
 
     kind: str = "static"
     dt: float = 0.01
@@ -451,6 +445,7 @@ class SolverSpec:
     linear_solver: str = "auto"
     rayleigh_mass: float = 0.0
     rayleigh_stiffness: float = 0.0
+    mass: str = "lumped"
 
     def __post_init__(self):
         t = "solver"
@@ -467,6 +462,7 @@ class SolverSpec:
         object.__setattr__(
             self, "rayleigh_stiffness", _number(t, "rayleigh_stiffness", self.rayleigh_stiffness, nonnegative=True)
         )
+        _string(t, "mass", self.mass, MASS_KINDS)
 
 
 @dataclass(frozen=True)
@@ -665,10 +661,20 @@ def _check_keys_top(d: dict) -> None:
 def _build(name: str, spec, table: dict):
     valid = _valid_keys(spec)
     if spec is MaterialSpec:
-        valid = tuple(k for k in valid if k != "constants") + MATERIAL_CONSTANTS
-        _check_keys(name, table, valid)
+        # keys that are not MaterialSpec fields are the model's own constants (MODEL_CONSTANTS)
+        fixed = tuple(k for k in valid if k != "constants")
         table = dict(table)
-        constants = tuple((k, table.pop(k)) for k in MATERIAL_CONSTANTS if k in table)
+        model = table.get("model", MaterialSpec.model)
+        if not isinstance(model, str) or model not in MATERIALS:
+            _string(name, "model", model, tuple(MATERIALS))
+        constants = tuple((k, table.pop(k)) for k in list(table) if k not in fixed)
+        for key, _ in constants:
+            if key not in MODEL_CONSTANTS[model]:
+                allowed = fixed + MODEL_CONSTANTS[model]
+                raise InputError(
+                    f"unknown key '{key}' in [material]{did_you_mean(key, allowed)}; "
+                    f"valid keys for model '{model}': {', '.join(allowed)}"
+                )
         return spec(**table, constants=constants)
     _check_keys(name, table, valid)
     if spec is ProbeSpec:

@@ -1,8 +1,11 @@
 """Run a scene: image -> model -> boundary conditions -> solver -> :class:`Result`.
 
-Layers are built only when needed: the mass matrix only for dynamics (the
-solver builds it), densities only for gravity or dynamics, the boundary
-surface once (the result file always carries it).
+The model comes from :func:`voxflex.build.model` (the registry keyed by
+``[nodes] kind``), or is given; everything here talks to it through the model
+protocol (:mod:`voxflex.deform.model`).  Layers are built only when needed:
+the mass matrix only for dynamics (the solver builds it), densities only for
+gravity or dynamics, probe mappings only for probes, the boundary surface
+once (the result file always carries it).
 
 Example
 -------
@@ -23,70 +26,10 @@ from .errors import ConvergenceError, InputError
 from .result import Result
 from .scene import Scene
 
-__all__ = ["simulate", "build_image", "build_materials"]
-
-_AFFINE_MESSAGE = 'reduced affine-frame models are not implemented yet; use [nodes] kind = "voxel"'
+__all__ = ["simulate"]
 
 
-def build_image(scene: Scene):
-    """The label image of ``scene.object`` (shape or mesh voxelized, image loaded)."""
-    obj = scene.object
-    if obj.image is not None:
-        from .image import LabelImage
-
-        return LabelImage.load(obj.image)
-    from .rasterize.voxelize import voxelize
-
-    occupancy = bool(obj.occupancy)
-    if obj.mesh is not None:
-        return voxelize(obj.mesh, obj.voxel_size, occupancy=occupancy, progress=False)
-    from .rasterize.primitives import Box, Cylinder, Sphere
-
-    origin = obj.origin if obj.origin is not None else (0.0, 0.0, 0.0)
-    if obj.shape == "box":
-        prim = Box(obj.size, origin=origin)
-    elif obj.shape == "cylinder":
-        prim = Cylinder(obj.size[0], obj.size[1], origin=origin, axis=obj.axis or "z")
-    else:
-        prim = Sphere(obj.size[0], origin=origin)
-    return voxelize(prim, obj.voxel_size, occupancy=occupancy, progress=False)
-
-
-def build_materials(scene: Scene, labels_present) -> dict:
-    """{label: Material} for the labels present in the image (InputError on a label without material)."""
-    from .deform.materials import material
-
-    present = sorted(int(x) for x in labels_present)
-    given = {m.label for m in scene.materials}
-    unused = sorted(given - set(present))
-    if unused:
-        raise InputError(
-            f"[[material]] label {unused[0]} does not occur in the image (labels present: "
-            f"{', '.join(map(str, present))}); fix the label or remove that material"
-        )
-    out = {}
-    for label in present:
-        spec = scene.material_for(label)
-        out[label] = material(spec.model, **spec.material_kwargs(scene.elasticity.strain))
-    return out
-
-
-def _check_supported(scene: Scene) -> None:
-    if scene.nodes.kind == "affine":
-        raise NotImplementedError(_AFFINE_MESSAGE)
-    if scene.elasticity.quadrature == "elaston":
-        raise NotImplementedError(
-            'elaston quadrature belongs to the reduced affine-frame models (not implemented yet); '
-            'with [nodes] kind = "voxel" use quadrature = "gauss-legendre" or "midpoint"'
-        )
-    if scene.nodes.shape_function not in (None, "barycentric", "trilinear"):
-        raise InputError(
-            f'[nodes] shape_function = "{scene.nodes.shape_function}" applies to affine frames; '
-            'voxel nodes are trilinear (remove the key or use "trilinear")'
-        )
-
-
-def simulate(scene, *, progress: bool = True, output=None) -> Result:
+def simulate(scene, *, progress: bool = True, output=None, model=None) -> Result:
     """Run a scene and return its :class:`~voxflex.result.Result`.
 
     Parameters
@@ -97,6 +40,9 @@ def simulate(scene, *, progress: bool = True, output=None) -> Result:
     output : path, optional
         Where to write the result file (atomically); defaults to the scene's
         ``[output] file`` when it has one, otherwise nothing is written.
+    model : Model, optional
+        A model built beforehand (any implementation of the model protocol);
+        default: ``voxflex.build.model(scene)``, the model the scene asks for.
 
     Returns
     -------
@@ -104,39 +50,27 @@ def simulate(scene, *, progress: bool = True, output=None) -> Result:
         Times, probe positions, surface and node states, energies and solver
         statistics for the rest state and every step.
 
-    Notes
-    -----
-    Only ``[nodes] kind = "voxel"`` (trilinear nodes at the voxel corners, the
-    full-resolution reference) is implemented, and it is the default here —
-    the SPEC's default ``"affine"`` (reduced frames) raises
-    ``NotImplementedError``, as does ``quadrature = "elaston"``.
-
     Raises
     ------
     InputError
         Bad scene (a label without material, a probe outside the material...).
     ConvergenceError
         The solver did not converge (the message says what was tried).
-    NotImplementedError
-        Affine-frame nodes or elaston quadrature.
     """
     if not isinstance(scene, Scene):
         if isinstance(scene, (str, Path)):
             scene = Scene.from_toml(scene)
         else:
             raise InputError(f"simulate needs a Scene or a scene file path, got {type(scene).__name__}")
-    _check_supported(scene)
-
+    from .build import build_image, model as build_model
     from .deform.boundary import FixedRegion, ForceRegion
     from .deform.solvers import SolverOptions, solve
-    from .deform.voxel_model import VoxelModel
 
-    image = build_image(scene)
-    labels_present = np.unique(image.labels[image.labels > 0])
-    materials = build_materials(scene, labels_present)
-    model = VoxelModel.from_image(
-        image, materials, quadrature=scene.elasticity.quadrature, use_occupancy=bool(scene.object.occupancy)
-    )
+    if model is None:
+        image = build_image(scene)
+        model = build_model(scene, image=image)
+    else:
+        image = model.image
 
     fixed = [
         FixedRegion(
@@ -148,7 +82,7 @@ def simulate(scene, *, progress: bool = True, output=None) -> Result:
         for f in scene.fixed
     ]
     forces = [
-        ForceRegion(np.array(ld.min), np.array(ld.max), np.array(ld.vector), kind="total" if ld.kind == "force" else "traction")
+        ForceRegion(np.array(ld.min), np.array(ld.max), np.array(ld.vector), kind=ld.kind)
         for ld in scene.loads
         if ld.kind != "gravity"
     ]
@@ -183,13 +117,10 @@ def simulate(scene, *, progress: bool = True, output=None) -> Result:
             callback=callback,
         )
     except ConvergenceError as exc:
-        if scene.elasticity.quadrature != "midpoint":
+        advice = model.advice()
+        if not advice:
             raise
-        # one sample per voxel leaves hourglass (zero-energy) modes: the likely cause
-        raise ConvergenceError(
-            f"{exc}; note: mid-point quadrature leaves hourglass (zero-energy) modes in trilinear voxels, "
-            'use [elasticity] quadrature = "gauss-legendre"'
-        ) from None
+        raise ConvergenceError(f"{exc}; note: {advice}") from None
     finally:
         if bar is not None:
             bar.close()
@@ -202,8 +133,8 @@ def simulate(scene, *, progress: bool = True, output=None) -> Result:
 
 
 def _make_result(scene, image, model, records, probe_map) -> Result:
-    surf_rest, faces, vertex_node = model.boundary_surface()
-    states = np.stack([np.asarray(r.q, dtype=float) for r in records])  # (T, n, 3)
+    surf_rest, faces, surf_map = model.boundary_surface()
+    states = np.stack([np.asarray(r.q, dtype=float) for r in records])  # (T, n, d)
     probes = {}
     if probe_map is not None:
         positions = np.stack([probe_map.apply(q) for q in states])  # (T, m, 3)
@@ -213,7 +144,7 @@ def _make_result(scene, image, model, records, probe_map) -> Result:
         probes=probes,
         surface_rest=surf_rest,
         surface_faces=faces,
-        surface_positions=states[:, vertex_node, :],
+        surface_positions=np.stack([surf_map.apply(q) for q in states]),
         nodes_rest=np.asarray(model.rest, dtype=float),
         nodes_state=states,
         energy_elastic=np.array([r.elastic_energy for r in records], dtype=float),
@@ -226,5 +157,6 @@ def _make_result(scene, image, model, records, probe_map) -> Result:
         image_direction=image.direction,
         scene=scene.to_toml(),
         version=__version__,
-        node_kind="voxel",
+        node_kind=model.node_kind,
+        model=model.describe(),
     )

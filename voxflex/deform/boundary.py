@@ -1,19 +1,20 @@
-"""Boundary conditions and loads on box regions of the rest configuration.
+"""Boundary conditions and loads on box regions of the rest configuration, for any model.
 
 * :class:`FixedRegion`: the nodes whose *rest* position lies in the box
   ``[min, max]`` are held (all components, or only those in ``components`` —
   a sliding support), optionally moved by an affine map ``transform`` (3x4)
   reached at the end of the run and interpolated linearly from the identity
   in the load factor (static) or in time (dynamics):
-  ``x(s) = X + s (A X + t - X)``.
-* :class:`ForceRegion`: a total force spread over the nodes in the box in
-  proportion to their lumped volume (on a flat face of a regular grid this is
-  the same split as by lumped area), or a traction (force per unit area)
-  on the boundary faces whose centre lies in the box, integrated exactly for
-  bilinear faces (a quarter of each face's force to each of its corners).
+  ``x(s) = X + s (A X + t - X)``.  Which DOFs a box holds is the model's
+  answer (:meth:`~voxflex.deform.model.Model.held_dofs`): voxel-corner
+  points in the box, or frames in the box (their translation and matrix rows).
+* :class:`ForceRegion`: a total force on the material in the box, or a
+  traction (force per unit area) on the boundary faces whose centre lies in
+  the box.  Forces act on material points and reach the nodes through the
+  transposed Jacobian of the model's point mapping (see :func:`region_forces`).
 
-The functions here turn regions into arrays for a model with ``rest (n, 3)``:
-:func:`fixed_dofs` and :func:`prescribed_positions`, :func:`region_forces`.
+The functions here turn regions into arrays for any :class:`~voxflex.deform.model.Model`:
+:func:`fixed_dofs`, :func:`prescribed_positions`, :func:`region_forces`.
 """
 
 from __future__ import annotations
@@ -23,8 +24,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError, check_choice
+from .model import moved_rest
 
-FORCE_KINDS = ("total", "traction")
+FORCE_KINDS = ("force", "traction")
+"""Kinds of region loads (the scene's ``[[load]] kind`` besides ``gravity``)."""
 
 
 def _vec3(name, value):
@@ -115,16 +118,16 @@ class ForceRegion:
     ----------
     min, max : (3,) float (m)
     vector : (3,) float
-        ``kind="total"``: the total force (N), spread over the nodes in the box
-        in proportion to their lumped volume; ``kind="traction"``: force per
+        ``kind="force"``: the total force (N), spread over the material in
+        the box (see :func:`region_forces`); ``kind="traction"``: force per
         unit area (Pa) on the boundary faces whose centre lies in the box.
-    kind : {"total", "traction"}
+    kind : {"force", "traction"}
     """
 
     min: np.ndarray
     max: np.ndarray
     vector: np.ndarray
-    kind: str = "total"
+    kind: str = "force"
 
     def __post_init__(self):
         lo, hi = _vec3("force region min", self.min), _vec3("force region max", self.max)
@@ -143,78 +146,127 @@ def _in_box(points, lo, hi):
     return np.all((points >= lo) & (points <= hi), axis=1)
 
 
-def fixed_dofs(rest, regions) -> tuple[np.ndarray, np.ndarray]:
+def _box_text(region) -> str:
+    return f"[{region.min.tolist()}, {region.max.tolist()}]"
+
+
+def fixed_dofs(model, regions) -> tuple[np.ndarray, np.ndarray]:
     """Fixed DOFs of the regions and the region that fixes each (the last listed wins).
+
+    Parameters
+    ----------
+    model : Model
+        Asked which flat DOFs each box holds (:meth:`Model.held_dofs`).
+    regions : sequence of FixedRegion
 
     Returns
     -------
-    dofs : (k,) int64, sorted, DOF ``3 * node + component``
+    dofs : (k,) int64, sorted flat DOFs (``d * node + j``)
     owner : (k,) int64, index of the region fixing each DOF
 
     Raises
     ------
     InputError
-        When a region holds no node (names the region).
+        When a region holds nothing (names the region).
     """
-    rest = np.asarray(rest, dtype=float)
-    owner = np.full(3 * len(rest), -1, dtype=np.int64)
+    owner = np.full(np.asarray(model.rest).size, -1, dtype=np.int64)
     for r, region in enumerate(regions):
-        nodes = np.flatnonzero(_in_box(rest, region.min, region.max))
-        if len(nodes) == 0:
+        dofs = np.asarray(model.held_dofs(region.min, region.max, region.components), dtype=np.int64)
+        if len(dofs) == 0:
             raise InputError(
-                f"fixed region #{r} [{region.min.tolist()}, {region.max.tolist()}] contains no node; "
+                f"fixed region #{r} {_box_text(region)} contains no {'node' if model.node_kind == 'voxel' else 'frame'}; "
                 "enlarge the box to reach the object's rest position"
             )
-        dofs = (3 * nodes[:, None] + region.component_indices[None, :]).ravel()
         owner[dofs] = r
     dofs = np.flatnonzero(owner >= 0)
     return dofs, owner[dofs]
 
 
-def prescribed_positions(rest, regions, dofs, owner, factor: float) -> np.ndarray:
-    """Values (k,) of the fixed DOFs at load factor / time fraction ``factor``."""
-    rest = np.asarray(rest, dtype=float)
-    values = np.empty(len(dofs))
+def prescribed_positions(model, regions, dofs, owner, factor: float) -> np.ndarray:
+    """Values (k,) of the fixed DOFs at load factor / time fraction ``factor``.
+
+    Held DOFs keep their rest values; the DOFs of a region with a transform
+    take the model's state moved by the interpolated map (:func:`moved_rest`).
+    """
+    values = np.asarray(model.rest, dtype=float).ravel()[dofs].copy()
     for r, region in enumerate(regions):
         sel = owner == r
-        if not np.any(sel):
+        if region.transform is None or not np.any(sel):
             continue
-        d = dofs[sel]
-        nodes, comps = d // 3, d % 3
-        values[sel] = region.position(rest[nodes], factor)[np.arange(len(d)), comps]
+        values[sel] = moved_rest(model, region.transform, factor)[dofs[sel]]
     return values
 
 
+def face_points(corners, area):
+    """2x2 Gauss points on bilinear quadrilateral faces and their area weights.
+
+    Parameters
+    ----------
+    corners : (F, 4, 3) float, counter-clockwise corners (m)
+    area : (F,) float (m^2), the faces' areas (planar parallelograms)
+
+    Returns
+    -------
+    points : (4F, 3) float, face-major
+    weights : (4F,) float, area / 4 each (m^2): exact for bilinear integrands
+    """
+    g = 0.5 + np.array([-0.5, 0.5]) / np.sqrt(3.0)
+    uv = np.array([(u, v) for u in g for v in g])  # (4, 2)
+    # bilinear weights of the corners (0: (0,0), 1: (1,0), 2: (1,1), 3: (0,1))
+    W = np.stack([(1 - uv[:, 0]) * (1 - uv[:, 1]), uv[:, 0] * (1 - uv[:, 1]), uv[:, 0] * uv[:, 1], (1 - uv[:, 0]) * uv[:, 1]], axis=1)
+    points = np.einsum("gc,fck->fgk", W, np.asarray(corners, dtype=float)).reshape(-1, 3)
+    return points, np.repeat(np.asarray(area, dtype=float) / 4.0, 4)
+
+
 def region_forces(model, regions) -> np.ndarray:
-    """Nodal forces (n, 3) in N of the force regions on ``model`` (a VoxelModel).
+    """Generalised node forces (n, d) of the force regions on ``model`` (N for point nodes).
+
+    A region's force acts on material points and reaches the nodes through
+    ``J^T`` of the model's point mapping:
+
+    * ``kind="force"``: the total force is spread over the volume points
+      (:meth:`Model.volume_points`) inside the box in proportion to their
+      volume; a box holding no volume point (a thin box around a face) spreads
+      it over the boundary-face Gauss points inside it in proportion to area;
+    * ``kind="traction"``: force per unit area on the boundary faces whose
+      centre lies in the box, integrated with 2x2 Gauss points per face
+      (on voxel faces: a quarter of each face's force to each corner).
 
     Raises
     ------
     InputError
-        When a region touches no node ("total") or no boundary face ("traction").
+        When a region touches no material ("force") or no boundary face ("traction").
     """
-    f = np.zeros((model.n_nodes, 3))
-    quads = None
+    rest = np.asarray(model.rest, dtype=float)
+    f = np.zeros(rest.shape)
+    faces = None
     for r, region in enumerate(regions):
-        if region.kind == "total":
-            nodes = np.flatnonzero(_in_box(model.rest, region.min, region.max))
-            if len(nodes) == 0:
-                raise InputError(
-                    f"force region #{r} [{region.min.tolist()}, {region.max.tolist()}] contains no node; enlarge the box"
-                )
-            vol = model.nodal_volumes()[nodes]
-            f[nodes] += (vol / vol.sum())[:, None] * region.vector[None, :]
+        if faces is None:
+            corners, area, _ = model.boundary_faces()
+            fpts, fw = face_points(corners, area)
+            faces = (corners.mean(axis=1), fpts, fw)
+        centre, fpts, fw = faces
+        if region.kind == "force":
+            pts, vol = model.volume_points()
+            sel = _in_box(pts, region.min, region.max)
+            if np.any(sel):
+                pts, share = pts[sel], vol[sel]
+            else:
+                sel = _in_box(fpts, region.min, region.max)
+                if not np.any(sel):
+                    raise InputError(
+                        f"force region #{r} {_box_text(region)} contains no material; enlarge the box to cover part of the object"
+                    )
+                pts, share = fpts[sel], fw[sel]
+            forces = (share / share.sum())[:, None] * region.vector[None, :]
         else:
-            if quads is None:
-                quads, area, centre, _ = model.boundary_quads()
-            sel = _in_box(centre, region.min, region.max)
+            sel = np.repeat(_in_box(centre, region.min, region.max), 4)
             if not np.any(sel):
                 raise InputError(
-                    f"traction region #{r} [{region.min.tolist()}, {region.max.tolist()}] contains no boundary face "
-                    "centre; enlarge the box to cover part of the surface"
+                    f"traction region #{r} {_box_text(region)} contains no boundary face centre; "
+                    "enlarge the box to cover part of the surface"
                 )
-            share = np.repeat(area[sel] / 4.0, 4)
-            nodes = quads[sel].ravel()
-            for c in range(3):
-                f[:, c] += np.bincount(nodes, weights=share * region.vector[c], minlength=model.n_nodes)
+            pts = fpts[sel]
+            forces = fw[sel][:, None] * region.vector[None, :]
+        f += model.point_mapping(pts).vjp(rest, forces)
     return f

@@ -48,7 +48,6 @@ __all__ = [
     "ElastonEnergy",
     "ElastonHessian",
     "elaston_energy",
-    "box_moments",
     "MaterialElastonEnergy",
     "MaterialElastonHessian",
     "material_elaston_energy",
@@ -127,6 +126,7 @@ def elaston_energy(law: Law, e0, G, V, M1, M2, *, hessian: bool = True) -> Elast
     --------
     >>> import numpy as np
     >>> from voxflex.deform.laws import HookeLaw, isotropic_stiffness
+    >>> from voxflex.sampling.moments import box_moments
     >>> V, M1, M2 = box_moments([[0, 0, 0]], [[1, 1, 1]], [[0.5, 0.5, 0.5]])
     >>> law = HookeLaw(isotropic_stiffness(1.0, 0.0))
     >>> G = np.zeros((1, 6, 3)); G[0, 0, 0] = 1.0          # e_xx = x - 1/2
@@ -152,35 +152,6 @@ def _elaston_impl(law, e0, G, V, M1, M2, hessian):
     h0g = np.einsum("nca,nx->ncax", K, M1) + np.einsum("ncad,ndx->ncax", T, GM2)
     hgg = np.einsum("nac,nxz->naxcz", K, M2)
     return ElastonEnergy(energy, grad_e0, grad_G, ElastonHessian(h00, h0g, hgg))
-
-
-def box_moments(lower, upper, x0):
-    """Volume moments (V, M1, M2) of axis-aligned boxes about points x0.
-
-    Parameters
-    ----------
-    lower, upper : arrays (n, 3)
-        Box corners [m], ``upper > lower``.
-    x0 : array (n, 3)
-        Sample points [m] (anywhere).
-
-    Returns
-    -------
-    V (n,) [m^3], M1 (n, 3) [m^4], M2 (n, 3, 3) [m^5].
-    """
-    lo = np.asarray(lower, dtype=np.float64)
-    hi = np.asarray(upper, dtype=np.float64)
-    x0 = np.asarray(x0, dtype=np.float64)
-    if lo.ndim != 2 or lo.shape[1] != 3 or hi.shape != lo.shape or x0.shape != lo.shape:
-        raise InputError(f"box corners and x0 must all have shape (n, 3); got {lo.shape}, {hi.shape}, {x0.shape}")
-    if not np.all(hi > lo):
-        raise InputError("box upper corners must exceed the lower corners on every axis")
-    length = hi - lo
-    V = np.prod(length, axis=1)
-    c = 0.5 * (lo + hi) - x0  # centroid offset
-    M1 = V[:, None] * c
-    M2 = V[:, None, None] * (c[:, :, None] * c[:, None, :] + np.einsum("ni,ij->nij", length**2 / 12.0, np.eye(3)))
-    return V, M1, M2
 
 
 # ----------------------------------------------------------------------------------------------
@@ -258,6 +229,7 @@ def material_elaston_energy(material: Material, F, dF, V, M1, M2, *, hessian: bo
     >>> import numpy as np
     >>> from voxflex.deform.materials import material
     >>> mat = material("hooke", young=1.0, poisson=0.0, strain="linear")
+    >>> from voxflex.sampling.moments import box_moments
     >>> V, M1, M2 = box_moments([[0, 0, 0]], [[1, 1, 1]], [[0.5, 0.5, 0.5]])
     >>> dF = np.zeros((1, 3, 3, 3)); dF[0, 0, 0, 0] = 1.0    # F_xx = 1 + x - 1/2
     >>> float(material_elaston_energy(mat, np.eye(3)[None], dF, V, M1, M2).energy[0])

@@ -28,36 +28,24 @@ from typing import Callable
 import numpy as np
 
 from .._jit import njit
-from ..errors import InputError, check_choice
+from ..errors import InputError, check_choice, did_you_mean
 from . import laws as _laws
 
-__all__ = ["Material", "MATERIALS", "material", "lame", "strain_kind"]
-
-# strain name -> the kind of strain vector it produces (see voxflex.deform.laws.STRAIN_KINDS)
-_STRAIN_KINDS = {
-    "linear": "tensor",
-    "green": "tensor",
-    "corotational": "tensor",
-    "corotational-svd": "tensor",
-    "corotational-qr": "tensor",
-    "corotational-small": "tensor",
-    "invariant": "invariant",
-    "invariant-deviatoric": "invariant-deviatoric",
-    "principal-stretch": "principal-stretch",
-}
-
+__all__ = ["Material", "MATERIALS", "MODEL_CONSTANTS", "POISSON_RANGE", "material", "lame", "strain_kind", "check_constants"]
 
 def strain_kind(strain) -> str:
-    """The kind of strain vector a Strain produces (``"tensor"``, ``"invariant"``, ...)."""
+    """The kind of strain vector a Strain produces (``"tensor"``, ``"invariant"``, ...).
+
+    Raises InputError for an object that is not a registered strain and does
+    not declare one of :data:`voxflex.deform.laws.STRAIN_KINDS` as ``kind``.
+    """
     kind = getattr(strain, "kind", None)
     if isinstance(kind, str) and kind in _laws.STRAIN_KINDS:
         return kind
-    name = getattr(strain, "name", "")
-    if name in _STRAIN_KINDS:
-        return _STRAIN_KINDS[name]
-    if name.startswith("corotational") or getattr(strain, "size", None) == 6:
-        return "tensor"
-    raise InputError(f"cannot tell which kind of strain '{name}' is; valid strains: {', '.join(_STRAIN_KINDS)}")
+    raise InputError(
+        f"strain {getattr(strain, 'name', strain)!r} does not declare its kind; use a registered strain "
+        f"(vf.strain names) or give it a kind among {', '.join(_laws.STRAIN_KINDS)}"
+    )
 
 
 def _get_strain(name):
@@ -186,7 +174,9 @@ class Material:
             raise InputError(f"law must be a voxflex Law, got {type(self.law).__name__}")
         kind = strain_kind(self.strain)
         if kind not in self.law.accepts:
-            valid = [n for n, k in _STRAIN_KINDS.items() if k in self.law.accepts]
+            from .strains import STRAINS
+
+            valid = [n for n, st in STRAINS.items() if st.kind in self.law.accepts]
             raise InputError(
                 f"material '{self.name}' cannot use strain '{self.strain.name}' ({kind}); valid: {', '.join(valid)}"
             )
@@ -294,19 +284,31 @@ def _number(name, value, *, low=None, high=None, low_open=True, high_open=True, 
     return v
 
 
+POISSON_RANGE = (-1.0, 0.5)
+"""Open interval of Poisson's ratio for isotropic materials (negative values: auxetic materials)."""
+
+
 def _young_poisson(young, poisson):
     E = _number("young", young, low=0.0, what=" Pa")
-    nu = _number("poisson", poisson, low=0.0, high=0.5, low_open=False)
+    nu = _number("poisson", poisson, low=POISSON_RANGE[0], high=POISSON_RANGE[1])
     return E, nu
 
 
-def _split(model, young, poisson, constants, alternatives, optional=()):
+def check_constants(model: str, names) -> None:
+    """InputError for a constant ``model`` does not take, with a did-you-mean and that model's constants."""
+    allowed = MODEL_CONSTANTS[model]
+    for name in names:
+        if name not in allowed:
+            valid = ", ".join(["young", "poisson", "strain", *allowed]) if model != "hooke-orthotropic" else \
+                ", ".join(["strain", *allowed])
+            raise InputError(
+                f"unknown parameter '{name}' for material '{model}'{did_you_mean(name, allowed)}; valid: {valid}"
+            )
+
+
+def _split(model, young, poisson, constants, alternatives):
     """Resolve (young, poisson) or a model's own constants; return (E, nu, consts dict)."""
-    allowed = set(alternatives) | set(optional)
-    unknown = sorted(set(constants) - allowed)
-    if unknown:
-        valid = ", ".join(["young", "poisson", "strain", *alternatives, *optional])
-        raise InputError(f"unknown parameter '{unknown[0]}' for material '{model}'; valid: {valid}")
+    check_constants(model, sorted(constants))
     given = [k for k in alternatives if k in constants]
     if young is not None or poisson is not None:
         if young is None or poisson is None:
@@ -337,7 +339,7 @@ def _isotropic_lame(model, young, poisson, constants):
         return mu, lm, {"young": E, "poisson": nu, "mu": mu, "lmbda": lm}
     _require(model, c, ("mu", "lmbda"))
     mu = _number("mu", c["mu"], low=0.0, what=" Pa")
-    lm = _number("lmbda", c["lmbda"], low=0.0, low_open=False, what=" Pa (poisson >= 0)")
+    lm = _number("lmbda", c["lmbda"], low=-2.0 * mu / 3.0, what=" Pa (bulk modulus lmbda + 2 mu / 3 > 0)")
     E = mu * (3 * lm + 2 * mu) / (lm + mu)
     return mu, lm, {"young": E, "poisson": lm / (2 * (lm + mu)), "mu": mu, "lmbda": lm}
 
@@ -346,8 +348,7 @@ def _strain(model, strain, default):
     name = default if strain is None else strain
     if not isinstance(name, str):
         return name  # a Strain object
-    check_choice("strain", name, _STRAIN_KINDS)
-    return _get_strain(name)
+    return _get_strain(name)  # InputError listing the registered strains
 
 
 def _hooke(young=None, poisson=None, strain=None, **constants):
@@ -369,9 +370,7 @@ def _hooke_orthotropic(young=None, poisson=None, strain=None, **constants):
     model = "hooke-orthotropic"
     if young is not None or poisson is not None:
         raise InputError(f"material '{model}' takes {', '.join(_ORTHO)}, not young/poisson")
-    unknown = sorted(set(constants) - set(_ORTHO))
-    if unknown:
-        raise InputError(f"unknown parameter '{unknown[0]}' for material '{model}'; valid: strain, {', '.join(_ORTHO)}")
+    check_constants(model, sorted(constants))
     missing = [k for k in _ORTHO if k not in constants]
     if missing:
         raise InputError(f"material '{model}' needs {', '.join(_ORTHO)} (missing {missing[0]})")
@@ -398,7 +397,7 @@ def _stable_neo_hookean(young=None, poisson=None, strain=None, **constants):
 
 def _mooney_rivlin(young=None, poisson=None, strain=None, **constants):
     model = "mooney-rivlin"
-    E, nu, c = _split(model, young, poisson, constants, ("c1", "bulk"), optional=("c2",))
+    E, nu, c = _split(model, young, poisson, constants, ("c1", "bulk"))
     c2 = _number("c2", c.get("c2", 0.0), what=" Pa")
     if E is not None:
         mu, lm = lame(E, nu)
@@ -425,16 +424,12 @@ VERONDA_WESTMANN_C2 = 1.0
 
 
 def _moduli_summary(model, mu, bulk, shear):
-    """(young, poisson, lmbda) of the small-strain shear modulus mu and bulk modulus.
+    """(young, poisson, lmbda) of the small-strain shear modulus mu and bulk modulus (> 0).
 
-    Poisson's ratio must stay >= 0 (SPEC), i.e. ``bulk >= 2 mu / 3``; ``shear``
-    names how the model's constants make mu, for the error message.
+    Any positive bulk modulus gives a Poisson's ratio in (-1, 0.5); ``shear``
+    names how the model's constants make mu (kept for the callers' messages).
     """
     lm = bulk - 2.0 * mu / 3.0
-    if lm < 0:
-        raise InputError(
-            f"{model} needs bulk >= 2/3 of the shear modulus {shear} = {mu:g} (poisson >= 0); got bulk={bulk:g}"
-        )
     return mu * (3 * lm + 2 * mu) / (lm + mu), lm / (2 * (lm + mu)), lm
 
 
@@ -446,7 +441,7 @@ def _arruda_boyce(young=None, poisson=None, strain=None, **constants):
     exactly to Hooke with that E and nu (``factor`` is the law's ``shear_modulus / mu``).
     """
     model = "arruda-boyce"
-    E, nu, c = _split(model, young, poisson, constants, ("mu", "bulk"), optional=("lambda_m",))
+    E, nu, c = _split(model, young, poisson, constants, ("mu", "bulk"))
     lam_m = _number("lambda_m", c.get("lambda_m", ARRUDA_BOYCE_LAMBDA_M), low=1.0, what=" (locking stretch)")
     factor = _laws.ArrudaBoyceLaw(1.0, lam_m, 1.0).shear_modulus
     if E is not None:
@@ -469,7 +464,7 @@ def _arruda_boyce(young=None, poisson=None, strain=None, **constants):
 def _veronda_westmann(young=None, poisson=None, strain=None, **constants):
     """Veronda-Westmann: from young/poisson (and ``c2``, default 1) ``c1 = mu / c2``, ``bulk = lmbda + 2 mu / 3``."""
     model = "veronda-westmann"
-    E, nu, c = _split(model, young, poisson, constants, ("c1", "bulk"), optional=("c2",))
+    E, nu, c = _split(model, young, poisson, constants, ("c1", "bulk"))
     c2 = _number("c2", c.get("c2", VERONDA_WESTMANN_C2), low=0.0, what=" (dimensionless)")
     if E is not None:
         mu, lm = lame(E, nu)
@@ -509,7 +504,7 @@ _OGDEN_WEIGHT = (0.63, 0.0012, -0.01)
 
 def _ogden(young=None, poisson=None, strain=None, **constants):
     model = "ogden"
-    E, nu, c = _split(model, young, poisson, constants, ("mu_p", "lmbda"), optional=("alpha_p",))
+    E, nu, c = _split(model, young, poisson, constants, ("mu_p", "lmbda"))
     if E is not None:
         mu, lm = lame(E, nu)
         if "alpha_p" in c:
@@ -525,7 +520,7 @@ def _ogden(young=None, poisson=None, strain=None, **constants):
         _require(model, c, ("mu_p", "alpha_p", "lmbda"))
         mus = np.atleast_1d(np.asarray(c["mu_p"], dtype=float))
         al = np.atleast_1d(np.asarray(c["alpha_p"], dtype=float))
-        lm = _number("lmbda", c["lmbda"], low=0.0, low_open=False, what=" Pa")
+        lm = _number("lmbda", c["lmbda"], what=" Pa")
         if mus.shape != al.shape or mus.ndim != 1:
             raise InputError("ogden mu_p and alpha_p must have the same length")
         mu = float(np.sum(0.5 * mus * al))
@@ -537,6 +532,23 @@ def _ogden(young=None, poisson=None, strain=None, **constants):
     params = {"young": E, "poisson": nu, "mu": mu, "lmbda": lm, "mu_p": law.mu_p, "alpha_p": law.alpha_p}
     return Material(_strain(model, strain, "principal-stretch"), law, model, params)
 
+
+MODEL_CONSTANTS: dict[str, tuple[str, ...]] = {
+    "hooke": ("mu", "lmbda"),
+    "hooke-orthotropic": _ORTHO,
+    "stvk": ("mu", "lmbda"),
+    "neo-hookean": ("mu", "lmbda"),
+    "stable-neo-hookean": ("mu", "lmbda"),
+    "mooney-rivlin": ("c1", "c2", "bulk"),
+    "arruda-boyce": ("mu", "bulk", "lambda_m"),
+    "veronda-westmann": ("c1", "c2", "bulk"),
+    "volume-log": ("bulk",),
+    "volume-quadratic": ("bulk",),
+    "ogden": ("mu_p", "alpha_p", "lmbda"),
+}
+"""The constants each model takes besides ``young``, ``poisson`` and ``strain`` (the scene's
+``[[material]]`` keys read this table too).  ``c2``, ``lambda_m`` and ``alpha_p`` may also
+accompany young/poisson (see :func:`material`)."""
 
 MATERIALS: dict[str, Callable[..., Material]] = {
     "hooke": _hooke,
@@ -571,7 +583,7 @@ def material(name: str, *, young=None, poisson=None, strain=None, **constants) -
     young : float, optional
         Young's modulus [Pa], > 0.
     poisson : float, optional
-        Poisson's ratio in [0, 0.5).
+        Poisson's ratio in (-1, 0.5) (negative for auxetic materials).
     strain : str or Strain, optional
         The strain measure; default: the one the model needs.
     **constants

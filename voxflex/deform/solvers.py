@@ -1,4 +1,4 @@
-"""Static and implicit-Euler solvers for node-based models (the voxel model first).
+"""Static and implicit-Euler solvers for any :class:`~voxflex.deform.model.Model`.
 
 Statics: the equilibrium ``dE/dq = f`` is the minimum of the total potential
 ``Pi(q) = E(q) - f . (q - X)``, found by Newton's method with a backtracking
@@ -35,7 +35,7 @@ import scipy.sparse as sp
 
 from ..errors import ConvergenceError, InputError, check_choice
 from .boundary import FixedRegion, ForceRegion, fixed_dofs, prescribed_positions, region_forces
-from .linear_solvers import METHODS, cg_on_free_dofs, choose_method, rigid_body_modes, solve_linear, vdot, vnorm
+from .linear_solvers import METHODS, cg_on_free_dofs, choose_method, solve_linear, vdot, vnorm
 
 KINDS = ("static", "implicit-euler")
 MASS_KINDS = ("lumped", "consistent")
@@ -104,8 +104,8 @@ class SolverOptions:
 class StepRecord:
     """State after one step (the first record is the rest state at time 0).
 
-    ``time`` is the load factor for statics, seconds for dynamics; ``q`` (n, 3)
-    node positions (m); ``v`` (n, 3) velocities (m/s) or None (statics);
+    ``time`` is the load factor for statics, seconds for dynamics; ``q`` (n, d)
+    the node state (positions in m for point nodes); ``v`` (n, d) its velocity or None (statics);
     energies in J; ``residual`` the final relative residual; ``linear_iterations``
     summed over the step's Newton iterations (0 for direct solvers).
     """
@@ -134,11 +134,12 @@ class _Problem:
         self.xhat = xhat
         self.xn = xn
         self.D = D
-        self.rest = model.rest.ravel()
+        self.rest = np.asarray(model.rest, dtype=float).ravel()
+        self.shape = np.shape(model.rest)
         self.constant = bool(getattr(model, "constant_tangent", False))
 
     def __call__(self, x, hessian=True, gradient=True):
-        q = x.reshape(-1, 3)
+        q = x.reshape(self.shape)
         E, g, H = self.model.energy_gradient_hessian(q, hessian=hessian) if gradient else (
             self.model.energy(q), None, None)
         u = x - self.rest
@@ -295,7 +296,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             pot, E, g, H, mag = problem(x, hessian=True)
         cached = None
         if not np.isfinite(pot) or not np.all(np.isfinite(g)):
-            raise ConvergenceError(f"{label}: the energy is not finite at iteration {it} (inverted voxels?)")
+            raise ConvergenceError(f"{label}: the energy is not finite at iteration {it} (inverted material?)")
         r = g[free]
         rn = vnorm(r)
         reaction = vnorm(g[fixed]) if len(fixed) else 0.0
@@ -411,8 +412,8 @@ def solve(
 
     Parameters
     ----------
-    model : VoxelModel (or any model with rest, n_nodes, energy, energy_gradient_hessian,
-        gravity_force, mass_matrix, nodal_volumes, boundary_quads)
+    model : Model
+        Any model of the protocol in :mod:`voxflex.deform.model` (voxel or frame model).
     fixed : FixedRegion sequence
         Held or moved regions (prescribed motions reach their transform at the end).
     forces : ForceRegion sequence
@@ -423,8 +424,8 @@ def solve(
     options : SolverOptions
     callback : callable(StepRecord), optional
         Called after each step.
-    q0, v0 : (n, 3) float, optional
-        Initial positions (default: rest) and velocities (implicit Euler; default 0).
+    q0, v0 : (n, d) float, optional
+        Initial state (default: rest) and its velocity (implicit Euler; default 0).
         Fixed DOFs still follow their regions.
 
     Returns
@@ -451,15 +452,16 @@ def solve(
     dynamic = options.kind == "implicit-euler"
     if (gravity is not None or dynamic) and densities is None:
         raise InputError("gravity and implicit-euler need densities (kg/m^3) for every material label")
-    n = model.n_nodes
+    shape = np.shape(model.rest)
     X = np.asarray(model.rest, dtype=float).ravel()
-    dofs, owner = fixed_dofs(model.rest, fixed)
-    free = np.setdiff1d(np.arange(3 * n), dofs)
-    f_full = region_forces(model, forces).ravel() if forces else np.zeros(3 * n)
+    N = X.size
+    dofs, owner = fixed_dofs(model, fixed)
+    free = np.setdiff1d(np.arange(N), dofs)
+    f_full = region_forces(model, forces).ravel() if forces else np.zeros(N)
     if gravity is not None:
         f_full = f_full + model.gravity_force(densities, gravity).ravel()
-    near_null = rigid_body_modes(model.rest)[free] if options.linear_solver == "amg" else None
-    reduce = _FreeBlock(free, 3 * n)
+    near_null = model.rigid_modes()[free] if options.linear_solver == "amg" else None
+    reduce = _FreeBlock(free, N)
 
     M = None
     if dynamic:
@@ -467,18 +469,18 @@ def solve(
     x = X.copy()
     if q0 is not None:
         q0 = np.asarray(q0, dtype=float)
-        if q0.shape != (n, 3) or not np.all(np.isfinite(q0)):
-            raise InputError(f"q0 must be a finite ({n}, 3) array of node positions, got shape {q0.shape}")
+        if q0.shape != shape or not np.all(np.isfinite(q0)):
+            raise InputError(f"q0 must be a finite {shape} array (the node state), got shape {q0.shape}")
         x = q0.ravel().copy()
-    v = np.zeros(3 * n) if dynamic else None
+    v = np.zeros(N) if dynamic else None
     if v0 is not None:
         v0 = np.asarray(v0, dtype=float)
-        if not dynamic or v0.shape != (n, 3) or not np.all(np.isfinite(v0)):
-            raise InputError(f"v0 must be a finite ({n}, 3) array and needs kind='implicit-euler'")
+        if not dynamic or v0.shape != shape or not np.all(np.isfinite(v0)):
+            raise InputError(f"v0 must be a finite {shape} array and needs kind='implicit-euler'")
         v = v0.ravel().copy()
     kin0 = 0.5 * vdot(v, M @ v) if dynamic else 0.0
-    records = [StepRecord(0.0, x.reshape(n, 3).copy(), None if v is None else v.reshape(n, 3).copy(), 0, 0.0,
-                          float(model.energy(x.reshape(n, 3))), kin0, 0.0)]
+    records = [StepRecord(0.0, x.reshape(shape).copy(), None if v is None else v.reshape(shape).copy(), 0, 0.0,
+                          float(model.energy(x.reshape(shape))), kin0, 0.0)]
     t_end = options.steps * options.dt
     for k in range(1, options.steps + 1):
         t0 = time.perf_counter()
@@ -490,7 +492,7 @@ def solve(
             if options.rayleigh_mass or options.rayleigh_stiffness:
                 D = options.rayleigh_mass * M
                 if options.rayleigh_stiffness:
-                    D = D + options.rayleigh_stiffness * model.hessian(x.reshape(n, 3))
+                    D = D + options.rayleigh_stiffness * model.hessian(x.reshape(shape))
             problem = _Problem(model, f_full, M=M, h=options.dt, xhat=x + options.dt * v, xn=x.copy(), D=D)
             x_start = x + options.dt * v
         else:
@@ -499,20 +501,20 @@ def solve(
             label = f"static step {k}/{options.steps} (load factor {factor:.4g})"
             problem = _Problem(model, factor * f_full)
             x_start = x.copy()
-        x_fixed = prescribed_positions(model.rest, fixed, dofs, owner, factor) if len(dofs) else np.zeros(0)
+        x_fixed = prescribed_positions(model, fixed, dofs, owner, factor) if len(dofs) else np.zeros(0)
         # fixed DOFs start from their previous values so the predictor sees their motion
         x_start[dofs] = x[dofs]
         x_new, its, rel, lin_its, solver_used, halvings = _newton(
             problem, x_start, free, dofs, x_fixed, options, near_null, label, reduce
         )
-        E = float(model.energy(x_new.reshape(n, 3)))
+        E = float(model.energy(x_new.reshape(shape)))
         kin = 0.0
         if dynamic:
             v = (x_new - x) / options.dt
             kin = 0.5 * vdot(v, M @ v)
         x = x_new
         rec = StepRecord(
-            float(t), x.reshape(n, 3).copy(), None if v is None else v.reshape(n, 3).copy(), int(its),
+            float(t), x.reshape(shape).copy(), None if v is None else v.reshape(shape).copy(), int(its),
             time.perf_counter() - t0, E, kin, float(rel), int(lin_its), solver_used, int(halvings),
         )
         records.append(rec)

@@ -48,7 +48,10 @@ from ..errors import InputError, check_choice
 from ..sampling.quadrature import RULES, unit_cube_rule
 from ..voronoi.trilinear import CORNER_OFFSETS, TrilinearGrid, trilinear_weights
 from . import _voxel_kernels as kern
+from ..voronoi.shape_functions import ShapeValues
 from .linear_solvers import vdot
+from .mappings import PointMapping
+from .nodes import Points
 
 CHUNK_ELEMENTS = 16384
 """Voxels evaluated per batch (bounds the memory of F, P, A: ~80 MB of tangents with 8 samples each)."""
@@ -63,45 +66,57 @@ def tangent_is_constant(material) -> bool:
     return bool(getattr(material, "constant_tangent", False))
 
 
-@dataclass(frozen=True, eq=False)
-class PointMapping:
-    """Linear map from node positions to the positions of material points.
+def boundary_quads(grid: TrilinearGrid, mask):
+    """Faces of the voxels of ``grid`` exposed to empty space (``mask`` false or outside the image).
 
-    ``x_p = sum_a w_pa q_a`` with the trilinear weights of the voxel holding
-    point p.  Used for probes, loads and mass points.
-
-    Attributes
-    ----------
-    values : ShapeValues
-        index (m, 8), w (m, 8), dw (m, 8, 3), rest (m, 3).
-    n_nodes : int
+    Returns
+    -------
+    quads : (F, 4) int64
+        Grid nodes of each face, counter-clockwise seen from outside.
+    area : (F,) float (m^2)
+    normal : (F, 3) float, outward unit normal at rest
     """
+    ijk = grid.element_ijk
+    shape = np.asarray(grid.shape)
+    nx, ny, nz = grid.shape
+    quads, normals, areas = [], [], []
+    flip = np.linalg.det(grid.direction) < 0
+    for a in range(3):
+        b, c = (a + 1) % 3, (a + 2) % 3
+        eb = np.eye(3, dtype=np.int64)[b]
+        ec = np.eye(3, dtype=np.int64)[c]
+        ea = np.eye(3, dtype=np.int64)[a]
+        for side in (-1, 1):
+            nb = ijk + side * ea
+            outside = np.any((nb < 0) | (nb >= shape), axis=1)
+            nbc = np.clip(nb, 0, shape - 1)
+            empty = outside | ~mask[nbc[:, 0], nbc[:, 1], nbc[:, 2]]
+            sel = ijk[empty]
+            if len(sel) == 0:
+                continue
+            p0 = sel + (ea if side > 0 else 0)
+            corners = np.stack([p0, p0 + eb, p0 + eb + ec, p0 + ec], axis=1)  # (f, 4, 3)
+            if (side < 0) != flip:
+                corners = corners[:, ::-1]
+            keys = (corners[..., 0] * (ny + 1) + corners[..., 1]) * (nz + 1) + corners[..., 2]
+            quads.append(np.searchsorted(grid.node_key, keys))
+            normal = side * grid.direction[:, a]
+            normals.append(np.broadcast_to(normal, (len(sel), 3)))
+            areas.append(np.full(len(sel), grid.spacing[b] * grid.spacing[c]))
+    return np.concatenate(quads).astype(np.int64), np.concatenate(areas), np.concatenate(normals).astype(float)
 
-    values: object
-    n_nodes: int
 
-    @property
-    def weights(self) -> sp.csr_matrix:
-        """(m, n) sparse weight matrix W."""
-        v = self.values
-        m, p = v.index.shape
-        mask = v.index >= 0
-        rows = np.repeat(np.arange(m), p).reshape(m, p)[mask]
-        return sp.csr_matrix((v.w[mask], (rows, v.index[mask])), shape=(m, self.n_nodes))
+def triangulate(quads):
+    """Triangles of quadrilaterals (two per quad) over the used nodes only.
 
-    @property
-    def jacobian(self) -> sp.csr_matrix:
-        """(3m, 3n) sparse Jacobian d x / d q (``W kron I3``); constant."""
-        return sp.kron(self.weights, sp.identity(3, format="csr"), format="csr")
-
-    def apply(self, q) -> np.ndarray:
-        """Positions (m, 3) of the points for node positions ``q`` (n, 3)."""
-        q = np.asarray(q, dtype=float)
-        if q.shape != (self.n_nodes, 3):
-            raise InputError(f"q must have shape ({self.n_nodes}, 3), got {q.shape}")
-        v = self.values
-        idx = np.where(v.index >= 0, v.index, 0)
-        return np.einsum("mp,mpk->mk", v.w, q[idx])
+    Returns
+    -------
+    vertex_node : (V,) int64, the node of each vertex (sorted)
+    faces : (2F, 3) int64, vertex indices, orientation of the quads kept
+    """
+    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
+    vertex_node, faces = np.unique(tris, return_inverse=True)
+    return vertex_node.astype(np.int64), faces.reshape(-1, 3).astype(np.int64)
 
 
 def _as_slice(ids):
@@ -128,9 +143,11 @@ class VoxelModel:
     quadrature : str
     """
 
+    node_kind = "voxel"
     dofs_per_node = 3
 
-    def __init__(self, grid: TrilinearGrid, labels, volumes, materials, quadrature, mask):
+    def __init__(self, grid: TrilinearGrid, labels, volumes, materials, quadrature, mask, image=None):
+        self.image = image
         self.grid = grid
         self.rest = grid.node_positions
         self.rest.setflags(write=False)
@@ -152,6 +169,7 @@ class VoxelModel:
             ids = np.flatnonzero(self.element_label == label)
             self._groups.append((int(label), ids, tangent_is_constant(self.materials[int(label)])))
         self._pattern = None
+        self._node_type = None
         self._constant = None  # (data, E0, g0) of the constant-tangent groups, built on first use
 
     # -- construction -------------------------------------------------------
@@ -207,7 +225,7 @@ class VoxelModel:
         volumes = np.full(len(ijk), float(image.voxel_volume))
         if use_occupancy and image.occupancy is not None:
             volumes *= np.asarray(image.occupancy, dtype=float)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
-        return cls(grid, element_label, volumes, {int(k): materials[int(k)] for k in present}, quadrature, mask)
+        return cls(grid, element_label, volumes, {int(k): materials[int(k)] for k in present}, quadrature, mask, image)
 
     # -- sizes -----------------------------------------------------------------
     @property
@@ -421,12 +439,21 @@ class VoxelModel:
     def point_mapping(self, points) -> PointMapping:
         """Trilinear mapping of material points (m, 3) given at rest (world, m).
 
+        ``x_p = sum_a w_pa q_a`` with the trilinear weights of the voxel
+        holding point p (used for probes, loads and surface points).
+
         Raises
         ------
         InputError
             When a point lies outside the material (names the point).
         """
-        return PointMapping(self.grid.shape_values(points), self.n_nodes)
+        return PointMapping(self._points, self.grid.shape_values(points))
+
+    @property
+    def _points(self) -> Points:
+        if self._node_type is None:
+            self._node_type = Points(self.rest)
+        return self._node_type
 
     def _densities(self, densities) -> np.ndarray:
         """Density (kg/m^3) of each element from a mapping label -> density."""
@@ -478,11 +505,6 @@ class VoxelModel:
         Mn = sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
         return sp.kron(Mn, sp.identity(3, format="csr"), format="csr")
 
-    def nodal_volumes(self) -> np.ndarray:
-        """Lumped volume (n,) of each node (m^3): an eighth of each adjacent voxel's (occupied) volume."""
-        conn = self.grid.element_nodes
-        return np.bincount(conn.ravel(), weights=np.repeat(self.element_volume / 8.0, 8), minlength=self.n_nodes)
-
     def gravity_force(self, densities: Mapping[int, float], g) -> np.ndarray:
         """Nodal gravity force (n, 3) in N: ``J^T (rho g vol)`` at the mass points."""
         g = np.asarray(g, dtype=float)
@@ -507,37 +529,20 @@ class VoxelModel:
         centre : (F, 3) float, rest position (m)
         normal : (F, 3) float, outward unit normal at rest
         """
-        grid = self.grid
-        ijk = grid.element_ijk
-        shape = np.asarray(grid.shape)
-        nx, ny, nz = grid.shape
-        quads, normals, areas = [], [], []
-        flip = np.linalg.det(grid.direction) < 0
-        for a in range(3):
-            b, c = (a + 1) % 3, (a + 2) % 3
-            eb = np.eye(3, dtype=np.int64)[b]
-            ec = np.eye(3, dtype=np.int64)[c]
-            ea = np.eye(3, dtype=np.int64)[a]
-            for side in (-1, 1):
-                nb = ijk + side * ea
-                outside = np.any((nb < 0) | (nb >= shape), axis=1)
-                nbc = np.clip(nb, 0, shape - 1)
-                empty = outside | ~self._mask[nbc[:, 0], nbc[:, 1], nbc[:, 2]]
-                sel = ijk[empty]
-                if len(sel) == 0:
-                    continue
-                p0 = sel + (ea if side > 0 else 0)
-                corners = np.stack([p0, p0 + eb, p0 + eb + ec, p0 + ec], axis=1)  # (f, 4, 3)
-                if (side < 0) != flip:
-                    corners = corners[:, ::-1]
-                keys = (corners[..., 0] * (ny + 1) + corners[..., 1]) * (nz + 1) + corners[..., 2]
-                quads.append(np.searchsorted(grid.node_key, keys))
-                normal = side * grid.direction[:, a]
-                normals.append(np.broadcast_to(normal, (len(sel), 3)))
-                areas.append(np.full(len(sel), grid.spacing[b] * grid.spacing[c]))
-        quads = np.concatenate(quads).astype(np.int64)
-        centre = self.rest[quads].mean(axis=1)
-        return quads, np.concatenate(areas), centre, np.concatenate(normals).astype(float)
+        quads, area, normal = boundary_quads(self.grid, self._mask)
+        return quads, area, self.rest[quads].mean(axis=1), normal
+
+    def boundary_faces(self):
+        """Voxel faces exposed to empty space at rest.
+
+        Returns
+        -------
+        corners : (F, 4, 3) float, counter-clockwise seen from outside (m)
+        area : (F,) float (m^2)
+        normal : (F, 3) float, outward unit normals
+        """
+        quads, area, _, normal = self.boundary_quads()
+        return self.rest[quads], area, normal
 
     def boundary_surface(self):
         """Triangulated boundary (faces exposed to empty space), outward orientation.
@@ -546,14 +551,48 @@ class VoxelModel:
         -------
         vertices_rest : (V, 3) float
         faces : (F, 3) int64, counter-clockwise seen from outside
-        vertex_node : (V,) int64
-            Node of each vertex: deformed vertices are ``q[vertex_node]``.
+        mapping : PointMapping
+            The vertices' mapping: every vertex is a node, so it selects
+            ``q[vertex_node]`` (``mapping.shape.index[:, 0]``).
         """
-        quads = self.boundary_quads()[0]
-        tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
-        vertex_node, faces = np.unique(tris, return_inverse=True)
-        faces = faces.reshape(-1, 3).astype(np.int64)
-        return self.rest[vertex_node].copy(), faces, vertex_node.astype(np.int64)
+        vertex_node, faces = triangulate(self.boundary_quads()[0])
+        V = self.rest[vertex_node].copy()
+        m = len(vertex_node)
+        values = ShapeValues(index=vertex_node[:, None], w=np.ones((m, 1)), dw=np.zeros((m, 1, 3)), ddw=None,
+                             rest=V, n_nodes=self.n_nodes)
+        return V, faces, PointMapping(self._points, values)
+
+    def volume_points(self):
+        """The 2x2x2 Gauss points of every voxel and their volumes (m^3, occupancy-weighted)."""
+        local, weights = unit_cube_rule("gauss-legendre")
+        ijk = self.grid.element_ijk
+        pts = (ijk[:, None, :] + local[None, :, :]).reshape(-1, 3)
+        vol = (self.element_volume[:, None] * weights[None, :]).reshape(-1)
+        return self.grid.index_to_world(pts), vol
+
+    def held_dofs(self, lo, hi, components: str = "xyz") -> np.ndarray:
+        """DOFs ``3 * node + c`` of the nodes whose rest position lies in [lo, hi], components ``c`` in ``components``."""
+        nodes = self.nodes_in_box(lo, hi)
+        comps = np.array(["xyz".index(c) for c in components], dtype=np.int64)
+        return np.sort((3 * nodes[:, None] + comps[None, :]).ravel())
+
+    def moved_state(self, transform) -> np.ndarray:
+        """Node positions (n, 3) of the body moved by ``[A | t]`` (3, 4)."""
+        T = np.asarray(transform, dtype=float)
+        return self.rest @ T[:, :3].T + T[:, 3]
+
+    def advice(self) -> str:
+        """Model-specific advice appended to a solver failure ('' when none)."""
+        if self.quadrature == "midpoint":
+            return ("mid-point quadrature leaves hourglass (zero-energy) modes in trilinear voxels, "
+                    'use [elasticity] quadrature = "gauss-legendre"')
+        return ""
+
+    def describe(self) -> dict:
+        """Attributes of the result file's ``/model`` group."""
+        return {"node_kind": self.node_kind, "count": self.n_nodes, "dofs": 3 * self.n_nodes,
+                "quadrature": self.quadrature, "samples": self.n_samples, "shape_function": "trilinear",
+                "voxels": self.n_elements}
 
     def nodes_in_box(self, lo, hi) -> np.ndarray:
         """Indices of the nodes whose rest position lies in the box [lo, hi] (inclusive)."""
@@ -568,4 +607,4 @@ class VoxelModel:
         return rigid_body_modes(self.rest)
 
 
-__all__ = ["VoxelModel", "PointMapping", "tangent_is_constant", "CORNER_OFFSETS"]
+__all__ = ["VoxelModel", "tangent_is_constant", "boundary_quads", "triangulate", "CORNER_OFFSETS"]

@@ -23,7 +23,11 @@ import numpy as np
 
 from ..errors import check_choice
 
+QUADRATURES = ("midpoint", "gauss-legendre", "elaston")
+"""``[elasticity] quadrature`` values: one sample per region, 2x2x2 Gauss per voxel, elastons (regions with moments)."""
+
 RULES = ("gauss-legendre", "midpoint")
+"""The rules on one voxel (the voxel model's quadratures)."""
 
 
 def gauss_legendre_cube(order: int = 2) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,402 @@
+"""The reduced frame model: a few affine frames skinned over a label image.
+
+``n`` affine frames (12 DOF each: the matrix A row-major, then the origin t;
+rest A = I, t = X_a) move the material through shape functions ``w_a(X)``:
+
+    x(X) = sum_a w_a(X) [A_a (X - X_a) + t_a].
+
+The chain of mappings is the deformation core's: at each quadrature sample
+``F = sum_a [w_a A_a + (A_a (X - X_a) + t_a) (x) grad w_a]``
+(:class:`~voxflex.deform.mappings.DeformationGradientMapping`), then the
+material ``W(F)``; the energy is ``E = sum_s vol_s W(F_s)``, the gradient
+``J^T (vol P)`` and the Hessian ``J^T blockdiag(vol A) J``.  For affine
+frames J does not depend on the state (no geometric stiffness), so it is
+assembled once.  Mass, gravity, probes, loads and the visual surface are
+further point mappings of the same frames (mass points: the 2x2x2 Gauss
+points of every voxel, weighted by density and occupancy).
+
+The model satisfies the protocol of :mod:`voxflex.deform.model`, so the same
+solvers, loads, result files and renders run it.
+
+Mass: ``consistent`` is ``J^T diag(m) J`` over the mass points (dense
+12x12 blocks between frames that share material); ``lumped`` gives every mass
+point's mass to its frames in proportion to their weights, each frame
+carrying its share as its own affine body (block-diagonal, symmetric positive
+definite, exact total mass and momentum).
+
+Example
+-------
+>>> import numpy as np
+>>> from voxflex.image.label_image import LabelImage
+>>> from voxflex.deform.materials import material
+>>> from voxflex.voronoi.shape_functions import shepard
+>>> image = LabelImage(np.ones((4, 2, 2)))
+>>> frames = np.array([[0.5, 1.0, 1.0], [3.5, 1.0, 1.0]])
+>>> model = FrameModel.from_image(image, frames, lambda p: shepard(p, frames),
+...                               {1: material("hooke", young=1e3, poisson=0.3)})
+>>> model.rest.shape, model.node_kind
+((2, 12), 'affine')
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Mapping
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import InputError
+from ..sampling.quadrature import unit_cube_rule
+from ..voronoi.shape_functions import ShapeValues
+from ..voronoi.trilinear import TrilinearGrid
+from .linear_solvers import vdot
+from .mappings import DeformationGradientMapping, PointMapping
+from .nodes import AffineFrames
+from .voxel_model import boundary_quads, triangulate
+
+__all__ = ["FrameModel", "VoxelSamples", "voxel_samples"]
+
+
+@dataclass(frozen=True, eq=False)
+class VoxelSamples:
+    """Quadrature samples as the frame model reads them.
+
+    Attributes
+    ----------
+    kind : str
+        ``"gauss-legendre"``, ``"midpoint"`` or ``"elaston"``.
+    points : (m, 3) float, world (m)
+    volume : (m,) float (m^3)
+    label : (m,) int, the material label of each sample
+    values : ShapeValues of the samples (with Hessians for elastons)
+    """
+
+    kind: str
+    points: np.ndarray
+    volume: np.ndarray
+    label: np.ndarray
+    values: ShapeValues
+
+
+def voxel_samples(image, shape_function: Callable, *, rule: str = "gauss-legendre", use_occupancy: bool = True) -> VoxelSamples:
+    """Samples of a per-voxel rule (2x2x2 Gauss or the voxel centre) over every material voxel.
+
+    The most accurate (and most expensive) quadrature of a frame model; the
+    sampling stage's reduced samplers (mid-point regions, elastons) produce
+    the same attributes.
+    """
+    local, weights = unit_cube_rule(rule)
+    ijk = np.argwhere(image.labels > 0)
+    pts = image.index_to_world((ijk[:, None, :] + local[None, :, :]).reshape(-1, 3))
+    vol = np.full(len(ijk), float(image.voxel_volume))
+    if use_occupancy and image.occupancy is not None:
+        vol = vol * np.asarray(image.occupancy, dtype=float)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    vol = (vol[:, None] * weights[None, :]).reshape(-1)
+    label = np.repeat(image.labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]].astype(np.int64), len(weights))
+    return VoxelSamples(rule, pts, vol, label, shape_function(pts))
+
+
+class FrameModel:
+    """Affine frames over a label image (see the module docstring).
+
+    Build with :meth:`from_image`.  The state ``q`` is ``(n, 12)``; energies
+    in J, generalised forces in N (translations) and N m (matrix entries).
+
+    Attributes
+    ----------
+    image : LabelImage
+    frames : (n, 3) float, rest positions X_a (m)
+    samples : VoxelSamples (or the sampling stage's Samples)
+    materials : {label: Material}
+    """
+
+    node_kind = "affine"
+    dofs_per_node = 12
+
+    def __init__(self, image, frames, shape_function, samples, materials, *, info=None, use_occupancy=True):
+        self.image = image
+        self.frames = np.asarray(frames, dtype=float)
+        self.nodes = AffineFrames(self.frames)
+        self.rest = self.nodes.rest
+        self.rest.setflags(write=False)
+        self.shape_function = shape_function
+        self.samples = samples
+        self.materials = dict(materials)
+        self.use_occupancy = bool(use_occupancy)
+        self.info = dict(info or {})
+        self._fmap = DeformationGradientMapping(self.nodes, samples.values)
+        self._J = None
+        self._groups = [(int(lab), np.flatnonzero(samples.label == lab)) for lab in np.unique(samples.label)]
+        self._surface = None
+        self._mass_points = None
+
+    # -- construction -------------------------------------------------------
+    @classmethod
+    def from_image(cls, image, frames, shape_function, materials: Mapping[int, object], *, samples=None,
+                   quadrature: str = "gauss-legendre", use_occupancy: bool = True, info=None) -> "FrameModel":
+        """Frame model of ``image`` with frames at ``frames`` (n, 3) and shape functions ``shape_function``.
+
+        Parameters
+        ----------
+        image : LabelImage
+        frames : (n, 3) float, world rest positions of the frames (m)
+        shape_function : callable
+            ``shape_function(points (m, 3)) -> ShapeValues`` over the frames.
+        materials : mapping label -> Material
+        samples : optional
+            Quadrature samples (attributes of :class:`VoxelSamples`); default:
+            ``quadrature`` per voxel (``"gauss-legendre"`` or ``"midpoint"``).
+        use_occupancy : bool
+            Weight volumes and masses by the image's occupancy fractions.
+
+        Raises
+        ------
+        InputError
+            No frame, a label without material, shape functions that do not fit the frames.
+        """
+        frames = np.asarray(frames, dtype=float)
+        if frames.ndim != 2 or frames.shape[1] != 3 or len(frames) == 0:
+            raise InputError(f"frames must be a non-empty (n, 3) array of world positions, got shape {frames.shape}")
+        labels = np.asarray(image.labels)
+        present = np.unique(labels[labels > 0]).astype(int)
+        if len(present) == 0:
+            raise InputError("the image has no material (every label is 0); voxelize a non-empty object")
+        materials = {int(k): v for k, v in dict(materials).items()}
+        missing = [int(lab) for lab in present if lab not in materials]
+        if missing:
+            raise InputError(f"label(s) {missing} in the image have no material; give one per label")
+        if samples is None:
+            samples = voxel_samples(image, shape_function, rule=quadrature, use_occupancy=use_occupancy)
+        if samples.values.n_nodes is not None and samples.values.n_nodes != len(frames):
+            raise InputError(
+                f"the samples' shape functions were built for {samples.values.n_nodes} frames, not {len(frames)}"
+            )
+        return cls(image, frames, shape_function, samples, {int(k): materials[int(k)] for k in present},
+                   info=info, use_occupancy=use_occupancy)
+
+    # -- sizes -----------------------------------------------------------------
+    @property
+    def n_nodes(self) -> int:
+        return self.nodes.n
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.samples.volume)
+
+    @property
+    def constant_tangent(self) -> bool:
+        return all(bool(getattr(m, "constant_tangent", False)) for m in self.materials.values())
+
+    def _check_q(self, q) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.n_nodes, 12):
+            raise InputError(f"q must have shape ({self.n_nodes}, 12) (A row-major, then t, per frame), got {q.shape}")
+        return q
+
+    # -- energy ----------------------------------------------------------------
+    def jacobian(self) -> sp.csr_matrix:
+        """dF/dq at the samples, (9m, 12n), constant for affine frames (assembled once)."""
+        if self._J is None:
+            self._J = self._fmap.jacobian(self.rest).tocsr()
+        return self._J
+
+    def deformation_gradients(self, q) -> np.ndarray:
+        """F (m, 3, 3) at the samples."""
+        return self._fmap.apply(self._check_q(q))
+
+    def energy(self, q) -> float:
+        return self.energy_gradient_hessian(q, gradient=False, hessian=False)[0]
+
+    def gradient(self, q) -> np.ndarray:
+        return self.energy_gradient_hessian(q, hessian=False)[1]
+
+    def hessian(self, q) -> sp.csr_matrix:
+        return self.energy_gradient_hessian(q)[2]
+
+    def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
+        """Energy (J), gradient (n, 12) and Hessian (12n, 12n) CSR in one pass over the samples."""
+        q = self._check_q(q)
+        F = self._fmap.apply(q)
+        vol = self.samples.volume
+        m = len(vol)
+        energy = 0.0
+        VP = np.zeros((m, 3, 3)) if gradient else None
+        blocks = np.zeros((m, 9, 9)) if hessian else None
+        for label, ids in self._groups:
+            W, P, A = self.materials[label].evaluate(F[ids], tangent=hessian)
+            energy += vdot(vol[ids], W)
+            if gradient:
+                VP[ids] = vol[ids, None, None] * P
+            if hessian:
+                blocks[ids] = vol[ids, None, None] * A.reshape(-1, 9, 9)
+        grad = self._fmap.vjp(q, VP) if gradient else None
+        H = None
+        if hessian:
+            J = self.jacobian()
+            D = sp.bsr_matrix((blocks, np.arange(m), np.arange(m + 1)), shape=(9 * m, 9 * m)).tocsr()
+            H = (J.T @ (D @ J)).tocsr()
+            H = 0.5 * (H + H.T)
+        return float(energy), grad, H
+
+    # -- mass and gravity --------------------------------------------------------
+    def _mass_layer(self):
+        """Mass points (2x2x2 Gauss points of every voxel), their volumes and labels, and their mapping."""
+        if self._mass_points is None:
+            s = voxel_samples(self.image, self.shape_function, rule="gauss-legendre", use_occupancy=self.use_occupancy)
+            self._mass_points = (s.volume, s.label, PointMapping(self.nodes, s.values))
+        return self._mass_points
+
+    def _point_masses(self, densities) -> np.ndarray:
+        if densities is None:
+            raise InputError("densities are needed (mass, gravity, dynamics); give a density per material label")
+        vol, label, _ = self._mass_layer()
+        dens = {int(k): float(v) for k, v in dict(densities).items()}
+        missing = sorted({int(x) for x in np.unique(label)} - set(dens))
+        if missing:
+            raise InputError(f"label(s) {missing} have no density; give a density per material label")
+        table = np.zeros(int(label.max()) + 1)
+        for k, v in dens.items():
+            if k < len(table):
+                table[k] = v
+        return table[label] * vol
+
+    def mass_matrix(self, densities: Mapping[int, float], *, lumped: bool = True) -> sp.csr_matrix:
+        """Mass matrix (12n, 12n): consistent ``J^T diag(m) J`` or lumped per frame (see the module docstring)."""
+        mp = self._point_masses(densities)
+        _, _, pmap = self._mass_layer()
+        if not lumped:
+            J = pmap.jacobian(self.rest)
+            return (J.T @ sp.diags(np.repeat(mp, 3)) @ J).tocsr()
+        v = pmap.shape
+        n = self.n_nodes
+        X = v.rest
+        ok = v.index >= 0
+        blocks = np.zeros((n, 4, 4))  # per frame: sum m w [r; 1][r; 1]^T with r = X - X_a
+        idx = np.where(ok, v.index, 0)
+        r = np.concatenate([X[:, None, :] - self.frames[idx], np.ones(idx.shape + (1,))], axis=2)  # (m, P, 4)
+        mw = np.where(ok, v.w, 0.0) * mp[:, None]
+        contrib = mw[..., None, None] * r[..., :, None] * r[..., None, :]
+        np.add.at(blocks, idx[ok], contrib[ok])
+        # DOF layout: A row i (3 entries) then t_i; x_i = sum_j A_ij r_j + t_i couples A_i. with t_i
+        full = np.zeros((n, 12, 12))
+        for i in range(3):
+            dofs = [3 * i, 3 * i + 1, 3 * i + 2, 9 + i]
+            full[:, np.ix_(dofs, dofs)[0], np.ix_(dofs, dofs)[1]] = blocks
+        return sp.block_diag(list(full), format="csr")
+
+    def gravity_force(self, densities: Mapping[int, float], g) -> np.ndarray:
+        """Generalised gravity force (n, 12): ``J^T (m g)`` at the mass points."""
+        g = np.asarray(g, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise InputError(f"gravity must be 3 finite numbers (m/s^2), got {np.asarray(g).tolist()}")
+        mp = self._point_masses(densities)
+        _, _, pmap = self._mass_layer()
+        return pmap.vjp(self.rest, mp[:, None] * g[None, :])
+
+    # -- layers ----------------------------------------------------------------
+    def point_mapping(self, points) -> PointMapping:
+        """Mapping of material points (m, 3) given at rest; InputError outside the material."""
+        pts = np.asarray(points, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise InputError(f"points must be an (m, 3) array, got shape {pts.shape}")
+        self._check_inside(pts)
+        return PointMapping(self.nodes, self.shape_function(pts))
+
+    def _check_inside(self, pts):
+        """Points must lie in (the closure of) a material voxel: a point on a face or a corner
+        belongs to every voxel touching it."""
+        f = self._grid().world_to_index(pts)
+        labels = self.image.labels
+        shape = np.asarray(labels.shape)
+        ok = np.zeros(len(pts), dtype=bool)
+        lo = np.floor(f + 1e-9).astype(np.int64)
+        for d in np.array([[a, b, c] for a in (0, -1) for b in (0, -1) for c in (0, -1)]):
+            cell = lo + d
+            inside = np.all((cell >= 0) & (cell < shape), axis=1)
+            near = np.all((f >= cell - 1e-9) & (f <= cell + 1 + 1e-9), axis=1)
+            c = np.clip(cell, 0, shape - 1)
+            ok |= inside & near & (labels[c[:, 0], c[:, 1], c[:, 2]] > 0)
+        if not np.all(ok):
+            bad = int(np.flatnonzero(~ok)[0])
+            raise InputError(f"point {pts[bad].tolist()} lies outside the material; give points inside the object")
+
+    def _grid(self) -> TrilinearGrid:
+        if self._surface is None:
+            self._surface = {"grid": TrilinearGrid.from_image(self.image)}
+        return self._surface["grid"]
+
+    def boundary_faces(self):
+        """Voxel faces exposed to empty space: corners (F, 4, 3), area (F,), outward normal (F, 3)."""
+        grid = self._grid()
+        if "quads" not in self._surface:
+            self._surface["quads"] = boundary_quads(grid, self.image.labels > 0)
+        quads, area, normal = self._surface["quads"]
+        return grid.node_positions[quads], area, normal
+
+    def boundary_surface(self):
+        """The visual layer: the voxelized boundary (rest vertices, triangles) and its frame mapping."""
+        grid = self._grid()
+        self.boundary_faces()
+        if "surface" not in self._surface:
+            vertex_node, faces = triangulate(self._surface["quads"][0])
+            V = grid.node_positions[vertex_node]
+            self._surface["surface"] = (V, faces, PointMapping(self.nodes, self.shape_function(V)))
+        V, faces, pmap = self._surface["surface"]
+        return V.copy(), faces, pmap
+
+    def volume_points(self):
+        """Mass points (2x2x2 Gauss points per voxel) and their volumes (m^3)."""
+        vol, _, pmap = self._mass_layer()
+        return pmap.shape.rest, vol
+
+    # -- boundary conditions -----------------------------------------------------
+    def held_dofs(self, lo, hi, components: str = "xyz") -> np.ndarray:
+        """DOFs of the frames whose rest position lies in [lo, hi]: for component c, row c of A and t_c."""
+        lo = np.asarray(lo, dtype=float)
+        hi = np.asarray(hi, dtype=float)
+        frames = np.flatnonzero(np.all((self.frames >= lo) & (self.frames <= hi), axis=1))
+        local = []
+        for c in components:
+            i = "xyz".index(c)
+            local += [3 * i, 3 * i + 1, 3 * i + 2, 9 + i]
+        local = np.array(sorted(local), dtype=np.int64)
+        return np.sort((12 * frames[:, None] + local[None, :]).ravel())
+
+    def moved_state(self, transform) -> np.ndarray:
+        """State (n, 12) of the body moved by ``[A | t]``: every frame's matrix A, origin A X_a + t."""
+        T = np.asarray(transform, dtype=float)
+        A, t = T[:, :3], T[:, 3]
+        out = np.empty((self.n_nodes, 12))
+        out[:, :9] = A.reshape(9)
+        out[:, 9:] = self.frames @ A.T + t
+        return out
+
+    def rigid_modes(self) -> np.ndarray:
+        """(12n, 6): translations (dt = e_k) and rotations about the frames' centroid (dA = [e_k]x, dt = e_k x (X_a - c))."""
+        n = self.n_nodes
+        B = np.zeros((n, 12, 6))
+        for k in range(3):
+            B[:, 9 + k, k] = 1.0
+        c = self.frames.mean(axis=0)
+        R = self.frames - c
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = 1.0
+            K = np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
+            B[:, :9, 3 + k] = K.reshape(9)
+            B[:, 9:, 3 + k] = np.cross(e, R)
+        return B.reshape(12 * n, 6)
+
+    # -- description -------------------------------------------------------------
+    def advice(self) -> str:
+        if self.samples.kind == "midpoint":
+            return ("mid-point samples may leave spurious zero-energy modes between frames; "
+                    "add samples or use quadrature = \"elaston\" or \"gauss-legendre\"")
+        return ""
+
+    def describe(self) -> dict:
+        out = {"node_kind": self.node_kind, "count": self.n_nodes, "dofs": 12 * self.n_nodes,
+               "quadrature": self.samples.kind, "samples": self.n_samples}
+        out.update(self.info)
+        return out

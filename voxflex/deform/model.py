@@ -1,0 +1,137 @@
+"""The model protocol: what solvers, loads, boundary conditions, results and renders may ask of a model.
+
+Every simulated model — the full-resolution voxel model
+(:class:`~voxflex.deform.voxel_model.VoxelModel`) and the reduced frame model
+(:class:`~voxflex.deform.frame_model.FrameModel`) — is a set of ``n`` nodes
+with ``d`` numbers each (the state ``q``, shape ``(n, d)``: ``d = 3`` for
+points, 12 for affine frames), an elastic energy ``E(q)`` and mapped layers of
+material points.  Nothing outside a model knows how its nodes relate to the
+voxels: loads act on the material and reach the nodes through the transposed
+Jacobian of a point mapping, fixed regions ask the model which DOFs they hold.
+
+The flat DOF vector is ``q.ravel()`` (node-major), so DOF ``d * node + j``.
+
+Point mappings (:class:`PointMap`) are linear in ``q`` for both node kinds
+(trilinear points, affine frames); their ``vjp`` is exact for any state.
+
+Example
+-------
+>>> import numpy as np
+>>> from voxflex.image.label_image import LabelImage
+>>> from voxflex.deform.materials import material
+>>> from voxflex.deform.voxel_model import VoxelModel
+>>> model = VoxelModel.from_image(LabelImage(np.ones((2, 1, 1))), {1: material("hooke", young=1.0, poisson=0.3)})
+>>> isinstance(model, Model), model.node_kind, model.rest.shape
+(True, 'voxel', (12, 3))
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = ["Model", "PointMap", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "moved_rest"]
+
+NODE_KINDS = ("affine", "rigid", "voxel")
+"""``[nodes] kind`` values: affine frames (12 DOF), rigid frames (6 DOF), voxel-corner points (3 DOF)."""
+
+IMPLEMENTED_NODE_KINDS = ("affine", "voxel")
+"""The node kinds a scene can be simulated with today (rigid frames need a non-additive state update)."""
+
+
+@runtime_checkable
+class PointMap(Protocol):
+    """A linear map from the node state to the world positions of ``m`` material points."""
+
+    def apply(self, q) -> np.ndarray:
+        """Positions (m, 3) for the state q (n, d)."""
+
+    def vjp(self, q, f) -> np.ndarray:
+        """Node forces (n, d) of point forces f (m, 3): ``J^T f``."""
+
+
+@runtime_checkable
+class Model(Protocol):
+    """The interface every model offers (see the module docstring).
+
+    Attributes
+    ----------
+    node_kind : str
+        One of :data:`NODE_KINDS`.
+    dofs_per_node : int
+        d, the numbers per node (3 or 12).
+    rest : (n, d) float
+        The rest state.
+    image : LabelImage or None
+        The label image the model was built on (written to the result file).
+    n_nodes : int
+    constant_tangent : bool
+        True when the energy is quadratic in q (the Hessian never changes).
+    """
+
+    node_kind: str
+    dofs_per_node: int
+    rest: np.ndarray
+    image: object
+
+    @property
+    def n_nodes(self) -> int: ...
+
+    @property
+    def constant_tangent(self) -> bool: ...
+
+    def advice(self) -> str:
+        """A sentence of model-specific advice added to a solver failure, or ''."""
+
+    def describe(self) -> dict:
+        """Attributes written to the result file's ``/model`` group (node_kind, count, dofs, ...)."""
+
+    def energy(self, q) -> float:
+        """Elastic energy (J); inf or NaN where the material is undefined (inverted)."""
+
+    def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
+        """(energy J, gradient (n, d) or None, Hessian CSR (nd, nd) or None)."""
+
+    def hessian(self, q):
+        """d²E/dq² as a CSR matrix (nd, nd)."""
+
+    def mass_matrix(self, densities: Mapping[int, float], *, lumped: bool = True):
+        """Mass matrix (nd, nd) in the DOFs from mapped mass points (kg, kg m, kg m²)."""
+
+    def gravity_force(self, densities: Mapping[int, float], g) -> np.ndarray:
+        """Generalised gravity force (n, d): ``J^T (rho g vol)`` at the mass points."""
+
+    def rigid_modes(self) -> np.ndarray:
+        """(nd, 6) infinitesimal rigid motions (3 translations, 3 rotations) of the state."""
+
+    def point_mapping(self, points) -> PointMap:
+        """Mapping of material points (m, 3) given at rest; InputError outside the material."""
+
+    def boundary_surface(self):
+        """The visual layer: (rest vertices (V, 3), triangles (F, 3), PointMap of the vertices)."""
+
+    def boundary_faces(self):
+        """Voxel faces exposed to empty space: (corners (F, 4, 3) at rest, counter-clockwise from
+        outside; area (F,) m²; outward normal (F, 3))."""
+
+    def volume_points(self):
+        """Material points that integrate the volume: (points (m, 3), volume (m,) m³)."""
+
+    def held_dofs(self, lo, hi, components: str) -> np.ndarray:
+        """Flat DOFs (sorted) that a fixed box [lo, hi] holds for the given components ("xyz" subset)."""
+
+    def moved_state(self, transform) -> np.ndarray:
+        """The state (n, d) of the whole body moved by the affine map ``[A | t]`` (3, 4)."""
+
+
+def moved_rest(model, transform, factor: float) -> np.ndarray:
+    """Flat state of ``model`` at fraction ``factor`` of the way from rest to ``moved_state(transform)``.
+
+    For point nodes this is ``X + s (A X + t - X)``; for affine frames the
+    matrix goes ``I + s (A - I)`` and the origin ``X + s (A X + t - X)``, so the
+    material points of a region whose frames are all moved follow the same
+    interpolated affine map exactly.
+    """
+    rest = np.asarray(model.rest, dtype=float)
+    return (rest + factor * (model.moved_state(transform) - rest)).ravel()
