@@ -309,7 +309,7 @@ _AMG_SEED = 20240601
 def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free):
     from threadpoolctl import threadpool_limits
 
-    from .multigrid import multigrid_preconditioner
+    from .multigrid import hierarchy, multigrid_preconditioner
 
     A = sp.csr_matrix(A)
     if np.any(A.diagonal() <= 0):
@@ -317,16 +317,23 @@ def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free):
     # BLAS on one thread for the coarse factorisation and the small dense coarse solves of every cycle
     with threadpool_limits(limits=1, user_api="blas"):
         apply, _ = multigrid_preconditioner(A, grid, free)
-        x, its, ok = _pcg(A, b, None, rtol, maxiter, x0, precond=apply)
-        target = rtol * vnorm(b)
-        # the recursive residual drifts from the true one over a hundred iterations (2 % on a thin plate):
-        # restart from x until the true residual meets rtol, so the reported residual is what was asked
-        for _ in range(3):
-            if not ok or vnorm(A @ x - b) <= target:
-                break
-            x, more, ok = _pcg(A, b, None, rtol, maxiter - its, x, precond=apply)
-            its += more
-        return x, its, ok
+        try:
+            return _cg_multigrid_impl(A, b, rtol, maxiter, x0, apply)
+        finally:
+            hierarchy(grid, free).release()  # the cached levels must not keep this matrix alive
+
+
+def _cg_multigrid_impl(A, b, rtol, maxiter, x0, apply):
+    x, its, ok = _pcg(A, b, None, rtol, maxiter, x0, precond=apply)
+    target = rtol * vnorm(b)
+    # the recursive residual drifts from the true one over a hundred iterations (2 % on a thin plate):
+    # restart from x until the true residual meets rtol, so the reported residual is what was asked
+    for _ in range(3):
+        if not ok or vnorm(A @ x - b) <= target:
+            break
+        x, more, ok = _pcg(A, b, None, rtol, maxiter - its, x, precond=apply)
+        its += more
+    return x, its, ok
 
 
 def _cg_amg(A, b, rtol, maxiter, x0, near_null):

@@ -213,20 +213,21 @@ class VoxelHierarchy:
     def solver(self, A, *, smoother: str = "gauss-seidel", sweeps: int = 1):
         """A pyamg ``MultilevelSolver`` on this hierarchy for the free-DOF matrix A (F, F).
 
-        The last one is remembered: the same matrix (same pattern and values,
-        e.g. a constant stiffness over load steps) reuses it.
+        The last one is remembered without its finest matrix (no copy of A is
+        kept): a matrix with the same pattern and values (CRC-32 fingerprint),
+        e.g. a constant stiffness over load steps, reuses its coarse levels.
+        A fingerprint collision would only cost iterations: CG checks the true
+        residual.  Call :meth:`release` after solving to drop the reference to A.
         """
         import pyamg
         from pyamg.relaxation.smoothing import change_smoothers
 
         A = sp.csr_matrix(A)
-        if self._last is not None:
-            key, ml = self._last
-            B = key[0]
-            if key[1:] == (smoother, sweeps) and B.shape == A.shape and B.nnz == A.nnz and \
-                    np.array_equal(B.indptr, A.indptr) and np.array_equal(B.indices, A.indices) and \
-                    np.array_equal(B.data, A.data):
-                return ml
+        key = (_fingerprint(A), smoother, sweeps)
+        if self._last is not None and self._last[0] == key:
+            ml = self._last[1]
+            ml.levels[0].A = A
+            return ml
         mats = self.galerkin(A)
         levels = []
         for lvl, M in enumerate(mats):
@@ -246,8 +247,19 @@ class VoxelHierarchy:
         else:
             pre = post = ("jacobi", {"omega": 2.0 / 3.0, "iterations": sweeps})
         change_smoothers(ml, pre, post)
-        self._last = ((A.copy(), smoother, sweeps), ml)
+        self._last = (key, ml)
         return ml
+
+    def release(self) -> None:
+        """Drop the remembered solver's reference to the finest matrix (the coarse levels stay)."""
+        if self._last is not None:
+            self._last[1].levels[0].A = None
+
+
+def _fingerprint(A):
+    import zlib
+
+    return (A.shape, A.nnz, A.data.dtype.str, zlib.crc32(A.indptr), zlib.crc32(A.indices), zlib.crc32(A.data))
 
 
 GALERKIN_CHUNK = 1 << 18
@@ -390,6 +402,7 @@ def multigrid_preconditioner(A, grid, free=None, *, smoother: str = "gauss-seide
     apply : callable (F,) -> (F,)
         One V-cycle from a zero guess: symmetric positive definite.
     ml : pyamg MultilevelSolver
+        It holds A until ``hierarchy(grid, free).release()``.
     """
     check_choice("multigrid smoother", smoother, SMOOTHERS)
     if int(sweeps) < 1:
