@@ -1,15 +1,147 @@
 """Atomic file output: write to a temporary file beside the target, then rename.
 
 A failed or interrupted write leaves any existing file untouched and no
-partial output behind.
+partial output behind:
+
+* an exception inside the ``with`` block removes the temporary file;
+* SIGINT and SIGTERM received while the block runs (in the main thread) raise
+  :class:`Interrupted` (a ``KeyboardInterrupt``) at once, which removes the
+  temporary file and leaves the old target in place; a signal whose exception
+  a library swallowed is still honoured before the rename.  The command line
+  turns :class:`Interrupted` into exit status 130.  Outside a save the
+  process's own signal handling applies unchanged.
+
+:func:`check_output_path` validates a target before any work is done (the
+folder exists and is writable, the target is not a folder).
+
+Testing hook: when the environment variable ``VOXFLEX_TEST_SAVE_PAUSE`` holds a
+number of seconds, every atomic write sleeps that long after its temporary file
+is written and before the rename, so that a test can signal a process that is
+deterministically inside a save.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import tempfile
+import threading
+import time
 from pathlib import Path
+
+from .errors import InputError
+
+_PAUSE_ENV = "VOXFLEX_TEST_SAVE_PAUSE"
+_SIGNALS = tuple(s for s in (getattr(signal, "SIGINT", None), getattr(signal, "SIGTERM", None)) if s is not None)
+
+
+class Interrupted(KeyboardInterrupt):
+    """A save was stopped by SIGINT or SIGTERM; the temporary file is gone and the old target untouched."""
+
+    def __init__(self, signum: int, path):
+        self.signum = signum
+        self.path = Path(path)
+        super().__init__(f"{signal.Signals(signum).name} during the save of '{path}'")
+
+
+def check_output_path(path, *, what: str = "output", example: str = "out") -> Path:
+    """Check that ``path`` can be written as a file, before any work is done.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to be written.
+    what : str
+        How messages name it (``"result file"``, ``"--render target"`` ...).
+    example : str
+        A file name suggested inside ``path`` when ``path`` is a folder.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    InputError
+        The folder does not exist or is not writable, or ``path`` is a folder.
+    """
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise InputError(f"{what} '{path}' is a folder; give a file name inside it, e.g. '{path / example}'")
+    if not folder.exists():
+        raise InputError(f"output folder '{folder}' of {what} '{path}' does not exist; create it or choose another path")
+    if not folder.is_dir():
+        raise InputError(f"'{folder}' is a file, not a folder, so {what} '{path}' cannot be written; choose another path")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(f"output folder '{folder}' is not writable; choose another path or fix its permissions")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise InputError(f"{what} '{path}' exists and is read-only; choose another path or fix its permissions")
+    return path
+
+
+class _Guard:
+    """SIGINT/SIGTERM handling for the outermost active save (main thread only).
+
+    Nested saves (an ``.npy`` and its sidecar) hand their renames to the
+    outermost one, which commits them all at once with the signals blocked, so
+    a signal leaves either every old file or every new one.
+    """
+
+    depth = 0
+    received: int | None = None
+    previous: dict = {}
+    path: Path | None = None
+    pending: list = []
+
+    @classmethod
+    def enter(cls, path: Path) -> bool:
+        """Start guarding; True when this is the guarded outermost save."""
+        if threading.current_thread() is not threading.main_thread():
+            return False
+        if cls.depth == 0:
+            cls.received = None
+            cls.path = path
+            cls.pending = []
+            cls.previous = {s: signal.getsignal(s) for s in _SIGNALS}
+            for s in _SIGNALS:
+                signal.signal(s, cls._handler)
+        cls.depth += 1
+        return cls.depth == 1
+
+    @classmethod
+    def leave(cls) -> None:
+        cls.depth -= 1
+        if cls.depth == 0:
+            for s, handler in cls.previous.items():
+                signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+            cls.previous = {}
+
+    @classmethod
+    def _handler(cls, signum, frame):
+        first = cls.received is None
+        cls.received = signum
+        if first:
+            raise Interrupted(signum, cls.path)
+
+    @classmethod
+    def check(cls) -> None:
+        """Raise when a signal arrived but its exception was swallowed by the code inside the block."""
+        if cls.received is not None:
+            raise Interrupted(cls.received, cls.path)
+
+
+def _block():
+    """Block SIGINT/SIGTERM; returns the previous mask for :func:`_restore` (None where unsupported)."""
+    if hasattr(signal, "pthread_sigmask"):
+        return signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+    return None
+
+
+def _restore(mask) -> None:
+    if mask is not None:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 @contextlib.contextmanager
@@ -18,25 +150,57 @@ def atomic_path(path, *, suffix: str | None = None):
 
     ``suffix`` defaults to the target's full suffix (``.nii.gz`` stays
     ``.nii.gz``) so that writers which pick the format from the extension work.
+    On any exception, SIGINT or SIGTERM the temporary file is removed and
+    ``path`` is left as it was.  Nested blocks are committed together when the
+    outermost one ends.
     """
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.exists():
-        from .errors import InputError
-
         raise InputError(f"output folder '{folder}' does not exist; create it or choose another path")
     if suffix is None:
         suffix = "".join(path.suffixes) or path.suffix
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=folder)
-    os.close(fd)
-    tmp = Path(tmp)
-    # mkstemp creates 0600; give the output the permissions a plain open() would
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
+    guarded = threading.current_thread() is threading.main_thread()
+    outermost = _Guard.enter(path)
+    tmp = None
+    handed_over = False
+    blocked = None
     try:
+        mask = _block() if guarded else None  # no signal between creating the file and knowing its name
+        try:
+            fd, name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=folder)
+            tmp = Path(name)
+            os.close(fd)
+        finally:
+            _restore(mask)
+        # mkstemp creates 0600; give the output the permissions a plain open() would
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         yield tmp
-        os.replace(tmp, path)
+        pause = os.environ.get(_PAUSE_ENV)
+        if pause:
+            time.sleep(float(pause))
+        if not guarded:
+            os.replace(tmp, path)
+        elif not outermost:
+            _Guard.pending.append((tmp, path))  # the outermost save renames it
+            handed_over = True
+        else:
+            blocked = _block()
+            _Guard.check()
+            for t, p in [*_Guard.pending, (tmp, path)]:
+                os.replace(t, p)
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        try:
+            leftovers = [] if handed_over else [tmp]
+            if outermost:
+                leftovers += [t for t, _ in _Guard.pending]
+                _Guard.pending = []
+            for t in leftovers:
+                if t is not None and t.exists():
+                    t.unlink()
+        finally:
+            if guarded:
+                _Guard.leave()
+            _restore(blocked)  # a signal now pending meets the process's own handler

@@ -12,8 +12,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
 
+from .._atomic import Interrupted
 from .._version import __version__
 from ..errors import VoxflexError
 
@@ -64,6 +66,13 @@ def main(argv=None) -> int:
     except VoxflexError as exc:
         print(f"voxflex {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except Interrupted as exc:
+        print(
+            f"voxflex {args.command}: interrupted by {signal.Signals(exc.signum).name} while saving "
+            f"'{exc.path}'; that file was left as it was and no partial file remains",
+            file=sys.stderr,
+        )
+        return 130
     except KeyboardInterrupt:
         print(f"voxflex {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -30,13 +30,18 @@ def register(sub) -> None:
         "--size", type=int, nargs=2, default=(800, 450), metavar=("W", "H"), help="picture size in pixels"
     )
     parser.add_argument("--title", help="title text (default: the scene's title)")
+    parser.add_argument(
+        "--force", action="store_true", help="overwrite OUT even when it is not a picture of its kind"
+    )
     parser.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..rendering import render
     from ..result import Result
+    from ._outputs import check_render_output
 
+    check_render_output(args.output, force=args.force)
     result = Result.load(args.result)
     out = render(result, args.output, step=args.step, window_size=tuple(args.size), title=args.title)
     print(f"wrote {out}")

@@ -14,6 +14,13 @@ examples:
 
 The result file goes to -o, else to the scene's [output] file, else to result.h5
 in the current folder.  The summary goes to stdout, the progress bar to stderr.
+
+Every output is checked before the run starts (folder exists and is writable,
+extension known); an existing file is replaced only when it is a voxflex result
+(for -o) or a picture of the same kind (for --render), and never when it is an
+input of the run (the scene, its mesh or image): --force lifts both refusals.
+SIGINT or SIGTERM during the save stops with exit status 130 and leaves the
+previous file as it was.
 """
 
 
@@ -31,6 +38,11 @@ def register(sub) -> None:
     parser.add_argument("--render", metavar="OUT.png", help="also render the final state (.png, folder, .gif)")
     parser.add_argument("--vtk", metavar="FOLDER", help="also export a ParaView time series (.vtp + .pvd)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite existing outputs even when they are not voxflex results or are inputs of the run",
+    )
     parser.set_defaults(func=run)
 
 
@@ -41,6 +53,7 @@ def run(args) -> int:
     path = Path(args.scene) if args.scene else default_scene_path()
     scene = Scene.from_toml(path)
     output = Path(args.output) if args.output else Path(scene.output.file or "result.h5")
+    check_outputs(args, scene, path if args.scene else None, output)
     t0 = time.perf_counter()
     try:
         result = simulate(scene, progress=not args.quiet, output=output)
@@ -62,6 +75,19 @@ def run(args) -> int:
     if not args.quiet:
         print(summary(result, scene_path=path, output=output, wall=wall, extras=[args.render, args.vtk]))
     return 0
+
+
+def check_outputs(args, scene, scene_path, output) -> None:
+    """Validate -o (or the scene's [output] file), --render and --vtk before the run starts."""
+    from ._outputs import check_render_output, check_result_output, check_vtk_output, run_inputs
+
+    inputs = run_inputs(scene_path, scene)
+    option = "-o" if args.output else "[output] file"
+    check_result_output(output, inputs=inputs, force=args.force, option=option)
+    if args.vtk:
+        check_vtk_output(args.vtk, inputs=inputs, force=args.force)
+    if args.render:
+        check_render_output(args.render, force=args.force, option="--render", probe_gl=True)
 
 
 def summary(result, *, scene_path, output, wall, extras=()) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 
@@ -72,6 +73,11 @@ def register(sub) -> None:
         metavar="GIB",
         help="refuse grids needing more working memory (default: min(4 GiB, half the free memory))",
     )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite OUT even when it is not an image of its format, or is a simulation result",
+    )
     parser.set_defaults(func=run)
 
 
@@ -94,6 +100,10 @@ def run(args) -> int:
         if not args.max_memory > 0:
             raise InputError(f"--max-memory must be > 0 GiB, got {args.max_memory}")
         max_bytes = int(args.max_memory * 1024**3)
+    from ._outputs import check_image_output
+
+    inputs = [(f"input {src}", Path(src)) for src in args.inputs if Path(src).exists()]
+    check_image_output(args.output, inputs=inputs, force=args.force)
     sources = [(src, lab) for src, lab in zip(args.inputs, labels)]
     image = voxelize(
         sources if len(sources) > 1 else sources[0][0],
