@@ -51,7 +51,7 @@ from ..sampling.quadrature import unit_cube_rule
 from ..voronoi.shape_functions import ShapeValues
 from ..voronoi.trilinear import TrilinearGrid
 from .linear_solvers import vdot
-from .mappings import DeformationGradientMapping, PointMapping
+from .mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping, PointMapping
 from .nodes import AffineFrames
 from .voxel_model import boundary_quads, triangulate
 
@@ -125,7 +125,19 @@ class FrameModel:
         self.materials = dict(materials)
         self.use_occupancy = bool(use_occupancy)
         self.info = dict(info or {})
-        self._fmap = DeformationGradientMapping(self.nodes, samples.values)
+        self.elaston = samples.kind == "elaston"
+        if self.elaston:
+            self._fmap = DeformationGradientWithGradientMapping(self.nodes, samples.values)
+            for label, mat in self.materials.items():
+                if not getattr(mat.strain, "constant_hessian", False):
+                    raise InputError(
+                        f"elaston quadrature integrates the strain's gradient and needs a strain whose second "
+                        f"derivative is constant for an exact Hessian (linear, green, corotational-small); label "
+                        f"{label} uses '{mat.strain.name}': use quadrature = \"midpoint\" or \"gauss-legendre\", "
+                        f"or one of those strains"
+                    )
+        else:
+            self._fmap = DeformationGradientMapping(self.nodes, samples.values)
         self._J = None
         self._groups = [(int(lab), np.flatnonzero(samples.label == lab)) for lab in np.unique(samples.label)]
         self._surface = None
@@ -196,14 +208,16 @@ class FrameModel:
 
     # -- energy ----------------------------------------------------------------
     def jacobian(self) -> sp.csr_matrix:
-        """dF/dq at the samples, (9m, 12n), constant for affine frames (assembled once)."""
+        """dF/dq at the samples (9m, 12n) — or d(F, grad F)/dq (36m, 12n) for elastons — constant for
+        affine frames (assembled once)."""
         if self._J is None:
             self._J = self._fmap.jacobian(self.rest).tocsr()
         return self._J
 
     def deformation_gradients(self, q) -> np.ndarray:
         """F (m, 3, 3) at the samples."""
-        return self._fmap.apply(self._check_q(q))
+        out = self._fmap.apply(self._check_q(q))
+        return out[0] if self.elaston else out
 
     def energy(self, q) -> float:
         return self.energy_gradient_hessian(q, gradient=False, hessian=False)[0]
@@ -217,6 +231,8 @@ class FrameModel:
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
         """Energy (J), gradient (n, 12) and Hessian (12n, 12n) CSR in one pass over the samples."""
         q = self._check_q(q)
+        if self.elaston:
+            return self._elaston_pass(q, gradient, hessian)
         F = self._fmap.apply(q)
         vol = self.samples.volume
         m = len(vol)
@@ -235,6 +251,42 @@ class FrameModel:
         if hessian:
             J = self.jacobian()
             D = sp.bsr_matrix((blocks, np.arange(m), np.arange(m + 1)), shape=(9 * m, 9 * m)).tocsr()
+            H = (J.T @ (D @ J)).tocsr()
+            H = 0.5 * (H + H.T)
+        return float(energy), grad, H
+
+    def _elaston_pass(self, q, gradient, hessian):
+        """Elastons: the energy of the strain's linear variation over each region from (F, grad F)
+        and the region's moments (:func:`voxflex.deform.elaston.material_elaston_energy`)."""
+        from .elaston import material_elaston_energy
+
+        F, dF = self._fmap.apply(q)
+        s = self.samples
+        m = len(s.volume)
+        energy = 0.0
+        gF = np.zeros((m, 3, 3))
+        gdF = np.zeros((m, 3, 3, 3))
+        blocks = np.zeros((m, 36, 36)) if hessian else None
+        M1, M2 = s.M1, s.M2
+        for label, ids in self._groups:
+            out = material_elaston_energy(self.materials[label], F[ids], dF[ids], s.volume[ids], M1[ids], M2[ids],
+                                          hessian=hessian)
+            energy += float(out.energy.sum())
+            gF[ids], gdF[ids] = out.grad_F, out.grad_dF
+            if hessian:
+                h = out.hessian
+                k = len(ids)
+                b = np.zeros((k, 36, 36))
+                b[:, :9, :9] = h.FF.reshape(k, 9, 9)
+                b[:, :9, 9:] = h.FdF.reshape(k, 9, 27)
+                b[:, 9:, :9] = b[:, :9, 9:].transpose(0, 2, 1)
+                b[:, 9:, 9:] = h.dFdF.reshape(k, 27, 27)
+                blocks[ids] = b
+        grad = self._fmap.vjp(q, (gF, gdF)) if gradient else None
+        H = None
+        if hessian:
+            J = self.jacobian()
+            D = sp.bsr_matrix((blocks, np.arange(m), np.arange(m + 1)), shape=(36 * m, 36 * m)).tocsr()
             H = (J.T @ (D @ J)).tocsr()
             H = 0.5 * (H + H.T)
         return float(energy), grad, H

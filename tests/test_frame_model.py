@@ -1,0 +1,138 @@
+"""The frame model alone: derivatives, mass, free-body modes, dynamics.
+
+Shape functions here are hand-made (Shepard weights over the frames, a
+partition of unity), so these tests stand apart from the Voronoi stage; the
+scene-level tests with natural-neighbour weights are in test_frames_scene.py.
+Tolerances: central differences with h = 1e-6 on energies of order 1e1 have
+truncation ~1e-12 and round-off ~1e-10 relative; 1e-6 leaves margin and still
+catches any wrong term (those give O(1) errors).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+import voxflex as vf
+from voxflex.deform.frame_model import FrameModel, voxel_samples
+from voxflex.deform.materials import material
+from voxflex.deform.solvers import SolverOptions, solve
+from voxflex.image.label_image import LabelImage
+from voxflex.voronoi.shape_functions import shepard
+
+FRAMES = np.array([[0.25, 0.5, 0.5], [1.5, 0.25, 0.25], [1.5, 0.75, 0.75], [2.75, 0.5, 0.5], [2.0, 0.5, 0.9]])
+
+
+@dataclass(frozen=True, eq=False)
+class ShepardSF:
+    """A hand-made shape function with the interface of vf.shape_function's result."""
+
+    image: object
+    frames: np.ndarray
+    parents: int = 4
+    kind: str = "shepard"
+
+    def __call__(self, points):
+        return shepard(np.asarray(points, dtype=float), self.frames, n_parents=min(self.parents, len(self.frames)))
+
+    def voxel_values(self):
+        ijk = np.argwhere(self.image.labels > 0)
+        return self(self.image.index_to_world(ijk + 0.5))
+
+
+def _image():
+    return LabelImage(np.ones((6, 2, 2), dtype=np.uint8), spacing=(0.5, 0.5, 0.5))
+
+
+def _model(mat, *, quadrature="gauss-legendre", samples=None, parents=5):
+    image = _image()
+    sf = ShepardSF(image, FRAMES, parents=parents)
+    if quadrature in ("midpoint", "elaston") and samples is None:
+        samples = vf.sample(image, sf, kind=quadrature, count=40)
+    return FrameModel.from_image(image, FRAMES, sf, {1: mat}, samples=samples, quadrature=quadrature)
+
+
+def _perturbed(model, scale=1e-2, seed=0):
+    rng = np.random.default_rng(seed)
+    return model.rest + scale * rng.standard_normal(model.rest.shape)
+
+
+CASES = [
+    ("neo-hookean", dict(young=1e3, poisson=0.3), "gauss-legendre"),
+    ("hooke", dict(young=1e3, poisson=0.3, strain="corotational"), "midpoint"),
+    ("stvk", dict(young=1e3, poisson=0.3), "elaston"),
+    ("hooke", dict(young=1e3, poisson=0.3, strain="linear"), "elaston"),
+]
+
+
+@pytest.mark.parametrize("name, kw, quadrature", CASES)
+def test_gradient_and_hessian_against_finite_differences(name, kw, quadrature):
+    model = _model(material(name, **kw), quadrature=quadrature)
+    q = _perturbed(model)
+    E, g, H = model.energy_gradient_hessian(q)
+    rng = np.random.default_rng(1)
+    d = rng.standard_normal(q.shape)
+    h = 1e-6
+    fd = (model.energy(q + h * d) - model.energy(q - h * d)) / (2 * h)
+    assert fd == pytest.approx(float((g * d).sum()), rel=1e-6)
+    gd = (model.gradient(q + h * d) - model.gradient(q - h * d)) / (2 * h)
+    Hd = (H @ d.ravel()).reshape(q.shape)
+    assert np.max(np.abs(gd - Hd)) <= 1e-6 * np.max(np.abs(Hd))
+    assert abs(H - H.T).max() <= 1e-12 * abs(H).max()
+
+
+def test_affine_motion_is_exact_and_stress_free_rigid_motion_has_no_energy():
+    model = _model(material("neo-hookean", young=1e3, poisson=0.3))
+    T = np.array([[1.1, 0.2, 0.0, 0.3], [-0.1, 0.95, 0.05, -0.2], [0.0, 0.1, 1.05, 0.4]])
+    q = model.moved_state(T)
+    F = model.deformation_gradients(q)
+    assert np.max(np.abs(F - T[:, :3])) < 1e-12
+    pts = np.array([[0.1, 0.1, 0.1], [2.9, 0.9, 0.9], [1.3, 0.4, 0.6]])
+    assert np.max(np.abs(model.point_mapping(pts).apply(q) - (pts @ T[:, :3].T + T[:, 3]))) < 1e-12
+    c, s = np.cos(0.7), np.sin(0.7)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    q = model.moved_state(np.hstack([R, [[1.0], [2.0], [3.0]]]))
+    E, g, _ = model.energy_gradient_hessian(q, hessian=False)
+    assert abs(E) < 1e-9 and np.max(np.abs(g)) < 1e-9
+
+
+def test_free_body_with_enough_samples_has_exactly_six_zero_modes():
+    """Per-voxel Gauss samples over 24 voxels and 5 frames: the rigid modes span the null space."""
+    model = _model(material("hooke", young=1.0, poisson=0.3, strain="linear"))
+    K = model.hessian(model.rest).toarray()
+    ev = np.linalg.eigvalsh(K)
+    assert np.sum(ev < 1e-9 * ev.max()) == 6
+    B = model.rigid_modes()
+    assert np.max(np.abs(K @ B)) < 1e-10 * ev.max()
+
+
+def test_mass_matrices_carry_the_mass_and_momentum():
+    """Both mass matrices give the translation mode the body's mass (rho V) and are SPD."""
+    model = _model(material("neo-hookean", young=1e3, poisson=0.3))
+    rho = 1100.0
+    mass = rho * _image().labels.sum() * 0.125
+    t = model.rigid_modes()[:, 0]  # translation along x
+    for lumped in (True, False):
+        M = model.mass_matrix({1: rho}, lumped=lumped)
+        assert float(t @ (M @ t)) == pytest.approx(mass, rel=1e-12)
+        assert np.linalg.eigvalsh(M.toarray()).min() > 0
+    g = model.gravity_force({1: rho}, [0.0, 0.0, -9.81])
+    assert float(t @ g.ravel()) == pytest.approx(0.0, abs=1e-9)
+    assert float(model.rigid_modes()[:, 2] @ g.ravel()) == pytest.approx(-9.81 * mass, rel=1e-12)
+
+
+def test_implicit_euler_with_frames_never_gains_energy():
+    """A clamped bar released from a bent state: total energy never increases (backward Euler dissipates)."""
+    model = _model(material("neo-hookean", young=1e3, poisson=0.3))
+    from voxflex.deform.boundary import FixedRegion
+
+    clamp = FixedRegion([-1, -1, -1], [0.3, 2, 2])
+    q0 = model.rest.copy()
+    q0[1:, 11] += 0.05 * (model.frames[1:, 0] / 3.0) ** 2  # bend the free frames upward
+    records = solve(model, fixed=[clamp], densities={1: 1000.0},
+                    options=SolverOptions(kind="implicit-euler", dt=0.01, steps=15, mass="consistent"), q0=q0)
+    total = np.array([r.elastic_energy + r.kinetic_energy for r in records])
+    assert total[0] > 0 and np.all(np.diff(total) <= 1e-12 * total[0])
+    assert total[-1] < 0.999 * total[0]
