@@ -1,4 +1,8 @@
-"""Deformation core: nodes, mappings, strains, materials, mass, solvers.
+"""Deformation core: nodes, mappings, strains, materials, models, mass, solvers.
+
+Models (the voxel model, the frame model) satisfy one protocol
+(:mod:`voxflex.deform.model`) through which solvers, loads and boundary
+conditions reach them.
 
 The chain  nodes --J--> deformation gradients F --J--> strains --> energy.
 Public names are imported lazily, so that importing one stage does not pull
@@ -27,7 +31,9 @@ _LAZY = {
     "PointMapping": "voxflex.deform.mappings",
     "DeformationGradientMapping": "voxflex.deform.mappings",
     "DeformationGradientWithGradientMapping": "voxflex.deform.mappings",
+    "Model": "voxflex.deform.model",
     "VoxelModel": "voxflex.deform.voxel_model",
+    "FrameModel": "voxflex.deform.frame_model",
     "SolverOptions": "voxflex.deform.solvers",
     "solve": "voxflex.deform.solvers",
     "FixedRegion": "voxflex.deform.boundary",
