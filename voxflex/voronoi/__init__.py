@@ -1,6 +1,20 @@
 """Distances, geodesic voxel Voronoi partitions, node seeding and shape functions.
 
-The reduced model (frame placement, natural-neighbour and Shepard weights) is
-built here; the full-resolution voxel model uses trilinear shape functions
-from :mod:`voxflex.deform`.  Nothing is implemented in this stage yet.
+The stage takes a label image and returns shape functions:
+
+* :func:`geodesic_distance`: multi-source distances inside the material
+  (fast marching of second order, or Dijkstra), optionally compliance-weighted,
+  and the Voronoi partition;
+* :func:`place_frames`: farthest-point sampling and Lloyd relaxation of frames
+  in that metric;
+* :func:`shape_function`: natural-neighbour (Sibson, Laplace), distance-ratio
+  and Shepard weights at any material point, as :class:`ShapeValues`.
+
+The full-resolution voxel model uses trilinear shape functions
+(:mod:`voxflex.voronoi.trilinear`).
 """
+
+from .geodesic import geodesic_distance
+from .shape_functions import ShapeValues, shepard
+
+__all__ = ["geodesic_distance", "ShapeValues", "shepard"]

@@ -1,0 +1,148 @@
+"""Geodesic distances inside the material of a label image, and their Voronoi partition.
+
+Distances are measured at voxel centres along paths that stay inside material
+voxels (label > 0): two parts that touch in space but not in material are not
+coupled.  Two methods:
+
+* ``"fast-marching"`` (default): second-order fast marching (Sethian; the
+  second-order upwind stencil of Rickett & Fomel) on the 6-neighbourhood, with
+  the exact 26-neighbour steps kept as candidates (so voxels joined only by an
+  edge or a corner are reached: the connectivity is the 26-connectivity of the
+  material, as for Dijkstra) and exact distances in a ball of 3 voxels around
+  each seed (straight line of sight), which removes most of the point-source
+  error;
+* ``"dijkstra"``: shortest paths on the 26-neighbour graph with exact step
+  lengths (anisotropic spacing included); overestimates Euclidean distance by
+  up to ~8 % off the lattice directions.
+
+Measured on a free 48³ cube from its centre (d > 10 voxels), relative error
+to the Euclidean distance: see ``tests/test_geodesic.py`` and the closing note.
+
+Compliance distance (Faure et al. 2011): with ``compliance={label: E}`` a step
+costs ``length * E_ref / E_label`` (``E_ref`` the largest modulus), so stiff
+material is "short" and soft material "long"; a step between two voxels costs
+the mean of their two slownesses.
+
+Example
+-------
+>>> import numpy as np
+>>> from voxflex.image import LabelImage
+>>> img = LabelImage(np.ones((20, 3, 3), np.uint8), spacing=(0.1, 0.1, 0.1))
+>>> d, own = geodesic_distance(img, [[0.05, 0.15, 0.15]])
+>>> round(float(d[19, 1, 1]), 6)
+1.9
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError, check_choice
+from . import _march as M
+
+__all__ = ["geodesic_distance"]
+
+METHODS = {"fast-marching": 2, "dijkstra": 0}
+
+
+def _slowness(image, compliance):
+    """Slowness image (nx, ny, nz) from ``{label: young_modulus}``, or None."""
+    if compliance is None:
+        return None
+    if not isinstance(compliance, dict) or not compliance:
+        raise InputError("compliance must be a dict {label: young_modulus}, e.g. {1: 1e4, 2: 1e6}")
+    present = [int(x) for x in image.present_labels()]
+    missing = [lab for lab in present if lab not in {int(k) for k in compliance}]
+    if missing:
+        raise InputError(f"compliance has no Young's modulus for label(s) {missing}; give one per material label")
+    E = {}
+    for k, v in compliance.items():
+        try:
+            e = float(v)
+        except (TypeError, ValueError):
+            raise InputError(f"compliance[{k!r}] must be a number (Young's modulus, Pa), got {v!r}") from None
+        if not np.isfinite(e) or e <= 0:
+            raise InputError(f"compliance[{k!r}] must be a positive Young's modulus, got {v!r}")
+        E[int(k)] = e
+    Eref = max(E[lab] for lab in present)
+    table = np.ones(int(image.labels.max()) + 1)
+    for lab in present:
+        table[lab] = Eref / E[lab]
+    return table[image.labels]
+
+
+def _seed_voxels(image, seeds, name="seeds"):
+    """Validated seeds (s, 3) world, their continuous index coords (s, 3) and voxel indices (s, 3)."""
+    try:
+        S = np.asarray(seeds, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be an (s, 3) array of world positions") from None
+    if S.ndim == 1 and S.shape == (3,):
+        S = S[None]
+    if S.ndim != 2 or S.shape[1] != 3 or len(S) == 0:
+        raise InputError(f"{name} must be a non-empty (s, 3) array of world positions, got shape {S.shape}")
+    if not np.all(np.isfinite(S)):
+        raise InputError(f"{name} must be finite")
+    c = image.world_to_index(S)
+    ijk = np.floor(c).astype(np.int64)
+    shape = np.array(image.shape)
+    inside = np.all((ijk >= 0) & (ijk < shape), axis=1)
+    ok = inside.copy()
+    ok[inside] = image.labels[tuple(ijk[inside].T)] > 0
+    if not np.all(ok):
+        first = int(np.flatnonzero(~ok)[0])
+        raise InputError(
+            f"{name}[{first}] = {S[first].tolist()} is not inside a material voxel (label > 0); move it into the object"
+        )
+    return S, c, ijk
+
+
+def _prepare(image, compliance):
+    """Padded flat mask, slowness and shape, and the spacing, for the kernels."""
+    mask, cost, pshape = M.pad_grid(image.labels > 0, _slowness(image, compliance))
+    return mask, cost, pshape, np.asarray(image.spacing, dtype=np.float64)
+
+
+def geodesic_distance(image, seeds, *, method: str = "fast-marching", compliance=None):
+    """Multi-source geodesic distance inside the material, and the Voronoi partition.
+
+    Parameters
+    ----------
+    image : voxflex.image.LabelImage
+        The object; voxels with label 0 are empty and never crossed.
+    seeds : (s, 3) float array, metres
+        World positions of the sources; each must lie in a material voxel.
+    method : {"fast-marching", "dijkstra"}, keyword-only
+        Second-order fast marching (accurate, the default) or Dijkstra on the
+        26-neighbourhood with exact (anisotropic) step lengths.
+    compliance : dict {label: young_modulus (Pa)}, optional
+        Compliance distance: a step in label ``l`` costs
+        ``length * E_ref / E_l`` with ``E_ref`` the largest modulus present.
+
+    Returns
+    -------
+    dist : (nx, ny, nz) float64, metres
+        Distance at voxel centres to the nearest seed (``inf`` in empty and
+        unreached voxels).  With ``compliance`` the unit is "metres of the
+        stiffest material".
+    owner : (nx, ny, nz) int64
+        Index of the nearest seed (the geodesic Voronoi partition), ``-1``
+        outside the material and in unreached voxels.
+
+    Raises
+    ------
+    InputError
+        Unknown method, seeds outside the material, bad compliance table.
+
+    References
+    ----------
+    J. A. Sethian, "A fast marching level set method for monotonically
+    advancing fronts", PNAS 93, 1996.  J. Rickett and S. Fomel, "A second-order
+    fast marching eikonal solver", SEP report 100, 1999.  F. Faure et al.,
+    "Sparse meshless models of complex deformable solids", SIGGRAPH 2011.
+    """
+    check_choice("method", method, METHODS)
+    S, c, _ = _seed_voxels(image, seeds)
+    mask, cost, pshape, spacing = _prepare(image, compliance)
+    dist, owner = M.march(mask, cost, pshape, spacing, c + M.PAD, np.arange(len(S)), fmm=METHODS[method])
+    return M.unpad(dist, pshape), M.unpad(owner, pshape)
