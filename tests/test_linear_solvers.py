@@ -52,8 +52,11 @@ def test_auto_selection_and_errors():
     assert choose_method(DIRECT_MAX + 1) == "cg"
     # with the voxel grid, multigrid-CG beyond the direct range (the grid only changes the large-system choice)
     model, _, free, _, _ = _system()
-    assert choose_method(DIRECT_MAX + 1, grid=model.grid) == "multigrid"
-    assert choose_method(DIRECT_MAX, grid=model.grid) == "direct"
+    from voxflex.deform.linear_solvers import MULTIGRID_MIN
+
+    assert choose_method(MULTIGRID_MIN + 1, grid=model.grid) == "multigrid"
+    assert choose_method(MULTIGRID_MIN, grid=model.grid) == "direct"
+    assert choose_method(DENSE_MAX, grid=model.grid) == "cholesky"
     _, _, _, A, b = _system()
     x, info = solve_linear(A, b)  # 7 * 4 * 4 * 3 = 336 unknowns -> direct
     assert info.method == "direct"

@@ -9,16 +9,33 @@
   11.6 s at 56k DOF, see NOTES).
 * ``"cg"``: conjugate gradients with the Jacobi (diagonal) preconditioner.
 * ``"amg"``: conjugate gradients preconditioned by pyamg smoothed aggregation
-  with the rigid-body modes as near-null space (needs node positions).
+  with the rigid-body modes as near-null space (needs node positions).  Its
+  setup is seeded, so two runs give bitwise identical answers.
 * ``"multigrid"``: conjugate gradients preconditioned by one V-cycle of the
   geometric voxel multigrid of :mod:`voxflex.deform.multigrid` (needs the
   voxel grid: ``grid=model.grid, free=...``).  Its prolongations are cached
   per grid and free-DOF set, so Newton iterations redo only the Galerkin
   products.  Iterations at rtol 1e-8 on the clamped beam: 8, 12, 12 at
-  32x8x8, 64x16x16, 128x32x32 (Jacobi-CG: 158, 318, 651).  Its
-  setup is seeded, so two runs give bitwise identical answers.
-* ``"auto"``: ``"cholesky"`` up to :data:`DENSE_MAX` unknowns, ``"direct"`` up
-  to :data:`DIRECT_MAX`, ``"cg"`` beyond.  Measured on the clamped voxel beam
+  32x8x8, 64x16x16, 128x32x32 (Jacobi-CG: 158, 318, 651); deterministic
+  (no random start).
+* ``"auto"``: ``"cholesky"`` up to :data:`DENSE_MAX` unknowns; with the voxel
+  grid (``grid=``), ``"direct"`` up to :data:`MULTIGRID_MIN` and
+  ``"multigrid"`` beyond; without it, ``"direct"`` up to :data:`DIRECT_MAX`
+  and ``"cg"`` beyond.  Measured for the multigrid rule (clamped beam, rtol
+  1e-8, fresh hierarchy, 2 loaded shared cores, min of 3, seconds; unknowns:
+  sparse LU (MMD) / multigrid-CG (iterations) / Jacobi-CG (iterations)):
+  nu = 0.3: 1200: 0.019 / 0.050 (1, coarsest level only) / 0.006 (78); 2160:
+  0.034 / 0.052 (12) / 0.027 (98); 3528: 0.126 / 0.064 (12) / 0.054 (118);
+  7776: 0.42 / 0.14 (12) / 0.11 (158); 14520: 1.25 / 0.14 (12) / 0.25 (198).
+  nu = 0.45: 2160: 0.087 / 0.068 (22) / 0.071 (175); 3528: 0.147 / 0.133 (22)
+  / 0.159 (212); 7776: 0.94 / 0.32 (21) / 0.28 (284).  Sparse LU stops
+  winning between 2k and 3.5k unknowns; Jacobi-CG is close on these
+  well-conditioned beams but its iterations grow with the grid (651 at 418k
+  unknowns against 12) and with ill-conditioning (thin plate, nu = 0.49: 2786
+  against 115).  Faster direct solvers that install from wheels did not win:
+  cholespy (CHOLMOD) 0.17 / 0.72 / 4.0 s and qdldl 0.13 / 2.3 s at 3528 /
+  7776 / 14520 unknowns; pypardiso needs the MKL wheels (not tried).
+  Measured for the grid-less rule on the clamped voxel beam
   (2 shared cores, rtol 1e-8, best of 3): unknowns / dense Cholesky / sparse LU
   (MMD) / Jacobi-CG in seconds: 216 / 0.0007 / 0.001 / 0.002; 1200 / 0.028 /
   0.012 / 0.012; 3528 / 0.78 / 0.10 / 0.07; 7776 / - / 0.53 / 0.20; 56k / - /
@@ -51,6 +68,7 @@ from ..errors import ConvergenceError, InputError, check_choice
 METHODS = ("auto", "cholesky", "direct", "cg", "amg", "multigrid")
 DENSE_MAX = 64
 DIRECT_MAX = 5000
+MULTIGRID_MIN = 3000
 
 
 @dataclass
@@ -86,9 +104,11 @@ def choose_method(n: int, *, grid=None) -> str:
     """The method ``"auto"`` picks for ``n`` unknowns (``grid``: the voxel grid, when there is one)."""
     if n <= DENSE_MAX:
         return "cholesky"
+    if grid is not None:
+        return "direct" if n <= MULTIGRID_MIN else "multigrid"
     if n <= DIRECT_MAX:
         return "direct"
-    return "cg" if grid is None else "multigrid"
+    return "cg"
 
 
 def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: int | None = None,

@@ -262,9 +262,9 @@ def _fingerprint(A):
     return (A.shape, A.nnz, A.data.dtype.str, zlib.crc32(A.indptr), zlib.crc32(A.indices), zlib.crc32(A.data))
 
 
-GALERKIN_CHUNK = 1 << 18
+GALERKIN_CHUNK = 1 << 16
 """Rows of A per block of the Galerkin product: ``A @ P`` has ~2x the entries of A, so the fine
-level's product is done by row blocks (peak ~1/20 of A at 6 million DOF instead of 1.5 A)."""
+level's product is done by row blocks (scratch ~2 % of A at 6 million DOF instead of 1.5 A)."""
 
 
 def _galerkin_impl(A, P, R):
