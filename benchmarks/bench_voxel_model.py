@@ -1,26 +1,41 @@
-"""Benchmark: the full-resolution voxel model against scikit-fem on the shared cantilever.
+"""Benchmark: the full-resolution voxel model against scikit-fem (and warp.fem) on the shared cantilever.
 
 Problems (beam [0,4]x[0,1]x[0,1], x = 0 clamped, rho g = 9.81 along -z, nu = 0.3):
 
 1. linear (Hooke, small strain), E = 1e4, 64x16x16 voxels (56k DOF), one solve;
 2. large-deflection Neo-Hooke, E = 1e3, 32x8x8 voxels, 5 load steps, Newton.
 
-Each is timed end to end in voxflex, in scikit-fem and, when warp-lang is
-installed (``pip install warp-lang``; CPU is fine), in warp.fem (trilinear
-hexahedra, 2x2x2 Gauss, the same linear solver so that the comparison isolates the model
-and assembly), columns build / assemble / solve / total, and the ratio.  Then
-the linear solvers on the 56k-DOF clamped stiffness matrix.  voxflex columns:
-build = model and sparsity pattern; assemble = one energy, gradient and
-Hessian at rest (for a constant-tangent material this is the cached stiffness
-that the solve then reuses, so total = what a user's run costs); solve =
-load steps, with every Newton assembly of a nonlinear material inside it.
+Every code is warmed first (the same problem on an 8x2x2 beam: voxflex's numba
+kernels, scikit-fem's and warp.fem's code paths; warp's compile time is
+printed apart), then timed 3 times (``--repeat``): the tables give the min and
+the median of the totals.  Two tables:
 
-    python benchmarks/bench_voxel_model.py [--quick] [--colamd] [--memory NXxNYxNZ]
+* **same solver**: every code solves with the same method and tolerance
+  (``voxflex.deform.linear_solvers.solve_linear``; linear: Jacobi-CG at rtol
+  1e-8, Neo-Hooke: sparse LU with the MMD ordering), so the ratio is the model
+  and assembly;
+* **best solver each** (labelled as such): voxflex with geometric multigrid-CG
+  (linear) / its ``auto`` rule (Neo-Hooke), the peers with the fastest of the
+  shared methods that needs no grid (Jacobi-CG for the linear beam, LU for
+  Neo-Hooke).
 
-``--quick`` runs 32x8x8 / 16x4x4 instead; ``--colamd`` adds scipy's default
-splu ordering (slow: ~40 s); ``--memory 128x44x44`` only measures time and
-peak resident memory (``resource.getrusage``) of building, assembling and
-solving a linear beam of that many voxels (2.5e5 here) in this fresh process.
+Columns: build = mesh/model and sparsity; assemble = energy, gradient and
+stiffness (Newton: every tangent and residual); solve = the linear solves.
+Then the **scaling series** of the linear beam 16x4x4 ... 128x32x32 solved by
+multigrid-CG and Jacobi-CG (rtol 1e-8): seconds (min/median), iterations,
+peak traced memory of the solve (``tracemalloc``, numpy arrays included) per
+DOF, and the exponent of a least-squares fit time ~ DOF^p.
+
+    python benchmarks/bench_voxel_model.py [--quick] [--repeat 3] [--colamd] [--memory NXxNYxNZ] [--big]
+
+``--quick`` runs 32x8x8 / 16x4x4 and the series to 64x16x16; ``--colamd``
+adds scipy's default splu ordering (slow: ~40 s); ``--memory 128x44x44`` only
+measures time and peak resident memory (``resource.getrusage``) of building,
+assembling and solving a linear beam of that many voxels in this fresh
+process (Jacobi-CG through ``voxflex.deform.solvers.solve``); ``--big`` does
+the same with multigrid-CG for a 256x90x90 beam (2.07 million voxels, 6.4
+million DOF) and prints the peak bytes per DOF (needs ~16 GB); ``--solver``
+picks the solver of ``--memory``.
 """
 
 from __future__ import annotations
@@ -40,6 +55,45 @@ def _beam_image(nx):
 
     ny = nz = nx // 4
     return LabelImage(np.ones((nx, ny, nz)), spacing=(4 / nx, 1 / ny, 1 / nz))
+
+
+def _repeat(fn, n):
+    """Run ``fn`` n times; the last result with total = min over the runs, total_median and the other
+    columns of the fastest run."""
+    import statistics
+
+    runs = []
+    for _ in range(n):
+        r = fn()
+        r["total"] = r["build"] + r["assemble"] + r["solve"]
+        runs.append(r)
+    best = min(runs, key=lambda r: r["total"])
+    best["total_median"] = statistics.median(r["total"] for r in runs)
+    return best
+
+
+def voxflex_linear(nx, mat, linear_solver):
+    """One linear static solve, timed like the peers: stiffness, condensation, ``solve_linear``."""
+    from voxflex.deform import multigrid
+    from voxflex.deform.linear_solvers import solve_linear
+    from voxflex.deform.voxel_model import VoxelModel
+
+    multigrid.clear_cache()  # every repeat builds its hierarchy (no reuse across timed runs)
+    t0 = time.perf_counter()
+    model = VoxelModel.from_image(_beam_image(nx), {1: mat})
+    model._ensure_pattern()
+    free = np.flatnonzero(np.repeat(model.rest[:, 0] > 1e-9, 3))
+    t1 = time.perf_counter()
+    K = model.hessian(model.rest)
+    f = model.gravity_force({1: 1.0}, [0, 0, -9.81]).ravel()
+    t2 = time.perf_counter()
+    x, info = solve_linear(K[free][:, free], f[free], method=linear_solver, rtol=1e-8, grid=model.grid, free=free)
+    u = np.zeros(3 * model.n_nodes)
+    u[free] = x
+    t3 = time.perf_counter()
+    uz = float(model.point_mapping([TIP]).apply(model.rest + u.reshape(-1, 3))[0, 2] - TIP[2])
+    return dict(build=t1 - t0, assemble=t2 - t1, solve=t3 - t2, uz=uz, newton=1, linear=info.iterations,
+                solver=info.method)
 
 
 def voxflex_run(nx, mat, steps, linear_solver):
@@ -161,17 +215,24 @@ def solver_table(nx):
     A = K[free][:, free]
     b = -model.gravity_force({1: 1.0}, [0, 0, -9.81]).ravel()[free]
     rows = []
-    for method in ("cg", "amg", "direct"):
-        x, info = solve_linear(A, b, method=method, rtol=1e-8, near_null=rigid_body_modes(model.rest)[free])
+    for method in ("cg", "multigrid", "amg", "direct"):
+        x, info = solve_linear(A, b, method=method, rtol=1e-8, near_null=rigid_body_modes(model.rest)[free],
+                               grid=model.grid, free=free)
         rows.append((method, info.seconds, info.iterations, info.residual))
     return len(free), rows
 
 
-def memory_run(shape):
-    """Peak resident memory after each phase of the linear beam of ``shape`` voxels (fresh process)."""
+def memory_run(shape, linear_solver="cg"):
+    """Peak resident memory after each phase of the linear beam of ``shape`` voxels (fresh process).
+
+    ``"cg"`` runs through ``voxflex.deform.solvers.solve`` (Jacobi-CG on the
+    masked full matrix); ``"multigrid"`` extracts the free block and calls
+    ``solve_linear`` with the grid (what ``solve`` does for the other methods).
+    """
     import resource
 
     from voxflex.deform.boundary import FixedRegion
+    from voxflex.deform.linear_solvers import solve_linear
     from voxflex.deform.materials import material
     from voxflex.deform.solvers import SolverOptions, solve
     from voxflex.deform.voxel_model import VoxelModel
@@ -182,6 +243,7 @@ def memory_run(shape):
 
     nx, ny, nz = shape
     rows = [("start (python, numpy, scipy, numba imported)", 0.0, peak())]
+    t_all = time.perf_counter()
     t = time.perf_counter()
     image = LabelImage(np.ones((nx, ny, nz), dtype=np.uint8), spacing=(4 / nx, 1 / ny, 1 / nz))
     model = VoxelModel.from_image(image, {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
@@ -192,34 +254,120 @@ def memory_run(shape):
     t = time.perf_counter()
     H = model.hessian(model.rest)
     rows.append(("stiffness (cached)", time.perf_counter() - t, peak()))
-    del H
-    t = time.perf_counter()
-    rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81], densities={1: 1.0},
-                options=SolverOptions(linear_solver="cg"))
-    rows.append((f"static solve (cg, {rec[-1].linear_iterations} iterations)", time.perf_counter() - t, peak()))
-    print(f"\n| linear beam {nx}x{ny}x{nz}: {model.n_elements} voxels, {3 * model.n_nodes} DOF | seconds | "
-          f"peak RSS MB |")
+    ndof = 3 * model.n_nodes
+    if linear_solver == "cg":
+        del H
+        t = time.perf_counter()
+        rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81],
+                    densities={1: 1.0}, options=SolverOptions(linear_solver="cg"))
+        rows.append((f"static solve (cg, {rec[-1].linear_iterations} iterations)", time.perf_counter() - t, peak()))
+    else:
+        t = time.perf_counter()
+        free = np.flatnonzero(np.repeat(model.rest[:, 0] > 1e-9, 3))
+        f = model.gravity_force({1: 1.0}, [0, 0, -9.81]).ravel()[free]
+        A = _free_block(H, free)
+        del H
+        rows.append(("free-DOF block", time.perf_counter() - t, peak()))
+        t = time.perf_counter()
+        x, info = solve_linear(A, f, method=linear_solver, rtol=1e-8, grid=model.grid, free=free)
+        rows.append((f"static solve ({info.method}, {info.iterations} iterations, residual {info.residual:.1e})",
+                     time.perf_counter() - t, peak()))
+    total = time.perf_counter() - t_all
+    print(f"\n| linear beam {nx}x{ny}x{nz}: {model.n_elements} voxels, {ndof} DOF | seconds | peak RSS MB |")
     print("|---|---|---|")
     for name, sec, mb in rows:
         print(f"| {name} | {sec:.2f} | {mb:.0f} |", flush=True)
+    print(f"| total | {total:.2f} | {rows[-1][2]:.0f} ({rows[-1][2] * 2**20 / ndof:.0f} bytes/DOF at peak) |")
+
+
+def _free_block(H, free):
+    """``H[free][:, free]`` of a CSR matrix with ~2 bytes per stored entry of scratch (scipy's two-step
+    fancy indexing peaks at ~2x the matrix: 3.2 kB/DOF at 0.8 M DOF, too much for the --big run)."""
+    import scipy.sparse as sp
+
+    N = H.shape[0]
+    keep = np.zeros(N, dtype=bool)
+    keep[free] = True
+    new_index = np.cumsum(keep, dtype=np.int64) - 1
+    counts = np.diff(H.indptr)
+    mask = np.repeat(keep, counts)
+    mask &= keep[H.indices]
+    per_row = np.add.reduceat(mask.astype(np.int32), H.indptr[:-1]) if H.nnz else np.zeros(N, dtype=np.int32)
+    per_row[counts == 0] = 0  # reduceat repeats the next entry for empty rows
+    indptr = np.concatenate([[0], np.cumsum(per_row[keep], dtype=np.int64)])
+    indices = new_index[H.indices[mask]].astype(H.indices.dtype)
+    data = H.data[mask]
+    return sp.csr_matrix((data, indices, indptr), shape=(len(free), len(free)))
+
+
+def scaling_series(sizes, repeat):
+    """Linear beam solves at growing sizes: multigrid-CG and Jacobi-CG, time, iterations, traced peak memory."""
+    import statistics
+    import tracemalloc
+
+    from voxflex.deform import multigrid
+    from voxflex.deform.linear_solvers import solve_linear
+    from voxflex.deform.materials import material
+    from voxflex.deform.voxel_model import VoxelModel
+
+    hooke = material("hooke", young=1e4, poisson=0.3, strain="linear")
+    print("\n| beam | DOF | solver | solve s (min / median) | iterations | peak traced MB | bytes/DOF |")
+    print("|---|---|---|---|---|---|---|")
+    fits = {}
+    for nx in sizes:
+        model = VoxelModel.from_image(_beam_image(nx), {1: hooke})
+        K = model.hessian(model.rest)
+        free = np.flatnonzero(np.repeat(model.rest[:, 0] > 1e-9, 3))
+        A = K[free][:, free]
+        b = -model.gravity_force({1: 1.0}, [0, 0, -9.81]).ravel()[free]
+        del K
+        for method in ("multigrid", "cg"):
+            times = []
+            for _ in range(repeat):
+                multigrid.clear_cache()  # a fresh hierarchy each time (a first Newton iteration)
+                t = time.perf_counter()
+                _, info = solve_linear(A, b, method=method, rtol=1e-8, grid=model.grid, free=free)
+                times.append(time.perf_counter() - t)
+            multigrid.clear_cache()
+            tracemalloc.start()
+            solve_linear(A, b, method=method, rtol=1e-8, grid=model.grid, free=free)
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+            fits.setdefault(method, []).append((len(free), min(times)))
+            print(f"| {nx}x{nx // 4}x{nx // 4} | {len(free)} | {info.method} | {min(times):.3f} / "
+                  f"{statistics.median(times):.3f} | {info.iterations} | {peak / 2**20:.0f} | "
+                  f"{peak / len(free):.0f} |", flush=True)
+    for method, pts in fits.items():
+        n, t = np.array(pts).T
+        big = n >= 5000  # below, fixed costs dominate
+        if big.sum() >= 2:
+            p = np.polyfit(np.log(n[big]), np.log(t[big]), 1)[0]
+            print(f"{method}: solve time ~ DOF^{p:.2f} (least squares over the sizes with >= 5000 DOF)")
+    print("peak traced memory: the solver's own arrays (hierarchy, levels, CG vectors) beyond the given matrix")
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--colamd", action="store_true")
     parser.add_argument("--memory", default="", metavar="NXxNYxNZ")
+    parser.add_argument("--big", action="store_true")
+    parser.add_argument("--solver", default="cg", choices=("cg", "multigrid", "direct"),
+                        help="linear solver of --memory (--big always uses multigrid)")
+    parser.add_argument("--no-series", action="store_true")
     args = parser.parse_args()
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+          f"python {platform.python_version()}, NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}")
     if args.memory:
-        memory_run(tuple(int(v) for v in args.memory.lower().split("x")))
+        memory_run(tuple(int(v) for v in args.memory.lower().split("x")), args.solver)
+        return
+    if args.big:
+        memory_run((256, 90, 90), "multigrid")
         return
     from voxflex.deform.materials import material
 
     nl, nn = (32, 16) if args.quick else (64, 32)
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"python {platform.python_version()}, NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}")
-    # warm-up: compile the kernels once (numba cache) so that timings are of the run, not the compiler
-    voxflex_run(8, material("neo-hookean", young=1e3, poisson=0.3), 1, "auto")
     hooke = material("hooke", young=1e4, poisson=0.3, strain="linear")
     nh = material("neo-hookean", young=1e3, poisson=0.3)
     try:  # optional peer: warp.fem on the CPU (compiles its kernels once, timed apart)
@@ -227,31 +375,51 @@ def main():
     except ImportError:
         warp_run = None
         print("warp.fem: not installed (pip install warp-lang) - its rows are skipped")
-    problems = [
-        (f"linear {nl}x{nl // 4}x{nl // 4}", lambda: voxflex_run(nl, hooke, 1, "cg"),
-         lambda: skfem_run(nl, 1e4, 0.3, "linear", 1, "cg"),
-         lambda: warp_run(nl, 1e4, 0.3, "linear", 1, "cg")),
-        (f"neo-hooke E=1e3 {nn}x{nn // 4}x{nn // 4} 5 steps", lambda: voxflex_run(nn, nh, 5, "auto"),
-         lambda: skfem_run(nn, 1e3, 0.3, "neo-hooke", 5, "direct"),
-         lambda: warp_run(nn, 1e3, 0.3, "neo-hooke", 5, "direct")),
+    # warm-up of every code on an 8x2x2 beam: numba kernels, scikit-fem's forms, warp's compile
+    voxflex_run(8, nh, 1, "direct")
+    voxflex_linear(8, hooke, "cg")
+    voxflex_linear(8, hooke, "multigrid")
+    skfem_run(8, 1e4, 0.3, "linear", 1, "cg")
+    skfem_run(8, 1e3, 0.3, "neo-hooke", 1, "direct")
+    lin, neo = f"linear {nl}x{nl // 4}x{nl // 4}", f"neo-hooke E=1e3 {nn}x{nn // 4}x{nn // 4} 5 steps"
+
+    def peers(nx, kind, steps, solver):
+        young = 1e4 if kind == "linear" else 1e3
+        out = [("scikit-fem", lambda: skfem_run(nx, young, 0.3, kind, steps, solver))]
+        if warp_run:
+            out.append(("warp.fem", lambda: warp_run(nx, young, 0.3, kind, steps, solver)))
+        return out
+
+    tables = [
+        ("same solver for every code (Jacobi-CG rtol 1e-8 / sparse LU MMD)", [
+            (lin, [("voxflex", lambda: voxflex_linear(nl, hooke, "cg"))] + peers(nl, "linear", 1, "cg")),
+            (neo, [("voxflex", lambda: voxflex_run(nn, nh, 5, "direct"))] + peers(nn, "neo-hooke", 5, "direct")),
+        ]),
+        ("best solver each (voxflex: multigrid-CG / auto; peers: Jacobi-CG / LU)", [
+            (lin, [("voxflex", lambda: voxflex_linear(nl, hooke, "multigrid"))] + peers(nl, "linear", 1, "cg")),
+            (neo, [("voxflex", lambda: voxflex_run(nn, nh, 5, "auto"))] + peers(nn, "neo-hooke", 5, "direct")),
+        ]),
     ]
-    print("\n| problem | code | build s | assemble s | solve s | total s | newton | u_z tip | solver |")
-    print("|---|---|---|---|---|---|---|---|---|")
     compile_notes = []
-    for name, ours, skfem, warp in problems:
-        res = {}
-        codes = [("voxflex", ours), ("scikit-fem", skfem)] + ([("warp.fem", warp)] if warp_run else [])
-        for code, fn in codes:
-            r = fn()
-            r["total"] = r["build"] + r["assemble"] + r["solve"]
-            res[code] = r
-            if "compile" in r:
-                compile_notes.append(f"{code} {name}: kernel compile/warm-up {r['compile']:.2f} s (not in total)")
-            print(f"| {name} | {code} | {r['build']:.2f} | {r['assemble']:.2f} | {r['solve']:.2f} | {r['total']:.2f} | "
-                  f"{r['newton']} | {r['uz']:.6f} | {r['solver']} |", flush=True)
-        for peer in [c for c, _ in codes[1:]]:
-            print(f"| {name} | ratio {peer} / voxflex (total) | | | | {res[peer]['total'] / res['voxflex']['total']:.1f}x "
-                  f"| | | |", flush=True)
+    for title, problems in tables:
+        print(f"\n{title}; {args.repeat} runs each, the columns of the fastest run")
+        print("| problem | code | build s | assemble s | solve s | total s min / median | newton | linear its "
+              "| u_z tip | solver |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        for name, codes in problems:
+            res = {}
+            for code, fn in codes:
+                r = _repeat(fn, args.repeat)
+                res[code] = r
+                if "compile" in r:
+                    compile_notes.append(f"{code} {name}: kernel compile/warm-up {r['compile']:.2f} s (not in total)")
+                print(f"| {name} | {code} | {r['build']:.2f} | {r['assemble']:.2f} | {r['solve']:.2f} | "
+                      f"{r['total']:.2f} / {r['total_median']:.2f} | {r['newton']} | {r['linear']} | "
+                      f"{r['uz']:.6f} | {r['solver']} |", flush=True)
+            for peer in [c for c, _ in codes[1:]]:
+                print(f"| {name} | ratio {peer} / voxflex (min; median) | | | | "
+                      f"{res[peer]['total'] / res['voxflex']['total']:.1f}x; "
+                      f"{res[peer]['total_median'] / res['voxflex']['total_median']:.1f}x | | | | |", flush=True)
     for note in compile_notes:
         print(note)
     n, rows = solver_table(nl)
@@ -259,6 +427,8 @@ def main():
     print("|---|---|---|---|")
     for method, sec, its, res in rows:
         print(f"| {method} | {sec:.2f} | {its} | {res:.1e} |", flush=True)
+    if not args.no_series:
+        scaling_series((16, 32, 64) if args.quick else (16, 32, 64, 128), args.repeat)
     if args.colamd:
         import time as _t
 
