@@ -98,6 +98,9 @@ class MillimetreModel:
     def held_dofs(self, lo, hi, components):
         return self.inner.held_dofs(lo, hi, components)
 
+    def components(self):
+        return self.inner.components()
+
     def moved_state(self, transform):
         return self.inner.moved_state(transform) * self.S
 

@@ -22,11 +22,52 @@ import numpy as np
 from .errors import InputError, check_choice
 from .scene import Scene
 
-__all__ = ["model", "build_image", "build_materials", "MODEL_BUILDERS"]
+__all__ = ["model", "build_image", "build_materials", "MODEL_BUILDERS", "ComponentsDroppedWarning"]
+
+
+class ComponentsDroppedWarning(UserWarning):
+    """Material components were dropped by [object] keep / min_component_voxels."""
 
 
 def build_image(scene: Scene):
-    """The label image of ``scene.object`` (shape or mesh voxelized, image loaded)."""
+    """The label image of ``scene.object`` (shape or mesh voxelized, image loaded), with the
+    components that ``keep`` / ``min_component_voxels`` drop removed (with a warning)."""
+    return _drop_components(_raw_image(scene), scene.object.keep, scene.object.min_component_voxels)
+
+
+def _drop_components(image, keep: str, min_voxels: int):
+    if keep == "all" and min_voxels <= 1:
+        return image
+    import dataclasses
+    import warnings
+
+    comps, n = image.connected_components(connectivity="face")
+    if n == 0:
+        return image
+    sizes = np.bincount(comps.ravel(), minlength=n + 1)[1:]
+    drop = sizes < min_voxels
+    if keep == "largest":
+        drop |= np.arange(n) != int(np.argmax(sizes))
+    if not np.any(drop):
+        return image
+    if np.all(drop):
+        raise InputError(
+            f"[object] min_component_voxels = {min_voxels} drops every material component (the largest has "
+            f"{int(sizes.max())} voxels); lower it"
+        )
+    gone = np.isin(comps, np.flatnonzero(drop) + 1)
+    labels = np.where(gone, 0, image.labels).astype(image.labels.dtype)
+    occupancy = None if image.occupancy is None else np.where(gone, 0.0, image.occupancy)
+    warnings.warn(
+        f"dropped {int(drop.sum())} of {n} material components ({int(sizes[drop].sum())} voxels) by "
+        f"[object] keep = \"{keep}\", min_component_voxels = {min_voxels}",
+        ComponentsDroppedWarning,
+        stacklevel=3,
+    )
+    return dataclasses.replace(image, labels=labels, occupancy=occupancy)
+
+
+def _raw_image(scene: Scene):
     obj = scene.object
     if obj.image is not None:
         from .image import LabelImage
@@ -88,6 +129,50 @@ def _voxel_model(scene: Scene, image, materials):
     return VoxelModel.from_image(image, materials, quadrature=quadrature, use_occupancy=bool(scene.object.occupancy))
 
 
+def _frame_model(scene: Scene, image, materials):
+    """Affine frames: placement, shape functions and samples from the image, then the frame model.
+
+    Every precomputed stage is timed (``precompute_seconds`` in the result's ``/model``).
+    """
+    import time
+
+    from .deform.frame_model import FrameModel, voxel_samples
+    from .voronoi import place_frames, shape_function
+
+    t0 = time.perf_counter()
+    nodes = scene.nodes
+    compliance = None
+    if nodes.distance == "compliance":
+        compliance = {label: float(m.parameters.get("young", np.nan)) for label, m in materials.items()}
+        bad = [label for label, E in compliance.items() if not np.isfinite(E) or E <= 0]
+        if bad:
+            raise InputError(f'[nodes] distance = "compliance" needs a Young\'s modulus for label(s) {bad}; '
+                             'give young (or use distance = "geodesic")')
+    kind = nodes.shape_function or "natural-neighbour"
+    fixed = [(np.asarray(f.min, dtype=float), np.asarray(f.max, dtype=float)) for f in scene.fixed]
+    positions = None if nodes.positions is None else np.asarray(nodes.positions, dtype=float)
+    frames = place_frames(image, nodes.count, positions=positions, fixed=fixed, seed=nodes.seed,
+                          distance=nodes.distance, compliance=compliance)
+    sf = shape_function(image, frames, kind=kind, parents=nodes.parents, distance=nodes.distance,
+                        compliance=compliance)
+    quadrature = scene.elasticity.quadrature
+    occupancy = bool(scene.object.occupancy)
+    if quadrature == "gauss-legendre":
+        samples = voxel_samples(image, sf, rule="gauss-legendre", use_occupancy=occupancy)
+    else:
+        from .sampling import sample
+
+        samples = sample(image, sf, kind=quadrature, count=scene.elasticity.samples, seed=nodes.seed)
+    info = {"shape_function": kind, "parents": int(nodes.parents), "distance": nodes.distance}
+    model = FrameModel.from_image(image, frames, sf, materials, samples=samples, use_occupancy=occupancy, info=info)
+    if quadrature != "gauss-legendre":
+        from .deform.modes import check_modes
+
+        check_modes(frames, samples)  # warns (SpuriousModesWarning), naming how many samples to add
+    model.info["precompute_seconds"] = time.perf_counter() - t0
+    return model
+
+
 def _not_implemented(kind: str):
     def builder(scene, image, materials):
         built = [k for k, b in MODEL_BUILDERS.items() if not getattr(b, "not_implemented", False)]
@@ -102,7 +187,7 @@ def _not_implemented(kind: str):
 
 MODEL_BUILDERS: dict[str, Callable] = {
     "voxel": _voxel_model,
-    "affine": _not_implemented("affine"),
+    "affine": _not_implemented("affine"),  # until the Voronoi stage lands: _frame_model
     "rigid": _not_implemented("rigid"),
 }
 """Registry: ``[nodes] kind`` -> builder ``(scene, image, materials) -> Model``."""

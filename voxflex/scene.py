@@ -67,6 +67,7 @@ SHAPE_FUNCTIONS = SHAPE_FUNCTION_KINDS + VOXEL_SHAPE_FUNCTIONS
 LOAD_KINDS = ("gravity", *FORCE_KINDS)
 STRAIN_NAMES = tuple(STRAINS)
 DISTANCES = ("geodesic", "compliance")
+KEEP = ("all", "largest")
 _INF = math.inf
 
 
@@ -173,6 +174,10 @@ class ObjectSpec:
         Partial volume (extension; default false): shapes and meshes are
         voxelized with occupancy fractions, and every voxel's volume and mass
         are weighted by its fraction; an image uses the fractions it carries.
+    keep : {"all", "largest"}
+        Keep every material component (face connectivity) or only the largest.
+    min_component_voxels : int
+        Drop components with fewer voxels (islands of a voxelized mesh), with a warning.
     """
 
     shape: str | None = None
@@ -183,11 +188,16 @@ class ObjectSpec:
     origin: tuple[float, float, float] | None = None
     axis: str | None = None
     occupancy: bool | None = None
+    keep: str = "all"
+    min_component_voxels: int = 1
 
     def __post_init__(self):
         t = "object"
         if self.occupancy is not None:
             _boolean(t, "occupancy", self.occupancy)
+        _string(t, "keep", self.keep, KEEP)
+        object.__setattr__(self, "min_component_voxels",
+                           _number(t, "min_component_voxels", self.min_component_voxels, integer=True, minimum=1))
         given = [k for k in ("shape", "mesh", "image") if getattr(self, k) is not None]
         if len(given) != 1:
             raise InputError(

@@ -440,6 +440,15 @@ class FrameModel:
             B[:, 9:, 3 + k] = np.cross(e, R)
         return B.reshape(12 * n, 6)
 
+    def components(self):
+        """Material components as the shape functions couple them (voxels touching by a face,
+        an edge or a corner: the connectivity of the geodesic distances), and the frames in each."""
+        comps, n = self.image.connected_components(connectivity="vertex")
+        f = np.floor(self._grid().world_to_index(self.frames) + 1e-9).astype(np.int64)
+        f = np.clip(f, 0, np.asarray(comps.shape) - 1)
+        of_frame = comps[f[:, 0], f[:, 1], f[:, 2]] - 1
+        return comps, n, [np.flatnonzero(of_frame == c) for c in range(n)]
+
     # -- description -------------------------------------------------------------
     def advice(self) -> str:
         if self.samples.kind == "midpoint":

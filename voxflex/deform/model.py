@@ -118,6 +118,10 @@ class Model(Protocol):
     def volume_points(self):
         """Material points that integrate the volume: (points (m, 3), volume (m,) m³)."""
 
+    def components(self):
+        """Material components the model treats as separate parts: (component image (nx, ny, nz) int,
+        0 outside, 1..k; k; list of the node indices of each component)."""
+
     def held_dofs(self, lo, hi, components: str) -> np.ndarray:
         """Flat DOFs (sorted) that a fixed box [lo, hi] holds for the given components ("xyz" subset)."""
 

@@ -35,6 +35,7 @@ import scipy.sparse as sp
 
 from ..errors import ConvergenceError, InputError, check_choice
 from .boundary import FixedRegion, ForceRegion, fixed_dofs, prescribed_positions, region_forces
+from .supports import check_supports
 from .linear_solvers import METHODS, cg_on_free_dofs, choose_method, solve_linear, vdot, vnorm
 
 KINDS = ("static", "implicit-euler")
@@ -435,7 +436,9 @@ def solve(
     Raises
     ------
     InputError
-        Bad regions or loads (e.g. gravity or dynamics without densities).
+        Bad regions or loads (e.g. gravity or dynamics without densities); a static
+        problem with a part that is not held against every rigid motion (see
+        :mod:`voxflex.deform.supports`).
     ConvergenceError
         A step did not converge (the message says what was tried).
     """
@@ -456,6 +459,8 @@ def solve(
     X = np.asarray(model.rest, dtype=float).ravel()
     N = X.size
     dofs, owner = fixed_dofs(model, fixed)
+    if not dynamic:
+        check_supports(model, dofs)  # an unsupported part or a mechanism: refuse before solving
     free = np.setdiff1d(np.arange(N), dofs)
     f_full = region_forces(model, forces).ravel() if forces else np.zeros(N)
     if gravity is not None:

@@ -581,6 +581,17 @@ class VoxelModel:
         T = np.asarray(transform, dtype=float)
         return self.rest @ T[:, :3].T + T[:, 3]
 
+    def components(self):
+        """Material components by face connectivity (voxels sharing only an edge or a corner
+        form a hinge): (component image, count, the nodes of each component)."""
+        comps, n = self.image.connected_components(connectivity="face")
+        ijk = self.grid.element_ijk
+        of_element = comps[ijk[:, 0], ijk[:, 1], ijk[:, 2]] - 1
+        order = np.argsort(of_element, kind="stable")
+        bounds = np.searchsorted(of_element[order], np.arange(n + 1))
+        nodes = [np.unique(self.grid.element_nodes[order[bounds[c]:bounds[c + 1]]]) for c in range(n)]
+        return comps, n, nodes
+
     def advice(self) -> str:
         """Model-specific advice appended to a solver failure ('' when none)."""
         if self.quadrature == "midpoint":
