@@ -50,6 +50,7 @@ class MillimetreModel:
     def __init__(self, inner: VoxelModel):
         self.inner = inner
         self.image = inner.image
+        self.dof_grid = inner.dof_grid
         self.node_kind = "voxel-mm"
         self.dofs_per_node = 3
         self.rest = inner.rest * self.S

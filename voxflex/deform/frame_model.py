@@ -113,6 +113,7 @@ class FrameModel:
 
     node_kind = "affine"
     dofs_per_node = 12
+    dof_grid = None  # the DOFs are frames, not the corners of a voxel grid (no geometric multigrid)
 
     def __init__(self, image, frames, shape_function, samples, materials, *, info=None, use_occupancy=True):
         self.image = image

@@ -65,6 +65,9 @@ class Model(Protocol):
         The rest state.
     image : LabelImage or None
         The label image the model was built on (written to the result file).
+    dof_grid : TrilinearGrid or None
+        The voxel grid whose corners are the nodes (voxel models: geometric
+        multigrid uses it), None for other models.
     n_nodes : int
     constant_tangent : bool
         True when the energy is quadratic in q (the Hessian never changes).
@@ -74,6 +77,7 @@ class Model(Protocol):
     dofs_per_node: int
     rest: np.ndarray
     image: object
+    dof_grid: object
 
     @property
     def n_nodes(self) -> int: ...

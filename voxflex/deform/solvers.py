@@ -42,6 +42,8 @@ KINDS = ("static", "implicit-euler")
 MASS_KINDS = ("lumped", "consistent")
 ARMIJO = 1e-4
 MAX_HALVINGS = 30
+DENSE_AUTO_MAX = 6000  # unknowns up to which a nearly dense Hessian goes to dense Cholesky under "auto"
+DENSE_FILL = 0.2  # fraction of non-zeros above which a Hessian counts as nearly dense
 ROUNDOFF = 1e-11  # relative energy slack of the line search (differences of Pi below it are round-off)
 
 
@@ -125,32 +127,43 @@ class StepRecord:
 
 
 class _Problem:
-    """The potential of one step over the flat DOF vector x (3n,)."""
+    """The potential of one step over the increment ``delta`` (N,) from the step's start ``base``.
 
-    def __init__(self, model, f, M=None, h=None, xhat=None, xn=None, D=None):
+    The state is ``base + delta``.  Inertia and damping see ``delta`` plus the
+    differences ``base - xhat`` and ``base - xn`` computed once, never the
+    difference of two absolute states: with tiny time steps ``M / h^2`` would
+    otherwise amplify the round-off of the positions (eps |x|) into forces
+    that swamp the physics.
+    """
+
+    def __init__(self, model, f, base, M=None, h=None, xhat=None, xn=None, D=None):
         self.model = model
         self.f = f
         self.M = M
         self.h = h
-        self.xhat = xhat
-        self.xn = xn
+        self.base = base
+        self.off_hat = None if xhat is None else base - xhat
+        self.off_n = None if xn is None else base - xn
         self.D = D
         self.rest = np.asarray(model.rest, dtype=float).ravel()
         self.shape = np.shape(model.rest)
-        self.constant = bool(getattr(model, "constant_tangent", False))
+        self.constant = bool(model.constant_tangent)
+        self.work0 = vdot(f, base - self.rest)
+        self.elastic_diagonal = None
 
-    def __call__(self, x, hessian=True, gradient=True):
-        q = x.reshape(self.shape)
+    def __call__(self, delta, hessian=True, gradient=True):
+        q = (self.base + delta).reshape(self.shape)
         E, g, H = self.model.energy_gradient_hessian(q, hessian=hessian) if gradient else (
             self.model.energy(q), None, None)
-        u = x - self.rest
-        work = vdot(self.f, u)
+        work = self.work0 + vdot(self.f, delta)
         pot = E - work
         mag = abs(E) + abs(work)
+        if H is not None:
+            self.elastic_diagonal = H.diagonal()
         if g is not None:
             g = g.ravel() - self.f
         if self.M is not None:
-            dx = x - self.xhat
+            dx = delta + self.off_hat
             Mdx = self.M @ dx
             kin = 0.5 * vdot(dx, Mdx) / self.h**2
             pot += kin
@@ -160,7 +173,7 @@ class _Problem:
             if H is not None:
                 H = H + self.M / self.h**2
             if self.D is not None:
-                dn = x - self.xn
+                dn = delta + self.off_n
                 Ddn = self.D @ dn
                 damp = 0.5 * vdot(dn, Ddn) / self.h
                 pot += damp
@@ -248,16 +261,22 @@ class _FreeBlock:
         return sp.csr_matrix((H.data[self.sel], self.indices_ff, self.indptr_ff), shape=(nf, nf))
 
 
-def _solve_free(H, rhs, free, reduce, options, eta, near_null):
+def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None):
     """Solve ``H[free][:, free] d = rhs``; returns d, info and the submatrix when it was built.
 
-    Jacobi-CG (``"cg"``, and ``"auto"`` on large systems) runs on H itself with
-    the fixed DOFs masked; the other methods, and CG's direct fallback, take
-    the submatrix from ``reduce``.
+    Jacobi-CG (``"cg"``, and ``"auto"`` on large systems without a voxel grid)
+    runs on H itself with the fixed DOFs masked; the other methods (and CG's
+    direct fallback) take the submatrix from ``reduce``.  ``grid`` is the
+    model's :attr:`dof_grid` (voxel models): with it ``auto`` picks sparse LU or
+    geometric-multigrid CG (see :func:`voxflex.deform.linear_solvers.choose_method`).
     """
     method = options.linear_solver
     if method == "auto":
-        method = choose_method(len(free))
+        nf = len(free)
+        # a reduced model's stiffness is small and nearly dense (frames couple through shared
+        # material): a dense Cholesky beats sparse LU there (measured in benchmarks/bench_frames.py)
+        dense = nf <= DENSE_AUTO_MAX and H.nnz >= DENSE_FILL * H.shape[0] ** 2
+        method = "cholesky" if dense else choose_method(nf, grid=grid)
     if method == "cg":
         d, info = cg_on_free_dofs(H, rhs, free, rtol=eta)
         if d is not None:
@@ -268,15 +287,22 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null):
         direct.iterations = info.iterations
         return d, direct, Hff
     Hff = reduce(H)
-    nn = near_null if options.linear_solver == "amg" else None
-    d, info = solve_linear(Hff, rhs, method=options.linear_solver, rtol=eta, near_null=nn)
+    nn = near_null if method == "amg" else None
+    d, info = solve_linear(Hff, rhs, method=method, rtol=eta, near_null=nn,
+                           grid=grid if method == "multigrid" else None, free=free if method == "multigrid" else None)
     return d, info, Hff
 
 
 def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=None):
-    """Minimise ``problem`` over the free DOFs with the fixed DOFs moved to ``x_fixed``.
+    """Minimise ``problem`` over the free DOFs of the increment ``x`` with the fixed ones moved to ``x_fixed``.
 
-    Returns x, iterations, relative residual, linear iterations, solver name, halvings.
+    The convergence test is ``|r_free| <= tolerance * scale`` with ``scale`` the
+    largest of the external forces, the first residual and the reactions of the
+    step's first two iterations (frozen then, so that a diverging iterate cannot
+    raise it), or the round-off floor ``16 eps |diag(K) X|`` of the elastic
+    stiffness at the step's start and the step's start state (frozen likewise).
+
+    Returns the increment, iterations, relative residual, linear iterations, solver name, halvings.
     """
     if reduce is None:
         reduce = _FreeBlock(free, len(x))
@@ -300,14 +326,14 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             raise ConvergenceError(f"{label}: the energy is not finite at iteration {it} (inverted material?)")
         r = g[free]
         rn = vnorm(r)
-        reaction = vnorm(g[fixed]) if len(fixed) else 0.0
         if it == 0:
             scale = max(scale, rn)
-        scale = max(scale, reaction)
+            # round-off floor: the elastic forces come from absolute positions, known to eps |x|, so
+            # the residual cannot drop below ~eps |diag(K)| |x|; taken at the step's start and frozen
+            floor = 16.0 * np.finfo(float).eps * vnorm(problem.elastic_diagonal[free] * np.abs(problem.base[free]))
+        if it <= 1:
+            scale = max(scale, vnorm(g[fixed]) if len(fixed) else 0.0)
         rel = rn / scale if scale > 0 else 0.0
-        # round-off floor: positions are absolute coordinates, known to eps |x|, so the residual
-        # cannot drop below ~eps |diag(H)| |x| (matters for tiny tolerances and for M / h^2 terms)
-        floor = 16.0 * np.finfo(float).eps * vnorm(H.diagonal()[free] * x[free])
         if not moving and (scale == 0.0 or rn <= max(tol * scale, floor)):
             return x, it, rel, lin_its, solver_used, halvings_total
         if it == options.max_iterations:
@@ -325,7 +351,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             eta = max(_forcing(rn, rn_prev, eta_prev, scale), floor_eta)
         eta = float(np.clip(eta, 1e-14, 0.5))
         rn_prev, eta_prev = rn, eta
-        d, info, Hff = _solve_free(H, rhs, free, reduce, options, eta, near_null)
+        d, info, Hff = _solve_free(H, rhs, free, reduce, options, eta, near_null, problem.model.dof_grid)
         lin_its += info.iterations
         solver_used = info.method + (f" ({info.note})" if info.note else "")
         if moving:
@@ -498,24 +524,34 @@ def solve(
                 D = options.rayleigh_mass * M
                 if options.rayleigh_stiffness:
                     D = D + options.rayleigh_stiffness * model.hessian(x.reshape(shape))
-            problem = _Problem(model, f_full, M=M, h=options.dt, xhat=x + options.dt * v, xn=x.copy(), D=D)
-            x_start = x + options.dt * v
+            xhat = x + options.dt * v
+            x_start = xhat.copy()
         else:
             factor = k / options.steps
             t = factor
             label = f"static step {k}/{options.steps} (load factor {factor:.4g})"
-            problem = _Problem(model, factor * f_full)
             x_start = x.copy()
         x_fixed = prescribed_positions(model, fixed, dofs, owner, factor) if len(dofs) else np.zeros(0)
         # fixed DOFs start from their previous values so the predictor sees their motion
         x_start[dofs] = x[dofs]
-        x_new, its, rel, lin_its, solver_used, halvings = _newton(
-            problem, x_start, free, dofs, x_fixed, options, near_null, label, reduce
+        if dynamic:
+            problem = _Problem(model, f_full, x_start, M=M, h=options.dt, xhat=xhat, xn=x, D=D)
+        else:
+            problem = _Problem(model, factor * f_full, x_start)
+        delta, its, rel, lin_its, solver_used, halvings = _newton(
+            problem, np.zeros(N), free, dofs, x_fixed - x_start[dofs], options, near_null, label, reduce
         )
+        x_new = x_start + delta
+        if not np.all(np.isfinite(x_new)):
+            raise ConvergenceError(f"{label}: the state is not finite after {its} Newton iterations")
         E = float(model.energy(x_new.reshape(shape)))
         kin = 0.0
         if dynamic:
-            v = (x_new - x) / options.dt
+            # x_new - x = h v + delta on the free DOFs (x_start = x + h v there) and delta on the fixed
+            # ones: the velocity from the increment keeps its precision for any h
+            v_start = v.copy()
+            v_start[dofs] = 0.0
+            v = v_start + delta / options.dt
             kin = 0.5 * vdot(v, M @ v)
         x = x_new
         rec = StepRecord(

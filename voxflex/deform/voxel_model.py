@@ -146,6 +146,11 @@ class VoxelModel:
     node_kind = "voxel"
     dofs_per_node = 3
 
+    @property
+    def dof_grid(self) -> TrilinearGrid:
+        """The voxel grid whose corners are the nodes (geometric multigrid uses it)."""
+        return self.grid
+
     def __init__(self, grid: TrilinearGrid, labels, volumes, materials, quadrature, mask, image=None):
         self.image = image
         self.grid = grid
