@@ -31,6 +31,9 @@ _LAZY = {
     "render": "voxflex.rendering",
     "sample": "voxflex.sampling",
     "Samples": "voxflex.sampling",
+    "geodesic_distance": "voxflex.voronoi",
+    "place_frames": "voxflex.voronoi",
+    "shape_function": "voxflex.voronoi",
 }
 
 __all__ = ["__version__", "VoxflexError", "InputError", "ConvergenceError", *_LAZY]
