@@ -15,6 +15,8 @@ The full-resolution voxel model uses trilinear shape functions
 """
 
 from .geodesic import geodesic_distance
+from .placement import place_frames
+from .shape_function import ShapeFunction, shape_function
 from .shape_functions import ShapeValues, shepard
 
-__all__ = ["geodesic_distance", "ShapeValues", "shepard"]
+__all__ = ["geodesic_distance", "place_frames", "shape_function", "ShapeFunction", "ShapeValues", "shepard"]

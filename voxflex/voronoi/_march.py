@@ -89,7 +89,7 @@ def _axis_term(v, st, dist, state, mask, cost, h, second):
     best2 = np.inf
     for sgn in (-1, 1):
         u = v + sgn * st
-        if mask[u] == 0 or state[u] == 1:
+        if mask[u] == 0 or state[u] != 2:
             continue
         t1 = dist[u]
         if t1 < best:
@@ -97,7 +97,7 @@ def _axis_term(v, st, dist, state, mask, cost, h, second):
             best2 = np.inf
             if second:
                 u2 = u + sgn * st
-                if (mask[u2] != 0 and state[u2] != 1 and dist[u2] <= t1
+                if (mask[u2] != 0 and state[u2] == 2 and dist[u2] <= t1
                         and cost[u2] == cost[v] and cost[u] == cost[v]):
                     best2 = dist[u2]
     if best == np.inf:
@@ -111,8 +111,10 @@ def _axis_term(v, st, dist, state, mask, cost, h, second):
 def _eikonal(v, dist, state, mask, cost, stride, spacing, slowness, second):
     """Fast-marching update at voxel v from its usable face neighbours (inf if none).
 
-    A neighbour is usable when it is material and not tentative (state != 1):
-    frozen in this run or holding a final value from an earlier one.  Second
+    A neighbour is usable when it is frozen in this run (state 2): values left
+    by an earlier run are never mixed in, so an added seed re-propagates only
+    where it is nearer (a recomputed old value would differ by round-off and
+    leak the front through the whole image).  Second
     order (Rickett & Fomel) along an axis when the next voxel beyond holds a
     usable value no larger than the first, all three in material of the same
     slowness (the one-sided stencil is wrong across a jump).  Solves sum_a alpha_a (T - beta_a)^2
