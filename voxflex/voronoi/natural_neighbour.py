@@ -141,14 +141,15 @@ def natural_weights(mask, cost, pshape, spacing, d, own, points, nframes, *, lap
 
 
 def natural_naive(mask, cost, pshape, spacing, frame_points, point, *, laplace):
-    """The naive twin: full re-propagation with the point added as a seed (tests only).
+    """The naive twin: full, unbounded propagation from the point over the whole image (tests only).
 
+    A voxel is stolen where the point's own distance field is below the frames'.
     Returns dense weights (n,) of one point (padded index coords).
     """
     n = len(frame_points)
     d, own = M.march(mask, cost, pshape, spacing, frame_points, np.arange(n), fmm=2)
-    d2, own2 = M.march(mask, cost, pshape, spacing, np.vstack([frame_points, point]), np.arange(n + 1), fmm=2)
-    stolen = (own2 == n) & (mask > 0)
+    d2, _ = M.march(mask, cost, pshape, spacing, np.asarray(point, dtype=np.float64)[None], [n], fmm=2)
+    stolen = (d2 < d) & (mask > 0)
     acc = np.zeros(n)
     if not laplace:
         np.add.at(acc, own[stolen], 1.0)
