@@ -1,0 +1,104 @@
+"""Derivative-contract cases of the contact barrier (voxflex.deform.contact).
+
+x is the node state q (n, d), y the barrier energy as a (1,) array: the total
+energy of the ContactModel minus its inner model's (so a wrong barrier term
+cannot hide behind a large elastic energy).  jvp = g . v, vjp = u g,
+geometric = u (H v) with the exact Hessian (``exact=True``: no positive
+semi-definite projection), jacobian = the gradient as a (1, N) row.
+
+Geometry: unit voxels, activation distance dhat = 0.2, obstacles placed so that
+several collision points sit inside the barrier's range (0.3-0.9 dhat) at the
+perturbed state; with the contract's step h = 1e-6 * max|x| (<= 4e-6) the
+distances change by O(1e-5) << d, so central differences of the log barrier
+keep a truncation error near (h/d)^2 ~ 1e-8, below the contract's rtol 1e-6.
+Kinds covered: plane, sphere, box (edge and corner region), a distance field
+from a label image, a moving (rotated and translated) plane at fraction 0.6,
+and an affine-frame model against a plane.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from contract import MappingCase
+from voxflex.deform.contact import ContactModel
+from voxflex.deform.materials import material
+from voxflex.deform.obstacles import Box, DistanceField, Plane, Sphere
+from voxflex.deform.voxel_model import VoxelModel
+from voxflex.image.label_image import LabelImage
+
+DHAT = 0.2
+
+
+def _voxel_model():
+    labels = np.ones((2, 2, 2), dtype=np.uint8)
+    return VoxelModel.from_image(LabelImage(labels), {1: material("neo-hookean", young=10.0, poisson=0.3)})
+
+
+def _frame_model():
+    from voxflex.deform.frame_model import FrameModel
+    from voxflex.voronoi.shape_functions import shepard
+
+    frames = np.array([[0.5, 0.5, 0.5], [1.5, 0.5, 1.5], [1.5, 1.5, 0.5], [0.5, 1.5, 1.5]])
+
+    def sf(points):
+        return shepard(np.asarray(points, dtype=float), frames, n_parents=4)
+
+    image = LabelImage(np.ones((2, 2, 2), dtype=np.uint8))
+    return FrameModel.from_image(image, frames, sf, {1: material("neo-hookean", young=10.0, poisson=0.3)})
+
+
+def _case(name, inner, obstacle, *, scale=0.02, fraction=0.0, seed=3):
+    model = ContactModel(inner, [obstacle], points=2, distance=DHAT, stiffness=50.0)
+    model.set_time(fraction)
+    rng = np.random.default_rng(seed)
+    x0 = np.asarray(inner.rest, dtype=float) + scale * rng.standard_normal(inner.rest.shape)
+    d = model._distances(model.mapping.apply(x0))[0]
+    # the perturbed state stays out of the obstacle, with points inside the barrier's range
+    assert d.min() > 0.2 * DHAT and np.count_nonzero(d < DHAT) >= 2, (name, d.min(), np.count_nonzero(d < DHAT))
+
+    def parts(x, hessian):
+        E, g, H = model.energy_gradient_hessian(x, hessian=hessian, exact=True)
+        E0, g0, H0 = inner.energy_gradient_hessian(x, hessian=hessian)
+        return E - E0, (g - g0).ravel(), (H - H0) if hessian else None
+
+    return MappingCase(
+        name=f"contact-{name}",
+        x0=x0,
+        apply=lambda x: np.array([parts(x, False)[0]]),
+        jvp=lambda x, v: np.array([parts(x, False)[1] @ v.ravel()]),
+        vjp=lambda x, u: (u[0] * parts(x, False)[1]).reshape(x.shape),
+        geometric=lambda x, u, v: (u[0] * (parts(x, True)[2] @ v.ravel())).reshape(x.shape),
+        jacobian=lambda x: parts(x, False)[1][None, :],
+    )
+
+
+def _cases():
+    vox = _voxel_model()
+    # label image of a slab [-2, 1] x [-2, 2] x [-2.1, -0.1] below the body: points near its edge x = 1 see a
+    # curved field (mixed second derivatives of the trilinear interpolation)
+    slab = LabelImage(np.ones((6, 8, 4), dtype=np.uint8), origin=(-2.0, -2.0, -2.1), spacing=(0.5, 0.5, 0.5))
+    cases = [
+        _case("plane", vox, Plane(point=(0.0, 0.0, -0.12), normal=(0.1, 0.05, 1.0))),
+        _case("sphere", vox, Sphere(center=(1.0, 1.0, -3.1), radius=3.0)),
+        _case("box-edge-corner", vox, Box(min=(-3.0, -3.0, -3.0), max=(1.1, 2.1, -0.1))),
+        _case("sdf-labels", vox, DistanceField.from_labels(slab)),
+        _case("moving-plane", vox, Plane(point=(0.0, 0.0, -0.5), normal=(0.0, 0.0, 1.0),
+                                         motion=_rigid(0.1, (0.2, -0.1, 0.47))), fraction=0.6),
+    ]
+    try:
+        cases.append(_case("affine-frames-plane", _frame_model(), Plane(point=(0.0, 0.0, -0.1), normal=(0, 0, 1)),
+                           scale=0.005))
+    except ImportError:  # pragma: no cover - the frame model is part of the package
+        pass
+    return cases
+
+
+def _rigid(angle, t):
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_rotvec(angle * np.array([0.6, 0.0, 0.8])).as_matrix()
+    return np.hstack([R, np.asarray(t, dtype=float)[:, None]])
+
+
+CASES = _cases()
