@@ -178,6 +178,10 @@ class ObjectSpec:
         Keep every material component (face connectivity) or only the largest.
     min_component_voxels : int
         Drop components with fewer voxels (islands of a voxelized mesh), with a warning.
+    up : {"x", "y", "z"}
+        The object's axis that should point up: the object is turned about the
+        world origin so that this axis becomes +z (``"y"`` for y-up meshes);
+        every other key of the scene is in the turned frame.  Default "z".
     """
 
     shape: str | None = None
@@ -190,9 +194,11 @@ class ObjectSpec:
     occupancy: bool | None = None
     keep: str = "all"
     min_component_voxels: int = 1
+    up: str = "z"
 
     def __post_init__(self):
         t = "object"
+        _string(t, "up", self.up, ("x", "y", "z"))
         if self.occupancy is not None:
             _boolean(t, "occupancy", self.occupancy)
         _string(t, "keep", self.keep, KEEP)
