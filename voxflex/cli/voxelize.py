@@ -26,6 +26,7 @@ examples:
   voxflex voxelize box:4,1,1 -o beam.nii.gz --voxel-size 0.125      # 32x8x8, all ones
   voxflex voxelize part.stl -o part.nrrd --voxel-size 0.002 --padding 1
   voxflex voxelize bunny.obj -o bunny.npz --voxel-size 1e-3 --occupancy
+  voxflex voxelize cow.obj -o cow.nii.gz --voxel-size 0.1 --up y    # a y-up mesh stands on z
   voxflex voxelize box:2,2,2 sphere:0.5 -o two.nii.gz --voxel-size 0.05
         (two labels: 1 = the box, 2 = the ball; later inputs overwrite earlier ones)
   voxflex voxelize shell.stl core.stl -o parts.h5 --voxel-size 0.01 --labels 3 7
@@ -57,6 +58,13 @@ def register(sub) -> None:
         action="store_true",
         help="also compute the fraction of each voxel inside (partial volume); boundary voxels "
         "holding any material become material",
+    )
+    parser.add_argument(
+        "--up",
+        choices=("x", "y", "z"),
+        default="z",
+        help="the inputs' axis that should point up: they are turned about the origin so that it becomes +z "
+        "(y for y-up meshes such as most OBJ models; default z, no turn)",
     )
     parser.add_argument("--padding", type=int, default=0, metavar="N", help="empty voxels on every side (default 0)")
     parser.add_argument(
@@ -113,6 +121,7 @@ def run(args) -> int:
         padding=args.padding,
         max_bytes=max_bytes,
         progress=True,
+        up=args.up,
     )
     image.save(args.output)
     print(summary(image, args.output))

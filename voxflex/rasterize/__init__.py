@@ -7,6 +7,7 @@
 """
 
 from .mesh import SurfaceMesh, load_mesh
+from .orient import UP_AXES, turn_up, up_rotation
 from .primitives import Box, Cylinder, Sphere, parse_spec
 from .voxelize import estimate_bytes, voxelize
 from .winding import build_tree, winding_number, winding_number_brute
@@ -23,4 +24,7 @@ __all__ = [
     "winding_number_brute",
     "build_tree",
     "estimate_bytes",
+    "turn_up",
+    "up_rotation",
+    "UP_AXES",
 ]

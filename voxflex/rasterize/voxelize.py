@@ -94,6 +94,7 @@ def voxelize(
     progress: bool = True,
     subsamples: int = 4,
     beta: float = DEFAULT_BETA,
+    up: str = "z",
 ) -> LabelImage:
     """Rasterize primitives and/or surface meshes into a label image.
 
@@ -126,6 +127,11 @@ def voxelize(
     beta : float
         Accuracy of the fast winding number (>= 1): a triangle cluster of
         radius r is replaced by its expansion beyond ``beta * r``.
+    up : {"x", "y", "z"}
+        The sources' axis that should point up: every source is first turned
+        about the world origin so that this axis becomes +z
+        (:func:`voxflex.rasterize.orient.turn_up`; ``"y"`` for y-up meshes),
+        then the grid is placed around the turned sources.
 
     Returns
     -------
@@ -152,7 +158,7 @@ def voxelize(
         raise InputError("subsamples must be >= 1 (sub-points per axis for occupancy)")
     if not (isinstance(beta, (int, float)) and math.isfinite(beta) and beta >= 1):
         raise InputError(f"beta must be a number >= 1, got {beta!r}")
-    items = _items(source, label)
+    items = _items(source, label, up)
     lo = np.min([b[0] for _, _, _, b in items], axis=0)
     hi = np.max([b[1] for _, _, _, b in items], axis=0)
     counts = np.maximum(np.ceil((hi - lo) / h - 1e-9).astype(np.int64), 1) + 2 * padding
@@ -219,8 +225,11 @@ def _is_pair(item) -> bool:
     )
 
 
-def _items(source, label):
-    """[(shape, label, name, (lo, hi))] with shape a primitive or an oriented SurfaceMesh."""
+def _items(source, label, up="z"):
+    """[(shape, label, name, (lo, hi))] with shape a primitive or an oriented SurfaceMesh, turned by ``up``."""
+    from .orient import turn_up, up_rotation
+
+    up_rotation(up)  # validates the name before any file is read
     if isinstance(source, list):
         if not source:
             raise InputError("no source given; pass a mesh path, a primitive spec or a list of them")
@@ -231,6 +240,7 @@ def _items(source, label):
     for src, lab in entries:
         lab = _check_label(lab)
         shape, name = _resolve(src)
+        shape = turn_up(shape, up)
         items.append((shape, lab, name, tuple(np.asarray(b, dtype=float) for b in shape.bounds())))
     return items
 
