@@ -38,6 +38,8 @@ from .deform.boundary import FORCE_KINDS
 from .deform.linear_solvers import METHODS as LINEAR_SOLVERS
 from .deform.materials import MATERIALS, MODEL_CONSTANTS, POISSON_RANGE, check_constants
 from .deform.model import NODE_KINDS as _NODE_KINDS
+from .deform.obstacles import OBSTACLE_KINDS
+from .deform.contact import POINT_RULES as CONTACT_POINT_RULES
 from .deform.solvers import KINDS as SOLVER_KINDS, MASS_KINDS
 from .deform.strains import STRAINS
 from .errors import InputError, did_you_mean
@@ -56,6 +58,8 @@ __all__ = [
     "SolverSpec",
     "ProbeSpec",
     "OutputSpec",
+    "ObstacleSpec",
+    "ContactSpec",
     "describe_scene",
     "default_scene_path",
 ]
@@ -506,16 +510,116 @@ class OutputSpec:
             _string("output", "file", self.file)
 
 
+_OBSTACLE_KEYS = {
+    "plane": ("point", "normal"),
+    "sphere": ("center", "radius"),
+    "box": ("min", "max"),
+    "sdf": ("file",),
+}
+
+
+@dataclass(frozen=True)
+class ObstacleSpec:
+    """``[[obstacle]]``: a rigid obstacle the body collides with (the collision layer).
+
+    ``kind`` ``"plane"`` (``point``, ``normal``: the side the body lies on),
+    ``"sphere"`` (``center``, ``radius``), ``"box"`` (``min``, ``max``) or ``"sdf"``
+    (``file``: a label image, or an ``.npz`` signed-distance image with
+    ``distance``, ``spacing``, ``origin``; resolved like mesh paths); metres.
+    ``friction`` is the Coulomb coefficient (only 0 is simulated today);
+    ``motion`` a rigid 3x4 map ``[R | t]`` the obstacle reaches at the end of the
+    run (interpolated over the steps).
+    """
+
+    kind: str = "plane"
+    point: tuple[float, float, float] | None = None
+    normal: tuple[float, float, float] | None = None
+    center: tuple[float, float, float] | None = None
+    radius: float | None = None
+    min: tuple[float, float, float] | None = None
+    max: tuple[float, float, float] | None = None
+    file: str | None = None
+    friction: float = 0.0
+    motion: tuple[tuple[float, ...], ...] | None = None
+
+    def __post_init__(self):
+        t = "obstacle"
+        _string(t, "kind", self.kind, OBSTACLE_KINDS)
+        needed = _OBSTACLE_KEYS[self.kind]
+        every = sorted({k for keys in _OBSTACLE_KEYS.values() for k in keys})
+        for key in every:
+            value = getattr(self, key)
+            if key in needed and value is None:
+                raise InputError(f"[obstacle] kind = \"{self.kind}\" needs {' and '.join(needed)}")
+            if key not in needed and value is not None:
+                raise InputError(f"[obstacle] {key} does not apply to kind = \"{self.kind}\" "
+                                 f"(it takes {', '.join(needed)}); remove it")
+        for key in ("point", "normal", "center", "min", "max"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, _vector(t, key, getattr(self, key)))
+        if self.radius is not None:
+            object.__setattr__(self, "radius", _number(t, "radius", self.radius, positive=True))
+        if self.file is not None:
+            _string(t, "file", self.file)
+        object.__setattr__(self, "friction", _number(t, "friction", self.friction, nonnegative=True))
+        if self.motion is not None:
+            rows = self.motion
+            if isinstance(rows, (str, bytes)) or not hasattr(rows, "__len__") or len(rows) != 3:
+                raise InputError(f"[obstacle] motion must be a 3x4 matrix [[a,b,c,tx],[..],[..]], got {rows!r}")
+            object.__setattr__(self, "motion", tuple(_vector(t, "motion", r, 4) for r in rows))
+
+    def parameters(self) -> dict:
+        """Keyword arguments of :func:`voxflex.deform.obstacles.obstacle` (besides the kind)."""
+        out = {k: getattr(self, k) for k in _OBSTACLE_KEYS[self.kind]}
+        out["friction"] = self.friction
+        if self.motion is not None:
+            out["motion"] = self.motion
+        return out
+
+
+@dataclass(frozen=True)
+class ContactSpec:
+    """``[contact]``: the collision layer's settings (used only with ``[[obstacle]]`` tables).
+
+    ``distance``: the barrier's activation distance (m; default 1 % of the
+    smallest voxel spacing); ``stiffness``: the barrier stiffness (Pa; default
+    the largest Young's modulus); ``points``: ``"surface"`` (2x2 Gauss points on
+    every exposed voxel face, the default), ``"vertices"`` or a count k (k x k
+    points per face).
+    """
+
+    distance: float | None = None
+    stiffness: float | None = None
+    points: str | int = "surface"
+
+    def __post_init__(self):
+        t = "contact"
+        if self.distance is not None:
+            object.__setattr__(self, "distance", _number(t, "distance", self.distance, positive=True))
+        if self.stiffness is not None:
+            object.__setattr__(self, "stiffness", _number(t, "stiffness", self.stiffness, positive=True))
+        if isinstance(self.points, str):
+            _string(t, "points", self.points, CONTACT_POINT_RULES)
+        else:
+            k = _number(t, "points", self.points, integer=True, minimum=1)
+            if k > 8:
+                raise InputError(f"[contact] points (per face edge) must be in 1..8, got {k}")
+            object.__setattr__(self, "points", k)
+
+
 _SINGLE = {
     "object": ObjectSpec,
     "nodes": NodesSpec,
     "elasticity": ElasticitySpec,
     "solver": SolverSpec,
     "output": OutputSpec,
+    "contact": ContactSpec,
 }
-_ARRAYS = {"material": MaterialSpec, "fixed": FixedSpec, "load": LoadSpec, "probe": ProbeSpec}
-_TOP_KEYS = ("title", "object", "material", "nodes", "elasticity", "fixed", "load", "solver", "probe", "output")
-_FIELD = {"material": "materials", "fixed": "fixed", "load": "loads", "probe": "probes"}
+_ARRAYS = {"material": MaterialSpec, "fixed": FixedSpec, "load": LoadSpec, "probe": ProbeSpec,
+           "obstacle": ObstacleSpec}
+_TOP_KEYS = ("title", "object", "material", "nodes", "elasticity", "fixed", "load", "solver", "probe", "output",
+             "obstacle", "contact")
+_FIELD = {"material": "materials", "fixed": "fixed", "load": "loads", "probe": "probes", "obstacle": "obstacles"}
 
 
 @dataclass(frozen=True)
@@ -536,13 +640,16 @@ class Scene:
     solver: SolverSpec = field(default_factory=SolverSpec)
     probes: tuple[ProbeSpec, ...] = ()
     output: OutputSpec = field(default_factory=OutputSpec)
+    obstacles: tuple[ObstacleSpec, ...] = ()
+    contact: ContactSpec = field(default_factory=ContactSpec)
     title: str | None = None
     base_dir: str | None = field(default=None, compare=False)
 
     def __post_init__(self):
         if not isinstance(self.object, ObjectSpec):
             raise InputError("Scene.object must be an ObjectSpec (the [object] table)")
-        for name, cls in (("materials", MaterialSpec), ("fixed", FixedSpec), ("loads", LoadSpec), ("probes", ProbeSpec)):
+        for name, cls in (("materials", MaterialSpec), ("fixed", FixedSpec), ("loads", LoadSpec), ("probes", ProbeSpec),
+                          ("obstacles", ObstacleSpec)):
             items = getattr(self, name)
             if isinstance(items, cls):
                 items = (items,)
@@ -562,6 +669,8 @@ class Scene:
             raise InputError(f"[[probe]] name '{dup[0]}' is used more than once; give each probe its own name")
         if self.title is not None:
             _string("scene", "title", self.title)
+        if not isinstance(self.contact, ContactSpec):
+            raise InputError("Scene.contact must be a ContactSpec (the [contact] table)")
 
     # -- reading ----------------------------------------------------------
     @classmethod
@@ -622,6 +731,9 @@ class Scene:
             kwargs["object"] = replace(obj, **{key: resolved})
         if "output" in kwargs and kwargs["output"].file is not None:
             kwargs["output"] = OutputSpec(file=_resolve(base, kwargs["output"].file))
+        if "obstacles" in kwargs:
+            kwargs["obstacles"] = tuple(replace(o, file=_resolve(base, o.file)) if o.file is not None else o
+                                        for o in kwargs["obstacles"])
         return cls(**kwargs, base_dir=str(base))
 
     # -- writing ----------------------------------------------------------
@@ -644,6 +756,10 @@ class Scene:
             lines += _table("probe", p, array=True)
         if self.output.file is not None:
             lines += _table("output", self.output)
+        for o in self.obstacles:
+            lines += _table("obstacle", o, array=True)
+        if self.contact != ContactSpec():
+            lines += _table("contact", self.contact)
         return "\n".join(lines).rstrip("\n") + "\n"
 
     # -- conveniences -----------------------------------------------------
