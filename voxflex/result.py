@@ -24,6 +24,8 @@ attrs ``voxflex_version``, ``scene``                     version string; the sce
 Extensions: root attr ``node_kind`` (``"voxel"`` or ``"affine"``), attr ``format = "voxflex-result"``;
 the group ``/model`` whose attributes describe the model (``node_kind``, ``count``,
 ``dofs``, ``quadrature``, ``samples``, ``shape_function``, ``precompute_seconds`` ...).
+With obstacles, ``/contact/force`` (T, obstacles, 3): the total force (N) each
+obstacle exerts on the body at every state (absent without obstacles).
 Every dataset is gzip-compressed; the file is written atomically.
 """
 
@@ -81,6 +83,9 @@ class Result:
         ``"voxel"`` (trilinear corner nodes) or ``"affine"`` (reduced frame models).
     model : dict
         Scalar attributes describing the model (written as ``/model`` attributes).
+    contact_force : (T, k, 3) float or None
+        Total force (N) each of the k obstacles exerts on the body at every state
+        (``/contact/force``); None without obstacles.
     """
 
     time: np.ndarray
@@ -102,6 +107,7 @@ class Result:
     version: str = __version__
     node_kind: str = "voxel"
     model: dict = field(default_factory=dict)
+    contact_force: np.ndarray | None = None
 
     def __post_init__(self):
         s = object.__setattr__
@@ -165,6 +171,11 @@ class Result:
                 raise InputError(f"Result.model['{key}'] must be a string or a number, got {type(value).__name__}")
             model[str(key)] = value
         s(self, "model", model)
+        if self.contact_force is not None:
+            cf = _arr("contact_force", self.contact_force, 3, 3)
+            if cf.shape[0] != T:
+                raise InputError(f"Result.contact_force must be ({T}, obstacles, 3), got {cf.shape}")
+            s(self, "contact_force", cf)
 
     # -- conveniences -----------------------------------------------------
     @property
@@ -248,6 +259,8 @@ class Result:
                 g.attrs["spacing"] = self.image_spacing
                 g.attrs["origin"] = self.image_origin
                 g.attrs["direction"] = self.image_direction
+                if self.contact_force is not None:
+                    put(f.create_group("contact"), "force", self.contact_force)
         return path
 
     @classmethod
@@ -305,6 +318,7 @@ class Result:
                 node_kind=_text(f.attrs.get("node_kind", "voxel")),
                 model={k: (_text(v) if isinstance(v, (bytes, str)) else np.asarray(v).item())
                        for k, v in (f["model"].attrs.items() if "model" in f else ())},
+                contact_force=get("contact/force"),
             )
 
     # -- ParaView ---------------------------------------------------------
