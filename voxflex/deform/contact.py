@@ -300,11 +300,13 @@ class ContactModel:
 
         The solver calls it once per step, before Newton, with the previous state
         and its own start (statics: the previous state; implicit Euler: the
-        inertial prediction ``q + h v``).  Returns, as a flat array, the first of
-        these the barrier admits: ``q_start``; the previous state; the previous
-        state carried along by the step's motion of the obstacle(s) it would
-        otherwise enter (every node moved by the obstacle's rigid increment:
-        one moving obstacle at a time).  The increment from there is Newton's.
+        inertial prediction ``q + h v``).  Returns the first of these the
+        barrier admits: ``q_start`` itself (the same object); a copy of the
+        previous state; the previous state carried along by the step's motion
+        of the moving obstacle(s) (every node moved by the obstacle's rigid
+        increment; right for one moving obstacle at a time).  The increment
+        from there is Newton's; when the start is not ``q_start``, implicit
+        Euler's velocity is ``(q_new - q_prev) / h``, not ``v + increment / h``.
 
         Raises
         ------
@@ -315,11 +317,12 @@ class ContactModel:
         shape = np.shape(self.inner.rest)
         prev_fraction = self.fraction
         self.set_time(fraction)
+        if self.admissible(np.reshape(q_start, shape)):
+            return q_start  # the very object: the solver keeps its velocity bookkeeping
         q_start = np.asarray(q_start, dtype=float)
         q_prev = np.asarray(q_prev, dtype=float)
-        for q in (q_start, q_prev):
-            if self.admissible(q.reshape(shape)):
-                return q.reshape(q_start.shape)
+        if self.admissible(q_prev.reshape(shape)):
+            return q_prev.reshape(q_start.shape).copy()
         moving = [ob for ob in self.obstacles if ob.motion is not None]
         q = q_prev.reshape(shape)
         for ob in moving:
