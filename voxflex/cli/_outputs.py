@@ -115,7 +115,8 @@ def check_image_output(path, *, inputs=(), force: bool = False, option: str = "-
     if path.exists() and not force:
         if is_result_file(path):
             raise InputError(
-                f"'{path}' is a simulation result and would be replaced by an image; choose another {option}, or {_FORCE}"
+                f"'{path}' is a simulation result and would be replaced by an image; "
+                f"choose another {option}, or {_FORCE}"
             )
         if not looks_like_image(path):
             raise InputError(
