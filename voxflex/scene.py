@@ -453,7 +453,8 @@ class SolverSpec:
     """``[solver]``: ``static`` (``steps`` load increments) or ``implicit-euler``
     (``steps`` time steps of ``dt`` seconds), Newton ``tolerance`` (relative
     residual), ``max_iterations``, ``line_search``, ``linear_solver``, Rayleigh damping,
-    ``mass`` (``lumped`` or ``consistent``, implicit Euler).  The keys mirror
+    ``mass`` (``lumped`` or ``consistent``, implicit Euler), ``check_stability``
+    (test every converged state for a negative tangent eigenvalue).  The keys mirror
     :class:`voxflex.deform.solvers.SolverOptions` one for one."""
 
     kind: str = "static"
@@ -466,9 +467,11 @@ class SolverSpec:
     rayleigh_mass: float = 0.0
     rayleigh_stiffness: float = 0.0
     mass: str = "lumped"
+    check_stability: bool = False
 
     def __post_init__(self):
         t = "solver"
+        _boolean(t, "check_stability", self.check_stability)
         _string(t, "kind", self.kind, SOLVER_KINDS)
         object.__setattr__(self, "dt", _number(t, "dt", self.dt, positive=True))
         object.__setattr__(self, "steps", _number(t, "steps", self.steps, integer=True, minimum=1))
