@@ -152,3 +152,284 @@ def test_missing_opengl_is_a_one_line_error(monkeypatch, tmp_path, default_resul
         rendering.render(default_result, tmp_path / "x.png")
     assert "\n" not in str(exc.value)
     assert not list(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------------------
+# views, fitting, annotations (issue 15)
+# ---------------------------------------------------------------------------
+SHARED_MESHES = Path(__file__).resolve().parents[2] / "shared" / "meshes"
+
+
+def _dark(image: np.ndarray) -> np.ndarray:
+    """Mask of text-dark pixels (labels, arrows): every channel below 110."""
+    return np.all(image[..., :3] < 110, axis=2)
+
+
+def _plot_area(image: np.ndarray, layout) -> np.ndarray:
+    return image[layout.title_h:, : layout.band_x]
+
+
+def _layout_for(result, size):
+    from voxflex import rendering
+
+    style = rendering._style(result, window_size=size, title=None, cmap="viridis", view="iso", azimuth=None,
+                             elevation=None, up="z", color="displacement", show_rest=True, axes=True,
+                             gravity=True, frames=True)
+    values, _, title = rendering._colour_values(result, "displacement")
+    return rendering._Layout.make(style, result, (0.0, float(values.max())), title, rendering._gravity(result)
+                                  is not None)
+
+
+@pytest.mark.parametrize("size", [(800, 450), (320, 200), (400, 800), (1600, 900)])
+def test_labels_and_object_stay_inside_the_frame_at_any_size(default_result, size):
+    from voxflex.rendering import render_frames
+
+    (image,) = render_frames(default_result, [-1], window_size=size)
+    assert image.shape == (size[1], size[0], 3)
+    dark = _dark(image)
+    # no text, tick or arrow pixel touches the picture's border: nothing is clipped
+    border = np.concatenate([dark[0], dark[-1], dark[:, 0], dark[:, -1]])
+    assert not border.any(), size
+    layout = _layout_for(default_result, size)
+    # the colour bar's tick labels are drawn (dark pixels right of the gradient) ...
+    x1 = layout.bar_box[2]
+    assert dark[layout.bar_box[1]: layout.bar_box[3], x1 + 1:].sum() > 20
+    # ... the title sits above the plot area, and the object (coloured pixels) lies inside the plot area
+    assert dark[: layout.title_h].sum() > 20
+    obj = _coloured(image)
+    obj[:, layout.band_x:] = False  # the gradient of the colour bar is coloured too
+    rows, cols = np.nonzero(obj)
+    assert rows.min() >= layout.title_h and rows.max() < size[1] - 1 and cols.min() > 0
+    # zoom to fit: the object (with its rest shape) spans most of the plot area's width or height
+    pw, ph = layout.plot_size
+    assert (cols.max() - cols.min()) > 0.5 * pw or (rows.max() - rows.min()) > 0.5 * ph
+
+
+def test_camera_axes_are_right_handed_and_named_views_look_as_documented():
+    from voxflex.rendering import VIEWS, camera_axes
+
+    for up in "xyz":
+        for view in VIEWS:
+            t, r, u = camera_axes(view, up=up)
+            # an orthonormal right-handed screen frame: right x up = towards the camera (1e-12: round-off)
+            np.testing.assert_allclose(np.cross(r, u), t, atol=1e-12)
+            np.testing.assert_allclose([t @ t, r @ r, u @ u, t @ r, t @ u, r @ u], [1, 1, 1, 0, 0, 0], atol=1e-12)
+        e_up = np.eye(3)["xyz".index(up)]
+        np.testing.assert_allclose(camera_axes("front", up=up)[2], e_up, atol=1e-12)  # up is drawn up
+        np.testing.assert_allclose(camera_axes("top", up=up)[0], e_up, atol=1e-12)  # top looks down
+    # y-up models: the front view looks along -z with x to the right (their own modelling frame)
+    t, r, _ = camera_axes("front", up="y")
+    np.testing.assert_allclose(t, [0, 0, 1], atol=1e-12)
+    np.testing.assert_allclose(r, [1, 0, 0], atol=1e-12)
+    # azimuth/elevation override the named view; iso is the isometric direction (1, -1, 1)/sqrt(3)
+    np.testing.assert_allclose(camera_axes("iso")[0], np.array([1, -1, 1]) / np.sqrt(3), atol=1e-12)
+    np.testing.assert_allclose(camera_axes("front", azimuth=90)[0], camera_axes("side")[0], atol=1e-12)
+    with pytest.raises(InputError, match="elevation"):
+        camera_axes("iso", elevation=91)
+    with pytest.raises(InputError, match="unknown view"):
+        camera_axes("back")
+
+
+def test_front_side_and_top_views_of_the_strip(default_result):
+    """The strip (30 x 3 x 3 cm along x, sagging in z) is long from the front and the top, end-on from the side."""
+    from voxflex.rendering import render_frames
+
+    shapes = {}
+    for view in ("front", "side", "top"):
+        (image,) = render_frames(default_result, [-1], window_size=(800, 450), view=view)
+        layout = _layout_for(default_result, (800, 450))
+        obj = _coloured(_plot_area(image, layout))
+        rows, cols = np.nonzero(obj)
+        shapes[view] = (cols.max() - cols.min(), rows.max() - rows.min())
+    # front: the whole 30 cm length across, the 6.6 cm sag plus 3 cm thickness down: far wider than tall
+    assert shapes["front"][0] > 2.5 * shapes["front"][1], shapes
+    # top: 30 cm across, 3 cm deep (the sag is along the line of sight)
+    assert shapes["top"][0] > 5 * shapes["top"][1], shapes
+    # side (end-on): 3 cm across, 3 cm + the 6.6 cm sag tall: taller than wide
+    assert shapes["side"][1] > 1.5 * shapes["side"][0], shapes
+
+
+def test_rest_silhouette_is_faint_and_behind(default_result):
+    from voxflex.rendering import render_frames
+
+    (with_rest,) = render_frames(default_result, [-1], view="front")
+    (without,) = render_frames(default_result, [-1], view="front", show_rest=False)
+    differ = np.any(with_rest != without, axis=2)
+    # the silhouette adds pixels (the strip's rest position above the sagging tip) ...
+    assert differ.mean() > 0.01
+    # ... all of them light grey (faint, 200..255 in every channel), never over the coloured object
+    assert np.all(with_rest[differ] >= 200)
+    assert not _coloured(without)[differ].any()
+
+
+def test_gravity_arrow_and_triad_are_drawn(default_result):
+    from voxflex.rendering import render_frames
+
+    layout = _layout_for(default_result, (800, 450))
+    (image,) = render_frames(default_result, [-1])
+    (bare,) = render_frames(default_result, [-1], gravity=False, axes=False)
+    for box in (layout.gravity_box, layout.triad_box):
+        x0, y0, x1, y1 = box
+        assert _dark(image[y0:y1, x0:x1]).sum() + (_coloured(image[y0:y1, x0:x1])).sum() > 30
+    # without them nothing is drawn below the colour bar's last label
+    bare_bar_bottom = np.nonzero(_coloured(bare[:, layout.band_x:]).any(axis=1))[0].max()
+    assert np.all(bare[bare_bar_bottom + layout.font + 2:, layout.band_x:] == 255)
+    # the gravity arrow (-z, drawn vertical in the iso view) is taller than wide
+    x0, y0, x1, y1 = layout.gravity_box
+    rows, cols = np.nonzero(_dark(image[y0 + layout.font + 2: y1, x0:x1]))
+    assert rows.max() - rows.min() > 2 * (cols.max() - cols.min())
+
+
+def test_a_result_without_gravity_has_no_arrow(tmp_path):
+    from test_result import hand_result
+    from voxflex import rendering
+
+    r = hand_result()
+    assert rendering._gravity(r) is None
+    layout = _layout_for(r, (800, 450))
+    assert layout.gravity_box is None and layout.triad_box is not None
+
+
+def test_affine_frames_are_drawn_as_dots():
+    from test_result import hand_result
+    from voxflex.rendering import render_frames
+    from voxflex.result import Result
+
+    r = hand_result(T=2)
+    # two affine frames (A = I, t = frame origin) inside the cube, moving with it
+    t = np.array([[0.3, 0.5, 0.5], [0.7, 0.5, 0.5]])
+    rest = np.hstack([np.tile(np.eye(3).ravel(), (2, 1)), t])
+    state = np.stack([rest, rest + np.r_[[0] * 11, -0.1]])
+    fields = {k: getattr(r, k) for k in Result.__dataclass_fields__}
+    fields.update(nodes_rest=rest, nodes_state=state, node_kind="affine")
+    r = Result(**fields)
+    kwargs = dict(window_size=(400, 300), show_rest=False, view="front")
+    (dots,) = render_frames(r, [-1], **kwargs)
+    (plain,) = render_frames(r, [-1], frames=False, **kwargs)
+    layout = _layout_for(r, (400, 300))
+    black = lambda im: np.all(_plot_area(im, layout) < 40, axis=2)  # noqa: E731 - viridis never goes below 40
+    assert black(dots).sum() > 10 and black(plain).sum() == 0
+
+
+def test_colour_by_a_field(tmp_path):
+    from test_result import hand_result
+    from voxflex.rendering import render, render_frames
+
+    r = hand_result(T=2)
+    with pytest.raises(InputError, match="no field 'von-mises' .*fields in it: none"):
+        render(r, tmp_path / "vm.png", color="von-mises")
+    assert not (tmp_path / "vm.png").exists()
+    # a per-vertex field (T, V): the picture is coloured by it (constant per state here -> one colour)
+    values = np.stack([np.zeros(8), np.linspace(0.0, 1.0, 8)])
+    object.__setattr__(r, "fields", {"von_mises": values})
+    (image,) = render_frames(r, [-1], color="von-mises", window_size=(400, 300))
+    assert _coloured(image).mean() > 0.02
+    object.__setattr__(r, "fields", {"von_mises": np.zeros((2, 5))})
+    with pytest.raises(InputError, match="one value per surface vertex"):
+        render_frames(r, [-1], color="von-mises")
+
+
+def test_bad_view_options_are_one_line_errors(default_result, tmp_path):
+    from voxflex.rendering import render
+
+    for kwargs, match in (
+        (dict(view="back"), "unknown view"),
+        (dict(up="w"), "unknown up axis"),
+        (dict(azimuth="left"), "azimuth"),
+        (dict(elevation=120), "elevation"),
+        (dict(cmap="nope"), "colour map"),
+        (dict(fps=0), "fps"),
+    ):
+        with pytest.raises(InputError, match=match) as exc:
+            render(default_result, tmp_path / "x.png", **kwargs)
+        assert "\n" not in str(exc.value)
+    assert not list(tmp_path.iterdir())
+
+
+def test_render_cli_view_options(tmp_path):
+    from PIL import Image
+
+    from test_result import hand_result
+    from voxflex.cli import main
+
+    hand_result().save(tmp_path / "r.h5")
+    out = tmp_path / "top.png"
+    argv = ["render", str(tmp_path / "r.h5"), "-o", str(out), "--view", "top", "--up", "y", "--size", "300", "200",
+            "--no-axes", "--no-rest", "--azimuth", "10", "--elevation", "20"]
+    assert main(argv) == 0
+    with Image.open(out) as im:
+        assert im.size == (300, 200)
+    assert main(["render", str(tmp_path / "r.h5"), "-o", str(tmp_path / "f.png"), "--color", "von-mises"]) == 2
+
+
+def _mesh_result(name: str, voxel_size: float, young: float):
+    """A y-up mesh from ../shared/meshes, voxelized coarsely (about 1300 voxels), hooves/base held,
+    sagging under gravity along -y; linear strain keeps the solve to one Newton iteration."""
+    import voxflex as vf
+    from voxflex.scene import Scene
+
+    path = SHARED_MESHES / f"{name}.obj"
+    if not path.is_file():
+        pytest.skip(f"{path} is absent (the shared test meshes are not here)")
+    from voxflex.rasterize import load_mesh
+
+    lo, hi = load_mesh(path).bounds()
+    base = lo[1] + 0.25 * (hi[1] - lo[1])
+    text = f"""
+title = "{name} (y-up mesh)"
+[object]
+mesh = "{path}"
+voxel_size = {voxel_size}
+keep = "largest"
+[[material]]
+model = "hooke"
+strain = "linear"
+young = {young}
+poisson = 0.3
+density = 100.0
+[[fixed]]
+min = [-1e9, -1e9, -1e9]
+max = [1e9, {base}, 1e9]
+[[load]]
+kind = "gravity"
+vector = [0.0, -9.81, 0.0]
+[solver]
+linear_solver = "direct"
+"""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # islands of the coarse voxelization are dropped
+        return vf.simulate(Scene.from_toml_text(text), progress=False)
+
+
+@pytest.mark.parametrize("name, voxel_size, young", [("cow", 0.35, 3e5), ("stanford-bunny", 0.008, 3e4)])
+def test_y_up_meshes_are_seen_upright(name, voxel_size, young, tmp_path):
+    from PIL import Image
+
+    from voxflex.rendering import render, render_frames
+
+    result = _mesh_result(name, voxel_size, young)
+    out = render(result, tmp_path / f"{name}.png", up="y", window_size=(800, 450))
+    image = np.asarray(Image.open(out))
+    layout = _layout_for(result, (800, 450))
+    obj = _coloured(image)
+    obj[:, layout.band_x:] = False
+    assert 0.05 < obj.mean() < 0.6
+    rows, cols = np.nonzero(obj)
+    assert rows.min() >= layout.title_h and rows.max() < 449 and cols.min() > 0 and cols.max() < layout.band_x
+    dark = _dark(image)
+    assert not np.concatenate([dark[0], dark[-1], dark[:, 0], dark[:, -1]]).any()
+    # upright: the held base (|u| = 0, the darkest colour) is at the bottom of the object, the
+    # gravity arrow (along -y) points down the picture
+    low = np.all(np.abs(image[..., :3].astype(int) - (68, 1, 84)) < 30, axis=2) & obj
+    assert low.any()
+    assert np.nonzero(low)[0].mean() > rows.mean()
+    if name == "cow":
+        # from the side (along -x) an upright cow is taller (6.4) than wide (3.4); with z up it would lie flat
+        sizes = {}
+        for up in ("y", "z"):
+            (im,) = render_frames(result, [-1], up=up, view="side")
+            r_, c_ = np.nonzero(_coloured(_plot_area(im, layout)))
+            sizes[up] = (c_.max() - c_.min(), r_.max() - r_.min())
+        assert sizes["y"][1] > 1.3 * sizes["y"][0] and sizes["z"][0] > 1.3 * sizes["z"][1], sizes
