@@ -450,13 +450,14 @@ def _moved(model, q, R, t):
 def with_contact(model, scene, *, project: bool = True):
     """``model`` wrapped in a :class:`ContactModel` for the scene's ``[[obstacle]]`` tables and ``[contact]``.
 
-    Returns ``model`` unchanged when the scene has no obstacle.  The scene is
+    Returns ``model`` unchanged when the scene has no obstacle or ``model`` is
+    a ContactModel already.  The scene is
     read by attribute (``scene.obstacles``: kind, parameters, friction, motion;
     ``scene.contact``: distance, stiffness, points), so this stage does not
     import the scene module.
     """
     specs = tuple(getattr(scene, "obstacles", ()) or ())
-    if not specs:
+    if not specs or isinstance(model, ContactModel):  # nothing to add, or added already (idempotent)
         return model
     contact = getattr(scene, "contact", None)
     obstacles = [obstacle(s.kind, **s.parameters()) for s in specs]
