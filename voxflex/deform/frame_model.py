@@ -12,17 +12,18 @@ material ``W(F)``; the energy is ``E = sum_s vol_s W(F_s)``, the gradient
 ``J^T (vol P)`` and the Hessian ``J^T blockdiag(vol A) J``.  For affine
 frames J does not depend on the state (no geometric stiffness), so it is
 assembled once.  Mass, gravity, probes, loads and the visual surface are
-further point mappings of the same frames (mass points: the 2x2x2 Gauss
-points of every voxel, weighted by density and occupancy).
+further point mappings of the same frames (mass points: the voxel centres,
+weighted by density and occupancy; their shape values are evaluated only
+when mass or gravity is needed).
 
 The model satisfies the protocol of :mod:`voxflex.deform.model`, so the same
 solvers, loads, result files and renders run it.
 
-Mass: ``consistent`` is ``J^T diag(m) J`` over the mass points (dense
-12x12 blocks between frames that share material); ``lumped`` gives every mass
-point's mass to its frames in proportion to their weights, each frame
-carrying its share as its own affine body (block-diagonal, symmetric positive
-definite, exact total mass and momentum).
+Mass: ``consistent`` is ``J^T diag(m) J`` over the 2x2x2 Gauss points of
+every voxel (dense 12x12 blocks between frames that share material);
+``lumped`` gives every voxel centre's mass to its frames in proportion to
+their weights, each frame carrying its share as its own affine body
+(block-diagonal, symmetric positive definite, exact total mass and momentum).
 
 Example
 -------
@@ -142,7 +143,8 @@ class FrameModel:
         self._J = None
         self._groups = [(int(lab), np.flatnonzero(samples.label == lab)) for lab in np.unique(samples.label)]
         self._surface = None
-        self._mass_points = None
+        self._mass_map_cache = None
+        self._mass_points_cache = None
 
     # -- construction -------------------------------------------------------
     @classmethod
@@ -293,17 +295,28 @@ class FrameModel:
         return float(energy), grad, H
 
     # -- mass and gravity --------------------------------------------------------
+    def _mass_points(self):
+        """Mass points: the voxel centres, their volumes (occupancy-weighted) and labels (no shape values)."""
+        if self._mass_points_cache is None:
+            ijk = np.argwhere(self.image.labels > 0)
+            vol = np.full(len(ijk), float(self.image.voxel_volume))
+            if self.use_occupancy and self.image.occupancy is not None:
+                vol = vol * np.asarray(self.image.occupancy, dtype=float)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+            label = self.image.labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]].astype(np.int64)
+            self._mass_points_cache = (self.image.index_to_world(ijk + 0.5), vol, label)
+        return self._mass_points_cache
+
     def _mass_layer(self):
-        """Mass points (2x2x2 Gauss points of every voxel), their volumes and labels, and their mapping."""
-        if self._mass_points is None:
-            s = voxel_samples(self.image, self.shape_function, rule="gauss-legendre", use_occupancy=self.use_occupancy)
-            self._mass_points = (s.volume, s.label, PointMapping(self.nodes, s.values))
-        return self._mass_points
+        """Mass points' volumes, labels and their mapping (shape functions evaluated once, on demand)."""
+        if self._mass_map_cache is None:
+            pts, vol, label = self._mass_points()
+            self._mass_map_cache = (vol, label, PointMapping(self.nodes, self.shape_function(pts)))
+        return self._mass_map_cache
 
     def _point_masses(self, densities) -> np.ndarray:
         if densities is None:
             raise InputError("densities are needed (mass, gravity, dynamics); give a density per material label")
-        vol, label, _ = self._mass_layer()
+        _, vol, label = self._mass_points()
         dens = {int(k): float(v) for k, v in dict(densities).items()}
         missing = sorted({int(x) for x in np.unique(label)} - set(dens))
         if missing:
@@ -317,10 +330,14 @@ class FrameModel:
     def mass_matrix(self, densities: Mapping[int, float], *, lumped: bool = True) -> sp.csr_matrix:
         """Mass matrix (12n, 12n): consistent ``J^T diag(m) J`` or lumped per frame (see the module docstring)."""
         mp = self._point_masses(densities)
-        _, _, pmap = self._mass_layer()
         if not lumped:
-            J = pmap.jacobian(self.rest)
-            return (J.T @ sp.diags(np.repeat(mp, 3)) @ J).tocsr()
+            # one point per voxel can leave the consistent mass singular on thin parts (few voxels
+            # across a frame's support): the 2x2x2 Gauss points of every voxel integrate it
+            s = voxel_samples(self.image, self.shape_function, rule="gauss-legendre", use_occupancy=self.use_occupancy)
+            m8 = np.repeat(mp / self._mass_points()[1], 8) * s.volume  # density of each voxel x Gauss volumes
+            J = PointMapping(self.nodes, s.values).jacobian(self.rest)
+            return (J.T @ sp.diags(np.repeat(m8, 3)) @ J).tocsr()
+        _, _, pmap = self._mass_layer()
         v = pmap.shape
         n = self.n_nodes
         X = v.rest
@@ -399,16 +416,24 @@ class FrameModel:
         return V.copy(), faces, pmap
 
     def volume_points(self):
-        """Mass points (2x2x2 Gauss points per voxel) and their volumes (m^3)."""
-        vol, _, pmap = self._mass_layer()
-        return pmap.shape.rest, vol
+        """Material points integrating the volume: the voxel centres and their volumes (m^3)."""
+        pts, vol, _ = self._mass_points()
+        return pts, vol
 
     # -- boundary conditions -----------------------------------------------------
     def held_dofs(self, lo, hi, components: str = "xyz") -> np.ndarray:
-        """DOFs of the frames whose rest position lies in [lo, hi]: for component c, row c of A and t_c."""
+        """DOFs a fixed box [lo, hi] holds: those of the frames in the box or in a voxel the box
+        touches (a thin box around a face holds the frames of the first voxel layer); for component c,
+        row c of A and t_c.  Material points without a frame follow the frames."""
+        from ..voronoi.placement import voxels_touching_box
+
         lo = np.asarray(lo, dtype=float)
         hi = np.asarray(hi, dtype=float)
-        frames = np.flatnonzero(np.all((self.frames >= lo) & (self.frames <= hi), axis=1))
+        in_box = np.all((self.frames >= lo) & (self.frames <= hi), axis=1)
+        f = np.floor(self._grid().world_to_index(self.frames) + 1e-9).astype(np.int64)
+        f = np.clip(f, 0, np.asarray(self.image.shape) - 1)
+        touched = voxels_touching_box(self.image, lo, hi)[f[:, 0], f[:, 1], f[:, 2]]
+        frames = np.flatnonzero(in_box | touched)
         local = []
         for c in components:
             i = "xyz".index(c)

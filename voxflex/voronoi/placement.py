@@ -54,12 +54,29 @@ def _boxes(fixed):
             lo, hi = (np.asarray(b, dtype=np.float64) for b in box)
         except (TypeError, ValueError):
             raise InputError(f"fixed[{i}] must be a pair (min (3,), max (3,)) of world corners") from None
-        if lo.shape != (3,) or hi.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-            raise InputError(f"fixed[{i}] must be a pair (min (3,), max (3,)) of finite world corners")
+        if lo.shape != (3,) or hi.shape != (3,) or np.any(np.isnan(lo)) or np.any(np.isnan(hi)):
+            raise InputError(f"fixed[{i}] must be a pair (min (3,), max (3,)) of world corners (+-inf allowed, no NaN)")
         if np.any(hi < lo):
             raise InputError(f"fixed[{i}] has max < min along some axis: {lo.tolist()} .. {hi.tolist()}")
         out.append((lo, hi))
     return out
+
+
+def voxels_touching_box(image, lo, hi) -> np.ndarray:
+    """Boolean image: the voxels whose (closed, world-aligned bounding) box meets the box [lo, hi].
+
+    A fixed region is often a thin box around a face of the object (``x <= 0``):
+    it holds no voxel centre but touches the first layer of voxels.  Frames are
+    placed in, and a fixed region holds the frames of, the voxels it touches.
+    """
+    lo = np.asarray(lo, dtype=float)
+    hi = np.asarray(hi, dtype=float)
+    ijk = np.indices(image.shape).reshape(3, -1).T
+    centres = image.index_to_world(ijk + 0.5)
+    half = 0.5 * np.abs(np.asarray(image.direction, dtype=float)) @ np.asarray(image.spacing, dtype=float)
+    tol = 1e-9 * float(np.max(image.spacing))
+    meets = np.all((centres + half >= lo - tol) & (centres - half <= hi + tol), axis=1)
+    return meets.reshape(image.shape)
 
 
 def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="geodesic", compliance=None,
@@ -142,11 +159,11 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     n_user = len(frames)
 
     for i, (lo, hi) in enumerate(boxes):
-        inside = np.all((centres >= lo) & (centres <= hi), axis=1)
+        inside = voxels_touching_box(image, lo, hi)[material]
         if not inside.any():
-            raise InputError(f"fixed[{i}] box {lo.tolist()} .. {hi.tolist()} contains no material voxel centre; "
+            raise InputError(f"fixed[{i}] box {lo.tolist()} .. {hi.tolist()} touches no material voxel; "
                              "move or enlarge it")
-        if frames and np.any(np.all((np.asarray(frames) >= lo) & (np.asarray(frames) <= hi), axis=1)):
+        if frame_vox and np.any(inside[np.asarray(frame_vox, dtype=np.int64)]):
             continue
         sel = np.flatnonzero(inside)
         c = centres[sel].mean(axis=0)

@@ -110,6 +110,8 @@ class ShapeFunction:
     _node_frames: np.ndarray = field(repr=False, default=None)  # (Q, K) int64, -1 padded
     _node_coef: np.ndarray = field(repr=False, default=None)    # (Q, K, 10): value then 9 monomial coefficients
     _scale: float = field(repr=False, default=1.0)
+    _anchor: np.ndarray = field(repr=False, default=None)  # (nx, ny, nz) frame owning the voxel outright, -1 else
+    smooth: bool = True
     _cache: dict = field(repr=False, default_factory=dict)
 
     @property
@@ -155,14 +157,48 @@ class ShapeFunction:
         if X.ndim != 2 or X.shape[1] != 3 or not np.all(np.isfinite(X)):
             raise InputError(f"points must be a finite (m, 3) array of world positions, got shape {X.shape}")
         ijk = self._voxels_of(X)
+        if self.smooth:
+            return self._smoothed()(X)
         return self._evaluate(X, self._node_of_voxel[tuple(ijk.T)])
+
+    def centre_values(self) -> ShapeValues:
+        """The weights computed at every material voxel centre (before blending), pruned to
+        ``parents``; voxels a frame owns outright (``seed_owner``) carry that frame alone."""
+        if "centres" not in self._cache:
+            mask = self.image.labels > 0
+            X = self.image.voxel_centers(mask)
+            sv = self._evaluate(X, self._node_of_voxel[mask])
+            if self._anchor is not None and np.any(self._anchor[mask] >= 0):
+                own = self._anchor[mask]
+                a = own >= 0
+                index, w = sv.index.copy(), sv.w.copy()
+                dw, ddw = sv.dw.copy(), sv.ddw.copy()
+                index[a] = -1
+                w[a] = 0.0
+                dw[a] = 0.0
+                ddw[a] = 0.0
+                index[a, 0] = own[a]
+                w[a, 0] = 1.0
+                sv = ShapeValues(index=index, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=len(self.frames))
+            self._cache["centres"] = sv
+        return self._cache["centres"]
+
+    def _smoothed(self):
+        if "smooth" not in self._cache:
+            from .smoothing import SmoothWeights
+
+            c = self.centre_values()
+            self._cache["smooth"] = SmoothWeights(self.image, c.index, c.w, len(self.frames))
+        return self._cache["smooth"]
 
     def voxel_values(self) -> ShapeValues:
         """Values at every material voxel centre, in ``np.flatnonzero(image.labels > 0)`` order (cached)."""
         if "voxels" not in self._cache:
-            mask = self.image.labels > 0
-            X = self.image.voxel_centers(mask)
-            self._cache["voxels"] = self._evaluate(X, self._node_of_voxel[mask])
+            if self.smooth:
+                mask = self.image.labels > 0
+                self._cache["voxels"] = self._smoothed()(self.image.voxel_centers(mask))
+            else:
+                self._cache["voxels"] = self.centre_values()
         return self._cache["voxels"]
 
     def pruned_mass(self) -> float:
@@ -221,7 +257,7 @@ def _evaluate_impl(X, npos, nfr, ncoef, h, P):
 
 
 def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distance="geodesic", compliance=None,
-                   resolution=3.0) -> ShapeFunction:
+                   resolution=3.0, seed_owner=None, smooth=True) -> ShapeFunction:
     """Shape functions of ``frames`` over the material of ``image``.
 
     Parameters
@@ -239,6 +275,24 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
     compliance : dict {label: young_modulus}, with ``distance="compliance"``.
     resolution : float
         Weight nodes per Voronoi-cell width (> 0); cost grows as its cube.
+    seed_owner : (nx, ny, nz) int array, optional
+        Voxels that belong to a frame outright (its index; -1 elsewhere): they
+        seed the distances together with the frame, so the frame's cell
+        contains them and every material point there moves with that frame
+        alone (weight 1).  The frame model uses it for fixed regions, so that
+        a clamp holds all the material it touches, not only the frame's voxel.
+    smooth : bool
+        Blend the voxel-centre weights with the quadratic B-spline over the
+        material (:mod:`voxflex.voronoi.smoothing`; default): continuous values
+        and gradients everywhere, which quadrature and Newton need (the
+        voxel-by-voxel values jump between the weight nodes' regions and where
+        the pruned parent set changes, and jumps act as cracks that samples do
+        not see: on a cantilever they made the frame model 30-100 % too soft).
+        The blend keeps the partition of unity and non-negativity, keeps
+        ``parents`` at the voxel centres but may give a point more parents (the
+        union over its 27 neighbouring voxels), and smooths the value 1 at a
+        frame (unless the frame owns a seed region).  ``False``: the
+        voxel-by-voxel values, pruned to ``parents``.
 
     Returns
     -------
@@ -272,7 +326,19 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
         dup = np.flatnonzero(np.bincount(fv) > 1)[0]
         raise InputError(f"two frames share material voxel {np.argwhere(material)[dup].tolist()}; keep one per voxel")
     mask, cost, pshape, spacing = _prepare(image, comp)
-    d, own = M.march(mask, cost, pshape, spacing, fc + M.PAD, np.arange(n), fmm=2)
+    seed_pts, seed_own = fc + M.PAD, np.arange(n)
+    anchored = np.zeros(image.shape, dtype=bool)
+    if seed_owner is not None:
+        seed_owner = np.asarray(seed_owner)
+        if seed_owner.shape != image.shape or not np.issubdtype(seed_owner.dtype, np.integer):
+            raise InputError(f"seed_owner must be an integer image of shape {image.shape}, -1 where unused")
+        anchored = (seed_owner >= 0) & material
+        if np.any(seed_owner[anchored] >= n):
+            raise InputError(f"seed_owner refers to frame {int(seed_owner.max())} but there are {n} frames")
+        aijk = np.argwhere(anchored)
+        seed_pts = np.concatenate([seed_pts, aijk + 0.5 + M.PAD])
+        seed_own = np.concatenate([seed_own, seed_owner[anchored].astype(np.int64)])
+    d, own = M.march(mask, cost, pshape, spacing, seed_pts, seed_own, fmm=2)
     ijk = np.argwhere(material)
     mflat = M.inner_to_flat(ijk, pshape)
     if np.any(own[mflat] < 0):
@@ -314,6 +380,15 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
     pts = image.world_to_index(node_pos[n:]) + M.PAD
     nf[n:], nw[n:], _ = natural_weights(mask, cost, pshape, spacing, d, own, pts, n,
                                         laplace=(kind == "laplace"), kmax=kmax)
+    if np.any(anchored):
+        # nodes in a frame's own seed region belong to it alone (a point there steals nothing)
+        nijk = np.floor(image.world_to_index(node_pos[n:])).astype(np.int64)
+        inside = anchored[tuple(nijk.T)]
+        nf[n:][inside] = -1
+        nw[n:][inside] = 0.0
+        rows = n + np.flatnonzero(inside)
+        nf[rows, 0] = seed_owner[tuple(nijk[inside].T)]
+        nw[rows, 0] = 1.0
 
     # node adjacency (26-neighbour voxel pairs in different node regions)
     no = M.unpad(nown, pshape)
@@ -348,7 +423,8 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
     node_of_voxel[material] = nown[mflat]
     return ShapeFunction(frames=F, kind="sibson" if kind == "natural-neighbour" else kind, parents=parents,
                          image=image, _node_pos=node_pos, _node_of_voxel=node_of_voxel,
-                         _node_frames=node_frames, _node_coef=node_coef, _scale=h)
+                         _node_frames=node_frames, _node_coef=node_coef, _scale=h,
+                         _anchor=np.where(anchored, seed_owner, -1) if np.any(anchored) else None, smooth=bool(smooth))
 
 
 def _fit_nodes(node_pos, nf, nw, nbr, h, n):
