@@ -55,7 +55,12 @@ class MillimetreModel:
         self.dofs_per_node = 3
         self.rest = inner.rest * self.S
 
+    supported_by_contact = False
     n_nodes = property(lambda self: self.inner.n_nodes)
+
+    def begin_step(self, fraction, q_prev, q_start):
+        return q_start
+
     constant_tangent = property(lambda self: self.inner.constant_tangent)
 
     def describe(self):

@@ -71,13 +71,14 @@ def _raw_image(scene: Scene):
     obj = scene.object
     if obj.image is not None:
         from .image import LabelImage
+        from .rasterize.orient import turn_up
 
-        return LabelImage.load(obj.image)
+        return turn_up(LabelImage.load(obj.image), obj.up)  # [object] up: that axis becomes +z
     from .rasterize.voxelize import voxelize
 
     occupancy = bool(obj.occupancy)
     if obj.mesh is not None:
-        return voxelize(obj.mesh, obj.voxel_size, occupancy=occupancy, progress=False)
+        return voxelize(obj.mesh, obj.voxel_size, occupancy=occupancy, progress=False, up=obj.up)
     from .rasterize.primitives import Box, Cylinder, Sphere
 
     origin = obj.origin if obj.origin is not None else (0.0, 0.0, 0.0)
@@ -87,7 +88,7 @@ def _raw_image(scene: Scene):
         prim = Cylinder(obj.size[0], obj.size[1], origin=origin, axis=obj.axis or "z")
     else:
         prim = Sphere(obj.size[0], origin=origin)
-    return voxelize(prim, obj.voxel_size, occupancy=occupancy, progress=False)
+    return voxelize(prim, obj.voxel_size, occupancy=occupancy, progress=False, up=obj.up)
 
 
 def build_materials(scene: Scene, labels_present) -> dict:
@@ -248,4 +249,7 @@ def model(scene, *, image=None):
         image = build_image(scene)
     labels_present = np.unique(image.labels[image.labels > 0])
     materials = build_materials(scene, labels_present)
-    return MODEL_BUILDERS[scene.nodes.kind](scene, image, materials)
+    from .deform.contact import with_contact
+
+    # the collision layer is built only when the scene has obstacles
+    return with_contact(MODEL_BUILDERS[scene.nodes.kind](scene, image, materials), scene)

@@ -159,4 +159,17 @@ def _make_result(scene, image, model, records, probe_map) -> Result:
         version=__version__,
         node_kind=model.node_kind,
         model=model.describe(),
+        contact_force=_contact_forces(model, states, [r.time for r in records], scene),
     )
+
+
+def _contact_forces(model, states, times, scene):
+    """(T, obstacles, 3) forces of the obstacles on the body at every state, or None without contact."""
+    from .deform.contact import ContactModel
+
+    if not isinstance(model, ContactModel):
+        return None
+    dynamic = scene.solver.kind == "implicit-euler"
+    t_end = scene.solver.steps * scene.solver.dt
+    fractions = [t / t_end if dynamic else t for t in times]
+    return np.stack([model.contact_forces(q, fraction=f) for q, f in zip(states, fractions)])

@@ -12,6 +12,11 @@ examples:
   voxflex simulate beam.toml -o beam.h5 --render beam.png
   voxflex simulate beam.toml --vtk beam_vtk/        # ParaView series (open beam_vtk/result.pvd)
 
+Scenes to start from: examples/ in the source tree (a cantilever, a stretch, a twist,
+a drop, a ball on a plane, one example per object source: shape, mesh, image);
+every key is described in docs/scene.md.  [nodes] kind = "voxel" is the
+full-resolution reference, "affine" a reduced model of a few frames.
+
 The result file goes to -o, else to the scene's [output] file, else to result.h5
 in the current folder.  The summary goes to stdout, the progress bar to stderr.
 

@@ -250,6 +250,7 @@ class ContactModel:
                              f"{self.points[p].tolist()}; move the obstacle or the object apart")
 
     # -- the protocol, forwarded ------------------------------------------------
+    supported_by_contact = True  # the obstacles may hold the body: no static support check
     node_kind = property(lambda self: self.inner.node_kind)
     dofs_per_node = property(lambda self: self.inner.dofs_per_node)
     rest = property(lambda self: self.inner.rest)

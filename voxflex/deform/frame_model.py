@@ -476,6 +476,12 @@ class FrameModel:
         return comps, n, [np.flatnonzero(of_frame == c) for c in range(n)]
 
     # -- description -------------------------------------------------------------
+    supported_by_contact = False  # no obstacles: static scenes must be held by fixed regions
+
+    def begin_step(self, fraction: float, q_prev, q_start):
+        """The state a step starts from: ``q_start`` itself (models with obstacles may move it)."""
+        return q_start
+
     def advice(self) -> str:
         if self.samples.kind == "midpoint":
             return ("mid-point samples may leave spurious zero-energy modes between frames; "

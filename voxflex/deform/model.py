@@ -68,6 +68,8 @@ class Model(Protocol):
     dof_grid : TrilinearGrid or None
         The voxel grid whose corners are the nodes (voxel models: geometric
         multigrid uses it), None for other models.
+    supported_by_contact : bool
+        True when obstacles may hold the body (the static support check is skipped).
     n_nodes : int
     constant_tangent : bool
         True when the energy is quadratic in q (the Hessian never changes).
@@ -78,12 +80,18 @@ class Model(Protocol):
     rest: np.ndarray
     image: object
     dof_grid: object
+    supported_by_contact: bool
 
     @property
     def n_nodes(self) -> int: ...
 
     @property
     def constant_tangent(self) -> bool: ...
+
+    def begin_step(self, fraction: float, q_prev, q_start):
+        """The state (flat) a step at load factor / time fraction ``fraction`` starts from, given the
+        previous state and the solver's start: ``q_start`` itself unless the model must move it
+        (contact: obstacles move, the start must be admissible for the barrier)."""
 
     def advice(self) -> str:
         """A sentence of model-specific advice added to a solver failure, or ''."""

@@ -464,7 +464,7 @@ def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, option
     rel, solver_used = 0.0, ""
     while s < s1:
         s_next = s1 if s + h >= s1 - 1e-12 * (s1 - s0) else s + h
-        x_start = x.copy()
+        x_start = model.begin_step(s_next, x, x.copy())
         x_fixed = prescribed_positions(model, fixed, dofs, owner, s_next) if len(dofs) else np.zeros(0)
         problem = _Problem(model, s_next * f_full, x_start)
         sub = label if s_next == s1 and s == s0 else f"{label}, sub-step to load factor {s_next:.4g}"
@@ -585,7 +585,7 @@ def solve(
     X = np.asarray(model.rest, dtype=float).ravel()
     N = X.size
     dofs, owner = fixed_dofs(model, fixed)
-    if not dynamic:
+    if not dynamic and not model.supported_by_contact:
         check_supports(model, dofs)  # an unsupported part or a mechanism: refuse before solving
     free = np.setdiff1d(np.arange(N), dofs)
     f_full = region_forces(model, forces).ravel() if forces else np.zeros(N)
@@ -635,6 +635,10 @@ def solve(
         if dynamic:
             x_fixed = prescribed_positions(model, fixed, dofs, owner, factor) if len(dofs) else np.zeros(0)
             x_start[dofs] = x[dofs]  # fixed DOFs start from their previous values so the predictor sees their motion
+            moved = model.begin_step(factor, x, x_start)  # e.g. contact: a start the barrier admits
+            if moved is not x_start:
+                v = (moved - x) / options.dt  # so that the new velocity stays (x_new - x) / h
+                x_start = moved
             problem = _Problem(model, f_full, x_start, M=M, h=options.dt, xhat=xhat, xn=x, D=D)
             delta, its, rel, lin_its, solver_used, halvings = _newton(
                 problem, np.zeros(N), free, dofs, x_fixed - x_start[dofs], options, near_null, label, reduce

@@ -597,6 +597,12 @@ class VoxelModel:
         nodes = [np.unique(self.grid.element_nodes[order[bounds[c]:bounds[c + 1]]]) for c in range(n)]
         return comps, n, nodes
 
+    supported_by_contact = False  # no obstacles: static scenes must be held by fixed regions
+
+    def begin_step(self, fraction: float, q_prev, q_start):
+        """The state a step starts from: ``q_start`` itself (models with obstacles may move it)."""
+        return q_start
+
     def advice(self) -> str:
         """Model-specific advice appended to a solver failure ('' when none)."""
         if self.quadrature == "midpoint":
