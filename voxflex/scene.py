@@ -40,6 +40,7 @@ from .deform.materials import MATERIALS, MODEL_CONSTANTS, POISSON_RANGE, check_c
 from .deform.model import NODE_KINDS as _NODE_KINDS
 from .deform.obstacles import OBSTACLE_KINDS
 from .deform.contact import POINT_RULES as CONTACT_POINT_RULES
+from .deform.fields import check_field_names
 from .deform.solvers import KINDS as SOLVER_KINDS, MASS_KINDS
 from .deform.strains import STRAINS
 from .errors import InputError, did_you_mean
@@ -504,13 +505,16 @@ class ProbeSpec:
 
 @dataclass(frozen=True)
 class OutputSpec:
-    """``[output]``: ``file`` — the result file (.h5) written after the run (resolved like mesh paths)."""
+    """``[output]``: ``file`` — the result file (.h5) written after the run (resolved like mesh paths);
+    ``fields`` — the result fields computed at every state (names of :data:`voxflex.deform.fields.FIELD_NAMES`)."""
 
     file: str | None = None
+    fields: tuple[str, ...] = ()
 
     def __post_init__(self):
         if self.file is not None:
             _string("output", "file", self.file)
+        object.__setattr__(self, "fields", check_field_names(self.fields, where="[output] fields"))
 
 
 _OBSTACLE_KEYS = {
@@ -733,7 +737,7 @@ class Scene:
                 raise InputError(f"[object] {key} file '{getattr(obj, key)}' not found (looked for {resolved})")
             kwargs["object"] = replace(obj, **{key: resolved})
         if "output" in kwargs and kwargs["output"].file is not None:
-            kwargs["output"] = OutputSpec(file=_resolve(base, kwargs["output"].file))
+            kwargs["output"] = replace(kwargs["output"], file=_resolve(base, kwargs["output"].file))
         if "obstacles" in kwargs:
             kwargs["obstacles"] = tuple(replace(o, file=_resolve(base, o.file)) if o.file is not None else o
                                         for o in kwargs["obstacles"])
@@ -757,7 +761,7 @@ class Scene:
         lines += _table("solver", self.solver)
         for p in self.probes:
             lines += _table("probe", p, array=True)
-        if self.output.file is not None:
+        if self.output != OutputSpec():
             lines += _table("output", self.output)
         for o in self.obstacles:
             lines += _table("obstacle", o, array=True)
