@@ -222,6 +222,23 @@ class FrameModel:
         out = self._fmap.apply(self._check_q(q))
         return out[0] if self.elaston else out
 
+    def sample_fields(self, q) -> dict:
+        """What result fields are computed from (see :meth:`voxflex.deform.model.Model.sample_fields`): every
+        sample its own cell; on the surface, F through the frames at the centre of the voxel behind each face."""
+        if getattr(self, "_surface_fmap", None) is None:
+            corners, _, normal = self.boundary_faces()
+            half = 0.5 * np.abs(normal @ self.image.direction) @ self.image.spacing  # half a voxel along the normal
+            pts = corners.mean(axis=1) - half[:, None] * normal
+            ijk = np.floor(self._grid().world_to_index(pts)).astype(np.int64)
+            self._surface_fmap = (DeformationGradientMapping(self.nodes, self.shape_function(pts)),
+                                  self.image.labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]].astype(np.int64))
+        nf = len(self._surface["quads"][0])
+        s = self.samples
+        return {"F": self.deformation_gradients(q), "volume": s.volume, "label": s.label,
+                "cell": np.arange(len(s.volume)), "n_cells": len(s.volume), "cell_kind": "samples",
+                "materials": self.materials, "surface_F": self._surface_fmap[0].apply(self._check_q(q)),
+                "surface_label": self._surface_fmap[1], "triangle_point": np.tile(np.arange(nf), 2)}
+
     def energy(self, q) -> float:
         return self.energy_gradient_hessian(q, gradient=False, hessian=False)[0]
 

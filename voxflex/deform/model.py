@@ -130,6 +130,14 @@ class Model(Protocol):
     def volume_points(self):
         """Material points that integrate the volume: (points (m, 3), volume (m,) m³)."""
 
+    def sample_fields(self, q) -> dict:
+        """What result fields (:mod:`voxflex.deform.fields`) are computed from, at state q (n, d):
+        ``F`` (s, 3, 3) at the energy's samples, their ``volume`` (s,) m^3 and ``label`` (s,), the
+        ``cell`` (s,) each belongs to (``n_cells`` cells, ``cell_kind`` "voxels" or "samples"),
+        ``materials`` {label: Material}; on the surface either ``triangle_cell`` (F,) (the cell
+        behind each triangle of :meth:`boundary_surface`) or ``surface_F`` (k, 3, 3),
+        ``surface_label`` (k,) and ``triangle_point`` (F,) into them."""
+
     def components(self):
         """Material components the model treats as separate parts: (component image (nx, ny, nz) int,
         0 outside, 1..k; k; list of the node indices of each component)."""

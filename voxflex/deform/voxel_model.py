@@ -285,6 +285,25 @@ class VoxelModel:
         """Volume weight (m * Q,) of every sample (m^3), element-major."""
         return self._sample_volumes(np.arange(self.n_elements))
 
+    def sample_fields(self, q) -> dict:
+        """What result fields are computed from (see :meth:`voxflex.deform.model.Model.sample_fields`):
+        the Gauss points grouped by voxel (cells = voxels, C order), triangles -> the voxel behind them."""
+        F = self.deformation_gradients(q)
+        nq = len(self._qweights)
+        m = self.n_elements
+        if getattr(self, "_triangle_cell", None) is None:
+            quads, _, normal = boundary_quads(self.grid, self._mask)
+            # the voxel behind each face: its centre (index space) half a voxel inside along the normal
+            centre = self.grid.world_to_index(self.rest[quads].mean(axis=1))
+            ijk = np.floor(centre - 0.5 * normal @ self.grid.direction + 1e-9).astype(np.int64)
+            nx, ny, nz = self.grid.shape
+            keys = (self.grid.element_ijk[:, 0] * ny + self.grid.element_ijk[:, 1]) * nz + self.grid.element_ijk[:, 2]
+            cell = np.searchsorted(keys, (ijk[:, 0] * ny + ijk[:, 1]) * nz + ijk[:, 2])
+            self._triangle_cell = np.concatenate([cell, cell])  # triangulate(): two triangles per quad, in order
+        return {"F": F, "volume": self.sample_volumes(), "label": np.repeat(self.element_label, nq),
+                "cell": np.repeat(np.arange(m), nq), "n_cells": m, "cell_kind": "voxels",
+                "materials": self.materials, "triangle_cell": self._triangle_cell}
+
     # -- energy and derivatives ------------------------------------------------
     def energy(self, q) -> float:
         """Elastic energy (J) at node positions ``q`` (n, 3); inf/NaN when a material is undefined there."""
