@@ -157,6 +157,7 @@ class _Problem:
         self.work0 = vdot(f, base - self.rest)
         self.elastic_diagonal = None
         self.negative_curvature = False  # set by Newton when a direction of negative curvature was met
+        self.on_iteration = None  # optional callable(dict) told about every Newton iterate (progress, logs)
 
     def __call__(self, delta, hessian=True, gradient=True):
         q = (self.base + delta).reshape(self.shape)
@@ -323,6 +324,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
     scale = fnorm
     rn_prev, eta_prev = None, None
     cached = None  # (x, problem(x)) of an accepted full step, evaluated by the line search
+    step_length, last_lin, t_last = 0.0, 0, time.perf_counter()
     for it in range(options.max_iterations + 1):
         if cached is not None and cached[0] is x:
             pot, E, g, H, mag = cached[1]
@@ -341,6 +343,12 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         if it <= 1:
             scale = max(scale, vnorm(g[fixed]) if len(fixed) else 0.0)
         rel = rn / scale if scale > 0 else 0.0
+        if problem.on_iteration is not None:
+            now = time.perf_counter()
+            problem.on_iteration({"label": label, "iteration": it, "residual": rel, "step_length": step_length,
+                                  "linear_solver": solver_used, "linear_iterations": last_lin,
+                                  "seconds": now - t_last})
+            t_last = now
         if not moving and (scale == 0.0 or rn <= max(tol * scale, floor)):
             return x, it, rel, lin_its, solver_used, halvings_total
         if it == options.max_iterations:
@@ -360,6 +368,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         rn_prev, eta_prev = rn, eta
         d, info, Hff = _solve_free(H, rhs, free, reduce, options, eta, near_null, problem.model.dof_grid)
         lin_its += info.iterations
+        last_lin = info.iterations
         solver_used = info.method + (f" ({info.note})" if info.note else "")
         if moving:
             # predictor: move the fixed DOFs to their targets, carry the interior along
@@ -380,6 +389,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
                 )
             x = x_try
             moving = False
+            step_length = alpha
             continue
         slope = vdot(r, d)
         if Hff is not None:
@@ -407,6 +417,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         if not options.line_search:
             x = x.copy()
             x[free] += d
+            step_length = 1.0
             continue
         H = Hff = None  # release them before the line search builds the next Hessian (peak memory)
         alpha = 1.0
@@ -438,6 +449,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
                 f"{MAX_HALVINGS} halvings, linear solver {solver_used}); use more load steps or a smaller dt"
             )
         x = x_try
+        step_length = alpha
     raise ConvergenceError(
         f"{label}: Newton did not converge in {options.max_iterations} iterations: relative residual {rel:.2e} "
         f"(tolerance {tol:.1e}), {halvings_total} line-search halvings, linear solver {solver_used} "
@@ -449,7 +461,8 @@ MAX_CUTS = 8
 """Static load increments are halved at most this many times (to 1/256 of a step) before giving up."""
 
 
-def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, options, near_null, reduce, label):
+def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, options, near_null, reduce, label,
+                      on_iteration=None):
     """Equilibrium at load factor ``s1`` from the converged state ``x`` at ``s0``, cutting the increment.
 
     A failed Newton solve (no convergence, a failed line search, a non-finite
@@ -467,6 +480,7 @@ def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, option
         x_start = model.begin_step(s_next, x, x.copy())
         x_fixed = prescribed_positions(model, fixed, dofs, owner, s_next) if len(dofs) else np.zeros(0)
         problem = _Problem(model, s_next * f_full, x_start)
+        problem.on_iteration = on_iteration
         sub = label if s_next == s1 and s == s0 else f"{label}, sub-step to load factor {s_next:.4g}"
         try:
             delta, its, rel, lin_its, solver_used, halvings = _newton(
@@ -534,6 +548,7 @@ def solve(
     callback: Callable | None = None,
     q0=None,
     v0=None,
+    newton_callback: Callable | None = None,
 ) -> list[StepRecord]:
     """Run a static (load-stepped) or implicit-Euler simulation of ``model``.
 
@@ -551,6 +566,11 @@ def solve(
     options : SolverOptions
     callback : callable(StepRecord), optional
         Called after each step.
+    newton_callback : callable(dict), optional
+        Called at every Newton iterate with ``label`` (the step), ``iteration``, ``residual``
+        (relative), ``step_length`` (line-search factor of the step that led there, 0 at the
+        start), ``linear_solver`` and ``linear_iterations`` of that step, ``seconds`` since the
+        previous call.
     q0, v0 : (n, d) float, optional
         Initial state (default: rest) and its velocity (implicit Euler; default 0).
         Fixed DOFs still follow their regions.
@@ -566,7 +586,8 @@ def solve(
         problem with a part that is not held against every rigid motion (see
         :mod:`voxflex.deform.supports`).
     ConvergenceError
-        A step did not converge (the message says what was tried).
+        A step did not converge (the message says what was tried); its attribute ``records``
+        holds the records of the steps that converged before it (the rest state first).
     """
     if not isinstance(options, SolverOptions):
         raise InputError("options must be a SolverOptions")
@@ -612,6 +633,20 @@ def solve(
     kin0 = 0.5 * vdot(v, M @ v) if dynamic else 0.0
     records = [StepRecord(0.0, x.reshape(shape).copy(), None if v is None else v.reshape(shape).copy(), 0, 0.0,
                           float(model.energy(x.reshape(shape))), kin0, 0.0)]
+    try:
+        _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
+               callback, newton_callback)
+    except ConvergenceError as exc:
+        exc.records = records  # the converged steps survive a later failure (partial results)
+        raise
+    return records
+
+
+def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
+           callback, newton_callback):
+    """The loop over the steps of :func:`solve`, appending a StepRecord per converged step."""
+    dynamic = options.kind == "implicit-euler"
+    N = x.size
     t_end = options.steps * options.dt
     for k in range(1, options.steps + 1):
         t0 = time.perf_counter()
@@ -631,7 +666,7 @@ def solve(
             label = f"static step {k}/{options.steps} (load factor {t:.4g})"
             x_new, its, rel, lin_its, solver_used, halvings, cuts = _static_increment(
                 model, f_full, x, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
-                reduce, label)
+                reduce, label, newton_callback)
         if dynamic:
             x_fixed = prescribed_positions(model, fixed, dofs, owner, factor) if len(dofs) else np.zeros(0)
             x_start[dofs] = x[dofs]  # fixed DOFs start from their previous values so the predictor sees their motion
@@ -640,6 +675,7 @@ def solve(
                 v = (moved - x) / options.dt  # so that the new velocity stays (x_new - x) / h
                 x_start = moved
             problem = _Problem(model, f_full, x_start, M=M, h=options.dt, xhat=xhat, xn=x, D=D)
+            problem.on_iteration = newton_callback
             delta, its, rel, lin_its, solver_used, halvings = _newton(
                 problem, np.zeros(N), free, dofs, x_fixed - x_start[dofs], options, near_null, label, reduce
             )
@@ -666,7 +702,6 @@ def solve(
         records.append(rec)
         if callback is not None:
             callback(rec)
-    return records
 
 
 __all__ = ["SolverOptions", "StepRecord", "solve", "FixedRegion", "ForceRegion"]
