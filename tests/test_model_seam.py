@@ -107,6 +107,9 @@ class MillimetreModel:
     def components(self):
         return self.inner.components()
 
+    def sample_fields(self, q):
+        return self.inner.sample_fields(q / self.S)
+
     def moved_state(self, transform):
         return self.inner.moved_state(transform) * self.S
 
