@@ -32,13 +32,6 @@ def test_python_dash_m_runs_the_cli():
     assert proc.stdout.strip() == f"voxflex {voxflex.__version__}"
 
 
-def test_tradeoff_is_reported_as_not_implemented(capsys, tmp_path):
-    status = main(["tradeoff", str(tmp_path / "scene.toml")])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert status == 2
-    assert len(err) == 1 and "not implemented" in err[0]
-
-
 def test_unknown_public_name():
     with pytest.raises(AttributeError):
         voxflex.does_not_exist  # noqa: B018
