@@ -37,7 +37,7 @@ def test_default_scene_runs_and_writes_a_result(tmp_path, capsys, monkeypatch):
     stdout = capsys.readouterr().out
     result = Result.load(tmp_path / "result.h5")
     assert "default.toml" in stdout and "wrote: result.h5" in stdout
-    assert result.n_voxels == 50 * 5 * 5 and result.n_steps == 4
+    assert result.n_voxels == 50 * 5 * 5 and result.n_steps == 3
     # the strip sags: large deflection, well beyond small-strain territory but not folded over.
     # Euler-Bernoulli (linear) predicts q L^4 / (8 E I) = 0.0729 m; the neo-Hookean voxel model,
     # 2x2x2 Gauss (stiff by shear locking at 5 voxels across), gives -0.0652

@@ -248,7 +248,7 @@ def _colour_values(result, color: str):
             f"ask for it with [output] fields = [\"{color}\"] and run again, or colour by 'displacement'"
         )
     values = np.asarray(fields[key], dtype=float)
-    T, V, F = result.n_steps, result.surface_rest.shape[0], result.surface_faces.shape[0]
+    T, V, F = result.n_states, result.surface_rest.shape[0], result.surface_faces.shape[0]
     if values.shape == (T, V):
         return values, "points", key
     if values.shape == (T, F):
@@ -545,7 +545,7 @@ class _Layout:
             when = f"load factor {result.time[step]:.4g}"
         else:
             when = f"t = {result.time[step]:.4g} s"
-        lines = [style.title, f"step {step}/{result.n_steps - 1}, {when}"]
+        lines = [style.title, f"step {step}/{result.n_steps}, {when}"]
         y = pad
         for text, size in zip(lines, (self.font + 1, self.font - 1)):
             font, text = _fit_text(text, size, W - 2 * pad)
@@ -745,14 +745,14 @@ def render(
                 raise InputError(
                     "writing .mp4 needs imageio-ffmpeg (pip install imageio-ffmpeg); or write a .gif instead"
                 ) from None
-        pictures = render_frames(result, range(result.n_steps), **opts)
+        pictures = render_frames(result, range(result.n_states), **opts)
         _write_movie(pictures, path, fps=int(fps))
         return path
     if suffix and not path.is_dir():
         raise InputError(
             f"cannot render to '{path}': give a .png, a folder, a .gif or a .mp4 (unknown extension '{suffix}')"
         )
-    pictures = render_frames(result, range(result.n_steps), **opts)
+    pictures = render_frames(result, range(result.n_states), **opts)
     path.mkdir(parents=True, exist_ok=True)
     for i, image in enumerate(pictures):
         _write_png(image, path / f"step_{i:04d}.png")

@@ -26,6 +26,12 @@ the group ``/model`` whose attributes describe the model (``node_kind``, ``count
 ``dofs``, ``quadrature``, ``samples``, ``shape_function``, ``precompute_seconds`` ...).
 With obstacles, ``/contact/force`` (T, obstacles, 3): the total force (N) each
 obstacle exerts on the body at every state (absent without obstacles).
+Fields asked for by ``[output] fields``: ``/fields/NAME`` (T, C, ...) per cell
+(attr ``location``: ``"voxels"`` or ``"samples"``), ``/surface/fields/NAME``
+(T, F, ...) per surface triangle, ``/reactions/force`` (T, R, 3) per fixed region.
+Inversion: ``/stats/inverted_samples`` (T,) and ``/stats/min_det_F`` (T,).
+A run that failed after some steps is still written: root attrs ``complete``
+(False) and ``error`` (the message).
 Every dataset is gzip-compressed; the file is written atomically.
 """
 
@@ -51,6 +57,14 @@ def _arr(name, value, ndim, last=None, dtype=float) -> np.ndarray:
         want = f"{ndim}-D" + (f" with last axis {last}" if last is not None else "")
         raise InputError(f"Result.{name} must be {want}, got shape {a.shape}")
     a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+def _field(name, value) -> np.ndarray:
+    a = np.ascontiguousarray(np.asarray(value, dtype=float))
+    if a.ndim < 2:
+        raise InputError(f"Result.{name} must be at least 2-D (states, cells, ...), got shape {a.shape}")
     a.setflags(write=False)
     return a
 
@@ -86,6 +100,21 @@ class Result:
     contact_force : (T, k, 3) float or None
         Total force (N) each of the k obstacles exerts on the body at every state
         (``/contact/force``); None without obstacles.
+    fields : dict name -> (T, F, ...) float
+        Result fields on the surface triangles (``/surface/fields/NAME``): what renders colour by
+        (names of :data:`voxflex.deform.fields.FIELD_NAMES`).
+    cell_fields : dict name -> (T, C, ...) float
+        The same fields per cell (``/fields/NAME``): C voxels or C samples, see ``cell_location``.
+    cell_location : str
+        ``"voxels"`` (voxel nodes: each voxel averages its Gauss points, voxels in C order of the
+        image) or ``"samples"`` (frames: the quadrature samples); ``""`` without cell fields.
+    reactions : (T, R, 3) float or None
+        Total force (N) each of the R ``[[fixed]]`` regions exerts on the body (``/reactions/force``).
+    inverted_samples : (T,) int or None; min_det_F : (T,) float or None
+        Number of samples with det F <= 0 and the smallest det F at every state.
+    complete : bool
+        False when the run failed after the recorded steps; ``error`` then holds the message.
+    error : str
     """
 
     time: np.ndarray
@@ -108,6 +137,14 @@ class Result:
     node_kind: str = "voxel"
     model: dict = field(default_factory=dict)
     contact_force: np.ndarray | None = None
+    fields: dict = field(default_factory=dict)
+    cell_fields: dict = field(default_factory=dict)
+    cell_location: str = ""
+    reactions: np.ndarray | None = None
+    inverted_samples: np.ndarray | None = None
+    min_det_F: np.ndarray | None = None
+    complete: bool = True
+    error: str = ""
 
     def __post_init__(self):
         s = object.__setattr__
@@ -176,11 +213,48 @@ class Result:
             if cf.shape[0] != T:
                 raise InputError(f"Result.contact_force must be ({T}, obstacles, 3), got {cf.shape}")
             s(self, "contact_force", cf)
+        F = self.surface_faces.shape[0]
+        out = {}
+        for name, values in dict(self.fields).items():
+            a = _field(f"fields['{name}']", values)
+            if a.shape[:2] != (T, F):
+                raise InputError(f"Result.fields['{name}'] must be ({T}, {F}, ...) (one value per surface triangle), "
+                                 f"got {a.shape}")
+            out[str(name)] = a
+        s(self, "fields", out)
+        out = {}
+        for name, values in dict(self.cell_fields).items():
+            a = _field(f"cell_fields['{name}']", values)
+            if a.ndim < 2 or a.shape[0] != T:
+                raise InputError(f"Result.cell_fields['{name}'] must be ({T}, cells, ...), got {a.shape}")
+            out[str(name)] = a
+        s(self, "cell_fields", out)
+        if out and self.cell_location not in ("voxels", "samples"):
+            raise InputError(f"Result.cell_location must be 'voxels' or 'samples', got {self.cell_location!r}")
+        s(self, "cell_location", str(self.cell_location))
+        if self.reactions is not None:
+            r = _arr("reactions", self.reactions, 3, 3)
+            if r.shape[0] != T:
+                raise InputError(f"Result.reactions must be ({T}, regions, 3), got {r.shape}")
+            s(self, "reactions", r)
+        for name, dtype in (("inverted_samples", np.int64), ("min_det_F", float)):
+            if getattr(self, name) is not None:
+                a = _arr(name, getattr(self, name), 1, dtype=dtype)
+                if a.shape != (T,):
+                    raise InputError(f"Result.{name} must have shape ({T},), got {a.shape}")
+                s(self, name, a)
+        s(self, "complete", bool(self.complete))
+        s(self, "error", str(self.error))
 
     # -- conveniences -----------------------------------------------------
     @property
     def n_steps(self) -> int:
-        """Number of recorded states T (the rest state included)."""
+        """Number of steps recorded: T - 1 (the rest state is state 0, not a step)."""
+        return int(self.time.shape[0]) - 1
+
+    @property
+    def n_states(self) -> int:
+        """Number of recorded states T (the rest state and one per step)."""
         return int(self.time.shape[0])
 
     @property
@@ -197,7 +271,7 @@ class Result:
 
     def step_index(self, step: int) -> int:
         """Normalize a step index (negative counts from the end); InputError when out of range."""
-        T = self.n_steps
+        T = self.n_states
         if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or not -T <= step < T:
             raise InputError(f"step {step!r} is out of range; this result has steps 0..{T - 1} (or -1 for the last)")
         return int(step) % T
@@ -231,6 +305,9 @@ class Result:
                 f.attrs["scene"] = self.scene
                 f.attrs["format"] = _FORMAT
                 f.attrs["node_kind"] = self.node_kind
+                f.attrs["complete"] = self.complete
+                if self.error:
+                    f.attrs["error"] = self.error
                 put(f, "time", self.time)
                 g = f.create_group("model")
                 for key, value in self.model.items():
@@ -251,6 +328,20 @@ class Result:
                 g = f.create_group("stats")
                 put(g, "newton_iterations", self.newton_iterations)
                 put(g, "step_seconds", self.step_seconds)
+                if self.inverted_samples is not None:
+                    put(g, "inverted_samples", self.inverted_samples)
+                if self.min_det_F is not None:
+                    put(g, "min_det_F", self.min_det_F)
+                if self.cell_fields:
+                    g = f.create_group("fields")
+                    for name, values in self.cell_fields.items():
+                        put(g, name, values).attrs["location"] = self.cell_location
+                if self.fields:
+                    g = f["surface"].create_group("fields")
+                    for name, values in self.fields.items():
+                        put(g, name, values)
+                if self.reactions is not None:
+                    put(f.create_group("reactions"), "force", self.reactions)
                 g = f.create_group("image")
                 d = put(g, "labels", self.image_labels)
                 d.attrs["spacing"] = self.image_spacing
@@ -319,6 +410,15 @@ class Result:
                 model={k: (_text(v) if isinstance(v, (bytes, str)) else np.asarray(v).item())
                        for k, v in (f["model"].attrs.items() if "model" in f else ())},
                 contact_force=get("contact/force"),
+                fields={k: v[()] for k, v in f["surface/fields"].items()} if "surface/fields" in f else {},
+                cell_fields={k: v[()] for k, v in f["fields"].items()} if "fields" in f else {},
+                cell_location=_text(next(iter(f["fields"].values())).attrs.get("location", ""))
+                if "fields" in f and len(f["fields"]) else "",
+                reactions=get("reactions/force"),
+                inverted_samples=get("stats/inverted_samples"),
+                min_det_F=get("stats/min_det_F"),
+                complete=bool(f.attrs.get("complete", True)),
+                error=_text(f.attrs.get("error", "")),
             )
 
     # -- ParaView ---------------------------------------------------------
@@ -334,7 +434,10 @@ class Result:
         Returns
         -------
         Path of the ``.pvd`` file.  Each ``.vtp`` holds the deformed surface with
-        point arrays ``displacement`` (V, 3) and ``displacement_magnitude`` (V,).
+        point arrays ``displacement`` (V, 3) and ``displacement_magnitude`` (V,),
+        and the result's surface :attr:`fields` as cell data (tensors as 9 components).
+        Voxel results with :attr:`cell_fields` also get a series of hexahedral
+        cells, ``NAME_cells.pvd`` with one ``.vtu`` per state, carrying them as cell data.
         """
         import pyvista as pv
 
@@ -350,12 +453,49 @@ class Result:
             raise InputError(f"output folder '{folder}' does not exist; create it or choose another path")
         faces = np.hstack([np.full((self.surface_faces.shape[0], 1), 3), self.surface_faces]).ravel()
         entries = []
-        for t in range(self.n_steps):
+        for t in range(self.n_states):
             name = f"{stem}_{t:04d}.vtp"
             mesh = pv.PolyData(np.array(self.surface_positions[t]), faces=faces)
             u = self.surface_positions[t] - self.surface_rest
             mesh.point_data["displacement"] = u
             mesh.point_data["displacement_magnitude"] = np.linalg.norm(u, axis=1)
+            for key, values in self.fields.items():
+                mesh.cell_data[key] = _vtk_components(values[t])
+            with atomic_path(folder / name) as tmp:
+                mesh.save(str(tmp), binary=True)
+            entries.append((float(self.time[t]), name))
+        pvd = folder / f"{stem}.pvd"
+        with atomic_path(pvd) as tmp:
+            tmp.write_text(_pvd_xml(entries), encoding="utf-8")
+        if self.cell_fields and self.cell_location == "voxels":
+            self._export_hexahedra(folder, f"{stem}_cells")
+        return pvd
+
+    def _export_hexahedra(self, folder: Path, stem: str) -> Path:
+        """The voxels as hexahedral cells at every state with :attr:`cell_fields` as cell data."""
+        import pyvista as pv
+
+        from .image.label_image import LabelImage
+        from .voronoi.trilinear import CORNER_OFFSETS, TrilinearGrid
+
+        image = LabelImage(self.image_labels, spacing=self.image_spacing, origin=self.image_origin,
+                           direction=self.image_direction)
+        grid = TrilinearGrid.from_image(image, self.image_labels > 0)
+        C = next(iter(self.cell_fields.values())).shape[1]
+        if grid.n_elements != C or grid.n_nodes != self.n_nodes:
+            raise InputError(f"the result's cell fields ({C} cells) do not match the voxels of its image "
+                             f"({grid.n_elements}); export the surface series only")
+        vtk_order = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]]
+        corner = [int(np.flatnonzero(np.all(CORNER_OFFSETS == c, axis=1))[0]) for c in vtk_order]
+        conn = grid.element_nodes[:, corner]
+        cells = np.hstack([np.full((C, 1), 8), conn]).ravel()
+        types = np.full(C, pv.CellType.HEXAHEDRON, dtype=np.uint8)
+        entries = []
+        for t in range(self.n_states):
+            name = f"{stem}_{t:04d}.vtu"
+            mesh = pv.UnstructuredGrid(cells, types, np.array(self.nodes_state[t]))
+            for key, values in self.cell_fields.items():
+                mesh.cell_data[key] = _vtk_components(values[t])
             with atomic_path(folder / name) as tmp:
                 mesh.save(str(tmp), binary=True)
             entries.append((float(self.time[t]), name))
@@ -363,6 +503,12 @@ class Result:
         with atomic_path(pvd) as tmp:
             tmp.write_text(_pvd_xml(entries), encoding="utf-8")
         return pvd
+
+
+def _vtk_components(values) -> np.ndarray:
+    """Cell values (C, ...) as VTK arrays: scalars (C,), vectors (C, 3), tensors (C, 9)."""
+    values = np.asarray(values, dtype=float)
+    return values.reshape(len(values), -1) if values.ndim > 2 else values
 
 
 def _pvd_xml(entries) -> str:
@@ -388,15 +534,15 @@ def _text(value) -> str:
 def describe_result(path) -> str:
     """A short human-readable summary of a result file (used by ``voxflex info``)."""
     r = Result.load(path)
-    T = r.n_steps
+    T = r.n_states
     labels, counts = np.unique(r.image_labels[r.image_labels > 0], return_counts=True)
     lines = [
         f"result: {path} (voxflex {r.version})",
         f"  image: {' x '.join(map(str, r.image_labels.shape))} voxels, spacing {r.image_spacing.tolist()} m, "
         f"{r.n_voxels} occupied ({', '.join(f'label {a}: {b}' for a, b in zip(labels, counts))})",
         f"  model: {_model_text(r)}; surface {r.surface_rest.shape[0]} vertices, {r.surface_faces.shape[0]} triangles",
-        f"  states: {T} (time {r.time[0]:g} .. {r.time[-1]:g}); Newton iterations {int(r.newton_iterations.sum())}, "
-        f"solve time {r.step_seconds.sum():.3g} s",
+        f"  states: {T} (the rest state and {r.n_steps} steps; time {r.time[0]:g} .. {r.time[-1]:g}); "
+        f"Newton iterations {int(r.newton_iterations.sum())}, solve time {r.step_seconds.sum():.3g} s",
         f"  energy at the end: elastic {r.energy_elastic[-1]:.6g} J, kinetic {r.energy_kinetic[-1]:.6g} J",
         f"  max surface displacement at the end: {np.linalg.norm(r.displacement(-1), axis=1).max():.6g} m",
     ]
@@ -405,7 +551,32 @@ def describe_result(path) -> str:
         lines.append(
             f"  probe {name}: rest {_fmt(pos[0])} -> final {_fmt(pos[-1])} (displacement {_fmt(u)})"
         )
+    lines += [f"  {line}" for line in field_lines(r)]
+    if not r.complete:
+        lines.append(f"  INCOMPLETE: the run failed after step {r.n_steps}: {r.error}")
     return "\n".join(lines)
+
+
+def field_lines(r) -> list:
+    """Lines naming the fields, reactions and inversion statistics a result carries (info and summaries)."""
+    lines = []
+    if r.cell_fields:
+        per = "voxel" if r.cell_location == "voxels" else "sample"
+        parts = []
+        for name, v in r.cell_fields.items():
+            shape = "x".join(map(str, v.shape[2:])) or "scalar"
+            extra = f", max at the end {np.nanmax(v[-1]):.6g}" if v.ndim == 2 else ""
+            parts.append(f"{name} ({shape}{extra})")
+        lines.append(f"fields per {per} ({next(iter(r.cell_fields.values())).shape[1]} {per}s) and on the "
+                     f"surface: {'; '.join(parts)}")
+    if r.reactions is not None:
+        for i, force in enumerate(r.reactions[-1]):
+            lines.append(f"reaction of fixed region #{i} at the end: {_fmt(force)} N")
+    if r.min_det_F is not None and r.inverted_samples is not None:
+        worst = int(np.argmin(r.min_det_F))
+        lines.append(f"inversion: {int(r.inverted_samples.max())} samples with det F <= 0 at worst; "
+                     f"min det F {float(r.min_det_F.min()):.6g} (state {worst})")
+    return lines
 
 
 def _model_text(r) -> str:

@@ -7,6 +7,12 @@ the mass matrix only for dynamics (the solver builds it), densities only for
 gravity or dynamics, probe mappings only for probes, the boundary surface
 once (the result file always carries it).
 
+Beyond positions the result carries, per state, the inversion statistics
+(samples with det F <= 0 and the smallest det F) and the fields ``[output]
+fields`` asks for (:mod:`voxflex.deform.fields`; reactions of the fixed
+regions).  A run whose later step fails still returns its converged steps:
+the result file is written marked incomplete and the error is raised after.
+
 Example
 -------
 >>> import voxflex as vf
@@ -17,6 +23,8 @@ Example
 from __future__ import annotations
 
 import dataclasses
+import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -26,10 +34,26 @@ from .errors import ConvergenceError, InputError
 from .result import Result
 from .scene import Scene
 
-__all__ = ["simulate"]
+__all__ = ["simulate", "InversionWarning", "CANNOT_RECOVER"]
 
 
-def simulate(scene, *, progress: bool = True, output=None, model=None) -> Result:
+class InversionWarning(UserWarning):
+    """Samples of a material that cannot recover from inversion (StVK, polar corotational Hooke) inverted."""
+
+
+CANNOT_RECOVER = "stvk, and hooke (or hooke-orthotropic) with the polar corotational strain"
+"""The materials :class:`InversionWarning` is about (their energy stays finite, and may even fall, when inverted)."""
+
+
+def _cannot_recover(material) -> bool:
+    """StVK (any strain) and Hooke laws over the polar corotational strain: an inverted sample
+    has a finite, even decreasing, energy and is not pushed back."""
+    name = getattr(material, "name", "")
+    strain = getattr(getattr(material, "strain", None), "name", "")
+    return name == "stvk" or (name in ("hooke", "hooke-orthotropic") and strain == "corotational")
+
+
+def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: bool = False) -> Result:
     """Run a scene and return its :class:`~voxflex.result.Result`.
 
     Parameters
@@ -43,6 +67,9 @@ def simulate(scene, *, progress: bool = True, output=None, model=None) -> Result
     model : Model, optional
         A model built beforehand (any implementation of the model protocol);
         default: ``voxflex.build.model(scene)``, the model the scene asks for.
+    verbose : bool
+        Log the model's size and memory estimate and one line per Newton iteration
+        (residual, step length, linear solver and its iterations, seconds) on stderr.
 
     Returns
     -------
@@ -55,22 +82,36 @@ def simulate(scene, *, progress: bool = True, output=None, model=None) -> Result
     InputError
         Bad scene (a label without material, a probe outside the material...).
     ConvergenceError
-        The solver did not converge (the message says what was tried).
+        The solver did not converge (the message says what was tried).  The steps
+        that converged before are written to ``output`` all the same, the file
+        marked incomplete (``Result.complete`` False, the message in ``error``).
+
+    Warns
+    -----
+    InversionWarning
+        When samples of a material that cannot recover from inversion (StVK, Hooke
+        with the polar corotational strain) end a step with det F <= 0.
     """
     if not isinstance(scene, Scene):
         if isinstance(scene, (str, Path)):
             scene = Scene.from_toml(scene)
         else:
             raise InputError(f"simulate needs a Scene or a scene file path, got {type(scene).__name__}")
+    from . import _progress
     from .build import build_image, model as build_model
     from .deform.boundary import FixedRegion, ForceRegion
     from .deform.solvers import SolverOptions, solve
 
     if model is None:
         image = build_image(scene)
+        _progress.announce(_progress.image_estimate(image, scene.nodes.kind), force=verbose, quiet=not progress)
+        t0 = time.perf_counter()
         model = build_model(scene, image=image)
+        if verbose:
+            _progress.log(f"model built in {time.perf_counter() - t0:.2f} s")
     else:
         image = model.image
+    _progress.announce(_progress.model_estimate(model, scene.solver.steps), force=verbose, quiet=not progress)
 
     fixed = [
         FixedRegion(
@@ -97,15 +138,21 @@ def simulate(scene, *, progress: bool = True, output=None, model=None) -> Result
         points = np.array([p.point for p in scene.probes], dtype=float)
         probe_map = model.point_mapping(points)
 
-    from ._progress import progress as _bar
-
-    bar = _bar(total=s.steps, desc="simulate", unit="step") if progress else None
+    bar = _progress.progress(total=s.steps, desc="simulate", unit="step") if progress else None
 
     def callback(record):
         if bar is not None:
             bar.update(1)
             bar.set_postfix(newton=record.newton_iterations, refresh=False)
 
+    def newton_callback(info):
+        if bar is not None:
+            bar.set_postfix(newton=info["iteration"], residual=f"{info['residual']:.1e}")
+        if verbose:
+            _progress.log(_progress.newton_line(info))
+
+    target = output if output is not None else scene.output.file
+    failure = None
     try:
         records = solve(
             model,
@@ -115,26 +162,68 @@ def simulate(scene, *, progress: bool = True, output=None, model=None) -> Result
             densities=densities,
             options=options,
             callback=callback,
+            newton_callback=newton_callback if (bar is not None or verbose) else None,
         )
     except ConvergenceError as exc:
         advice = model.advice()
-        if not advice:
-            raise
-        raise ConvergenceError(f"{exc}; note: {advice}") from None
+        failure = ConvergenceError(f"{exc}; note: {advice}" if advice else str(exc))
+        records = getattr(exc, "records", None)
+        if not records or len(records) < 2 or target is None:
+            raise failure from None
     finally:
         if bar is not None:
             bar.close()
 
-    result = _make_result(scene, image, model, records, probe_map)
-    target = output if output is not None else scene.output.file
+    result = _make_result(scene, image, model, records, probe_map, fixed=fixed, forces=forces,
+                          densities=densities, options=options,
+                          error=None if failure is None else str(failure))
     if target is not None:
         result.save(target)
+    if failure is not None:
+        raise ConvergenceError(f"{failure}; the {result.n_steps} step(s) that converged were written to "
+                               f"'{target}', marked incomplete") from None
+    _warn_inversion(model, result)
     return result
 
 
-def _make_result(scene, image, model, records, probe_map) -> Result:
+def _warn_inversion(model, result) -> None:
+    """InversionWarning when a material that cannot recover has inverted samples at some state."""
+    if result.inverted_samples is None or not np.any(result.inverted_samples > 0):
+        return
+    bad = sorted({m.name for m in model.materials.values() if _cannot_recover(m)})
+    if not bad:
+        return
+    state = int(np.flatnonzero(result.inverted_samples > 0)[0])
+    warnings.warn(
+        f"{int(result.inverted_samples[state])} samples inverted (det F <= 0; min det F "
+        f"{float(result.min_det_F.min()):.3g}) from step {state} on, with {', '.join(bad)}, a material that "
+        "cannot recover from inversion; use model = \"stable-neo-hookean\" or strain = \"corotational-svd\"",
+        InversionWarning,
+        stacklevel=3,
+    )
+
+
+def _make_result(scene, image, model, records, probe_map, *, fixed=(), forces=(), densities=None, options=None,
+                 error=None) -> Result:
+    from .deform.fields import model_fields
+
     surf_rest, faces, surf_map = model.boundary_surface()
     states = np.stack([np.asarray(r.q, dtype=float) for r in records])  # (T, n, d)
+    names = scene.output.fields
+    inverted, min_det, cells, surface, location = [], [], [], [], ""
+    for q in states:
+        layer = model.sample_fields(q)
+        det = np.linalg.det(layer["F"])
+        inverted.append(int(np.count_nonzero(~(det > 0))))
+        min_det.append(float(np.min(det)) if len(det) else 1.0)
+        if any(n != "reaction" for n in names):
+            c, f = model_fields(model, q, names)
+            cells.append(c)
+            surface.append(f)
+            location = layer["cell_kind"]
+    reactions = None
+    if "reaction" in names and fixed:
+        reactions = _reactions(model, records, scene, fixed, forces, densities, options)
     probes = {}
     if probe_map is not None:
         positions = np.stack([probe_map.apply(q) for q in states])  # (T, m, 3)
@@ -160,7 +249,62 @@ def _make_result(scene, image, model, records, probe_map) -> Result:
         node_kind=model.node_kind,
         model=model.describe(),
         contact_force=_contact_forces(model, states, [r.time for r in records], scene),
+        fields={k: np.stack([f[k] for f in surface]) for k in (surface[0] if surface else {})},
+        cell_fields={k: np.stack([c[k] for c in cells]) for k in (cells[0] if cells else {})},
+        cell_location=location,
+        reactions=reactions,
+        inverted_samples=np.array(inverted, dtype=np.int64),
+        min_det_F=np.array(min_det),
+        complete=error is None,
+        error=error or "",
     )
+
+
+def _reactions(model, records, scene, fixed, forces, densities, options):
+    """(T, R, 3): total force each fixed region exerts on the body at every state.
+
+    At the held DOFs the support's force on the body balances the rest:
+    ``R = dE/dq - f`` (statics, ``f`` at the state's load factor) plus the
+    inertia ``M (v_k - v_{k-1}) / h`` and damping ``D v_k`` terms of implicit Euler
+    (D with the stiffness at the step's start, as the solver has it).  Each region's total is the
+    virtual work of R on its DOFs under a unit translation of the body, so
+    affine frames count their translation DOFs.
+    """
+    from .deform.boundary import fixed_dofs, region_forces
+
+    dofs, owner = fixed_dofs(model, fixed)
+    rest = np.asarray(model.rest, dtype=float)
+    N = rest.size
+    f = region_forces(model, forces).ravel() if forces else np.zeros(N)
+    if scene.gravity is not None:
+        f = f + model.gravity_force(densities, np.array(scene.gravity)).ravel()
+    modes = []
+    for k in range(3):
+        T = np.hstack([np.eye(3), np.eye(3)[:, [k]]])
+        modes.append((model.moved_state(T) - rest).ravel()[dofs])
+    modes = np.stack(modes, axis=1)  # (k, 3)
+    dynamic = scene.solver.kind == "implicit-euler"
+    M = model.mass_matrix(densities, lumped=options.mass == "lumped") if dynamic else None
+    out = np.zeros((len(records), len(fixed), 3))
+    for t, rec in enumerate(records):
+        q = np.asarray(rec.q, dtype=float)
+        g = model.gradient(q).ravel()
+        if dynamic:
+            g = g - f
+            if t > 0:
+                v1, v0 = np.ravel(rec.v), np.ravel(records[t - 1].v)
+                g = g + M @ ((v1 - v0) / options.dt)
+                if options.rayleigh_mass or options.rayleigh_stiffness:
+                    g = g + options.rayleigh_mass * (M @ v1)
+                    if options.rayleigh_stiffness:
+                        K0 = model.hessian(np.asarray(records[t - 1].q, dtype=float))
+                        g = g + options.rayleigh_stiffness * (K0 @ v1)
+        else:
+            g = g - rec.time * f
+        work = g[dofs, None] * modes
+        for r in range(len(fixed)):
+            out[t, r] = work[owner == r].sum(axis=0)
+    return out
 
 
 def _contact_forces(model, states, times, scene):

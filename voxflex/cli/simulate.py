@@ -18,7 +18,11 @@ every key is described in docs/scene.md.  [nodes] kind = "voxel" is the
 full-resolution reference, "affine" a reduced model of a few frames.
 
 The result file goes to -o, else to the scene's [output] file, else to result.h5
-in the current folder.  The summary goes to stdout, the progress bar to stderr.
+in the current folder.  The summary goes to stdout, the progress bar (step,
+Newton iteration and residual) and --verbose logs to stderr.  Stress, strain
+and reactions are written when the scene asks: [output] fields = ["von-mises", ...].
+When a later step fails, the steps that converged are still written (the file
+marked incomplete) and the exit status is 2.
 
 Every output is checked before the run starts (folder exists and is writable,
 extension known); an existing file is replaced only when it is a voxflex result
@@ -44,6 +48,12 @@ def register(sub) -> None:
     parser.add_argument("--vtk", metavar="FOLDER", help="also export a ParaView time series (.vtp + .pvd)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
     parser.add_argument(
+        "--verbose",
+        action="store_true",
+        help="log the model size and memory estimate and one line per Newton iteration (residual, step length, "
+        "linear solver and its iterations, seconds) on stderr",
+    )
+    parser.add_argument(
         "--force",
         action="store_true",
         help="overwrite existing outputs even when they are not voxflex results or are inputs of the run",
@@ -61,7 +71,7 @@ def run(args) -> int:
     check_outputs(args, scene, path if args.scene else None, output)
     t0 = time.perf_counter()
     try:
-        result = simulate(scene, progress=not args.quiet, output=output)
+        result = simulate(scene, progress=not args.quiet, output=output, verbose=args.verbose)
     except NotImplementedError as exc:
         from ..errors import VoxflexError
 
@@ -97,7 +107,9 @@ def check_outputs(args, scene, scene_path, output) -> None:
 
 def summary(result, *, scene_path, output, wall, extras=()) -> str:
     """The short report printed after a run."""
-    steps = result.n_steps - 1
+    from ..result import field_lines
+
+    steps = result.n_steps
     lines = [
         f"scene: {scene_path}",
         f"model: {result.n_nodes} nodes, {result.n_dofs} DOF, {result.n_voxels} voxels",
@@ -109,6 +121,7 @@ def summary(result, *, scene_path, output, wall, extras=()) -> str:
             f"probe {name}: final position [{', '.join(f'{x:.6g}' for x in pos[-1])}] "
             f"displacement [{', '.join(f'{x:.6g}' for x in u)}]"
         )
+    lines += field_lines(result)
     written = [str(output)] + [str(e) for e in extras if e]
     lines.append(f"wrote: {', '.join(written)}")
     return "\n".join(lines)
