@@ -83,13 +83,19 @@ def _offsets(shape, spacing):
 
 
 @njit
-def _axis_term(v, st, dist, state, mask, cost, h, second):
-    """(alpha, beta) of the upwind term along one axis at voxel v; alpha 0 when unusable."""
+def _axis_term(v, st, dist, state, cost, h, second, uniform):
+    """(alpha, beta) of the upwind term along one axis at voxel v; alpha 0 when unusable.
+
+    ``state`` is 2 on voxels frozen in this run and 3 on empty voxels, so one
+    read tells whether a neighbour is usable (the padding keeps ``v +- 2 st``
+    inside the array for every material voxel v).
+    """
     best = np.inf
     best2 = np.inf
+    cv = cost[v] if not uniform else 1.0
     for sgn in (-1, 1):
         u = v + sgn * st
-        if mask[u] == 0 or state[u] != 2:
+        if state[u] != 2:
             continue
         t1 = dist[u]
         if t1 < best:
@@ -97,8 +103,7 @@ def _axis_term(v, st, dist, state, mask, cost, h, second):
             best2 = np.inf
             if second:
                 u2 = u + sgn * st
-                if (mask[u2] != 0 and state[u2] == 2 and dist[u2] <= t1
-                        and cost[u2] == cost[v] and cost[u] == cost[v]):
+                if state[u2] == 2 and dist[u2] <= t1 and (uniform or (cost[u2] == cv and cost[u] == cv)):
                     best2 = dist[u2]
     if best == np.inf:
         return 0.0, np.inf
@@ -108,7 +113,7 @@ def _axis_term(v, st, dist, state, mask, cost, h, second):
 
 
 @njit
-def _eikonal(v, dist, state, mask, cost, stride, spacing, slowness, second):
+def _eikonal(v, dist, state, cost, stride, spacing, slowness, second, uniform):
     """Fast-marching update at voxel v from its usable face neighbours (inf if none).
 
     A neighbour is usable when it is frozen in this run (state 2): values left
@@ -120,9 +125,9 @@ def _eikonal(v, dist, state, mask, cost, stride, spacing, slowness, second):
     slowness (the one-sided stencil is wrong across a jump).  Solves sum_a alpha_a (T - beta_a)^2
     = slowness^2 adding the axes in increasing beta while T exceeds them.
     """
-    a0, b0 = _axis_term(v, stride[0], dist, state, mask, cost, spacing[0], second)
-    a1, b1 = _axis_term(v, stride[1], dist, state, mask, cost, spacing[1], second)
-    a2, b2 = _axis_term(v, stride[2], dist, state, mask, cost, spacing[2], second)
+    a0, b0 = _axis_term(v, stride[0], dist, state, cost, spacing[0], second, uniform)
+    a1, b1 = _axis_term(v, stride[1], dist, state, cost, spacing[1], second, uniform)
+    a2, b2 = _axis_term(v, stride[2], dist, state, cost, spacing[2], second, uniform)
     # sort by beta (unusable terms have beta = inf and sort last)
     if b1 < b0:
         a0, b0, a1, b1 = a1, b1, a0, b0
@@ -177,20 +182,22 @@ def _unlink(v, head, nxt, prv):
 
 
 @njit
-def _march(mask, cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
+def _march(cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
            seed_idx, seed_d, seed_own, fmm, touched, ntouched, smin, smax):
     """Propagate distances from seeds; returns the new number of touched voxels.
 
     dist, owner: current values, improved in place (a voxel changes only when a
     candidate is below its current value and, with ``use_bound``, below
-    ``bound``).  state: 0 untouched in this run, 1 tentative, 2 frozen; every
-    voxel whose state becomes non-zero is appended to ``touched`` (reset them
-    with :func:`_reset`).  nxt, prv: int32 scratch of the grid's size (the
-    bucket lists; no reset needed).  fmm: 0 Dijkstra on the 26-neighbourhood
-    with exact step lengths, 1 fast marching of first order, 2 of second order
-    (the 26-neighbour steps are kept as candidates so that voxels joined only
-    by an edge or a corner are reached, with the same connectivity as
-    Dijkstra).  smin, smax: the smallest and largest slowness of the grid.
+    ``bound``).  state: 3 on empty voxels (never entered; see
+    :func:`state_of`), 0 untouched in this run, 1 tentative, 2 frozen; every
+    voxel whose state becomes 1 is appended to ``touched`` (reset them with
+    :func:`_reset`).  nxt, prv: int32 scratch of the grid's size (the bucket
+    lists; no reset needed).  fmm: 0 Dijkstra on the 26-neighbourhood with
+    exact step lengths, 1 fast marching of first order, 2 of second order (the
+    26-neighbour steps are kept as candidates so that voxels joined only by an
+    edge or a corner are reached, with the same connectivity as Dijkstra).
+    smin, smax: the smallest and largest slowness of the grid; when they are
+    equal the slowness is never read (plain geodesic distance).
 
     The priority queue is a circular bucket queue with decrease-key (Dial; the
     "untidy" queue of Yatziv, Bartesaghi & Sapiro 2006): bucket width = the
@@ -198,15 +205,19 @@ def _march(mask, cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_
     the current bucket cannot improve another one in it), and a quarter of it
     for fast marching.
     """
+    uniform = smin == smax
     stride = np.empty(3, dtype=np.int64)
     stride[0] = shape[1] * shape[2]
     stride[1] = shape[2]
     stride[2] = 1
     off, length, face = _offsets(shape, spacing)
+    if uniform:
+        length *= smin
     hmin = min(spacing[0], min(spacing[1], spacing[2]))
     width = hmin * smin
     if fmm != 0:
         width *= 0.25
+    inv_width = 1.0 / width
     nb = int(math.ceil(length.max() * smax / width)) + 3
     head = np.full(nb, -1, dtype=np.int64)
     order = np.argsort(seed_d)
@@ -219,17 +230,17 @@ def _march(mask, cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_
         if live == 0:
             if pending >= ns:
                 break
-            cur = int(math.floor(seed_d[order[pending]] / width))
+            cur = int(math.floor(seed_d[order[pending]] * inv_width))
         # apply the seeds whose bucket is reached
         while pending < ns:
             s = order[pending]
             d0 = seed_d[s]
-            bb = int(math.floor(d0 / width))
+            bb = int(math.floor(d0 * inv_width))
             if bb > cur:
                 break
             pending += 1
             v = seed_idx[s]
-            if state[v] != 2 and d0 < dist[v] and (not use_bound or d0 < bound[v]):
+            if state[v] < 2 and d0 < dist[v] and (not use_bound or d0 < bound[v]):
                 dist[v] = d0
                 owner[v] = seed_own[s]
                 if state[v] == 1:
@@ -251,31 +262,40 @@ def _march(mask, cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_
         state[u] = 2
         t = dist[u]
         ou = owner[u]
-        cu = cost[u]
+        cu = 1.0 if uniform else cost[u]
         for k in range(26):
             v = u + off[k]
-            if mask[v] == 0 or state[v] == 2:
+            sv = state[v]
+            if sv >= 2:
                 continue
-            cand = t + length[k] * 0.5 * (cu + cost[v])
+            if uniform:
+                cand = t + length[k]
+            else:
+                cand = t + length[k] * 0.5 * (cu + cost[v])
             if fmm != 0 and face[k] >= 0:
-                te = _eikonal(v, dist, state, mask, cost, stride, spacing, cost[v], second)
+                te = _eikonal(v, dist, state, cost, stride, spacing, smin if uniform else cost[v], second, uniform)
                 if te < cand:
                     cand = te
             if cand < dist[v] and (not use_bound or cand < bound[v]):
                 dist[v] = cand
                 owner[v] = ou
-                if state[v] == 1:
+                if sv == 1:
                     _unlink(v, head, nxt, prv)
                 else:
                     touched[ntouched] = v
                     ntouched += 1
                     state[v] = 1
                     live += 1
-                bb = int(math.floor(cand / width))
+                bb = int(math.floor(cand * inv_width))
                 if bb < cur:
                     bb = cur
                 _link(v, bb % nb, head, nxt, prv)
     return ntouched
+
+
+def state_of(mask):
+    """Fresh ``state`` array for :func:`_march`: 0 on material, 3 on empty voxels (uint8)."""
+    return np.where(mask != 0, 0, 3).astype(np.uint8)
 
 
 @njit
@@ -367,10 +387,10 @@ def march(mask, cost, shape, spacing, points, owners, *, fmm, dist=None, owner=N
     owners = np.ascontiguousarray(owners, dtype=np.int64)
     radius = BALL if fmm else 0
     si, sd, so = _seed_arrays(mask, cost, shape, spacing, points, owners, radius)
-    state = np.zeros(N, dtype=np.uint8)
+    state = state_of(mask)
     touched = np.empty(N, dtype=np.int32)
     nxt = np.empty(N, dtype=np.int32)
     prv = np.empty(N, dtype=np.int32)
     smin, smax = float(cost.min()), float(cost.max())
-    _march(mask, cost, shape, spacing, dist, owner, state, nxt, prv, dist, False, si, sd, so, fmm, touched, 0, smin, smax)
+    _march(cost, shape, spacing, dist, owner, state, nxt, prv, dist, False, si, sd, so, fmm, touched, 0, smin, smax)
     return dist, owner

@@ -20,6 +20,7 @@ staircase: a slanted face is over-counted by up to its |n|₁/|n|₂ <= √3).
 from __future__ import annotations
 
 import numpy as np
+from numba import get_num_threads
 
 from .._jit import njit, prange
 from . import _march as M
@@ -32,7 +33,7 @@ def _one_point(mask, cost, shape, spacing, d, own, p, nframes, laplace,
     cnt = M._ball(mask, cost, shape, spacing, p, radius, ball_i, ball_d)
     for q in range(cnt):
         ball_o[q] = nframes
-    nt = M._march(mask, cost, shape, spacing, dx, ox, state, nxt, prv, d, True,
+    nt = M._march(cost, shape, spacing, dx, ox, state, nxt, prv, d, True,
                   ball_i[:cnt], ball_d[:cnt], ball_o[:cnt], 2, touched, 0, smin, smax)
     s1 = shape[1] * shape[2]
     s2 = shape[2]
@@ -50,7 +51,7 @@ def _one_point(mask, cost, shape, spacing, d, own, p, nframes, laplace,
                 ar = area0 if a == 0 else (area1 if a == 1 else area2)
                 for sgn in (-1, 1):
                     u = v + sgn * st
-                    if mask[u] == 0 or state[u] != 0:
+                    if state[u] != 0:  # stolen (1, 2) or empty (3)
                         continue
                     f = own[u]
                     acc[f] += ar
@@ -67,15 +68,20 @@ def _one_point(mask, cost, shape, spacing, d, own, p, nframes, laplace,
 
 @njit(parallel=True)
 def _natural_kernel(mask, cost, shape, spacing, d, own, points, nframes, laplace, kmax, smin, smax, radius,
-                    out_f, out_w, out_n):
-    """Weights of every point (q, 3) (padded index coords): top-kmax frames per point, normalised."""
-    nthreads = min(points.shape[0], 64)
+                    nthreads, out_f, out_w, out_n):
+    """Weights of every point (q, 3) (padded index coords): top-kmax frames per point, normalised.
+
+    The points are dealt round-robin to ``nthreads`` chunks, each with its own
+    grid-sized scratch (allocated once per chunk, so keep ``nthreads`` a small
+    multiple of the number of threads)."""
     N = mask.shape[0]
     per = (2 * radius + 1) ** 3
     for t in prange(nthreads):
         dx = np.full(N, np.inf)
         ox = np.full(N, -1, dtype=np.int64)
-        state = np.zeros(N, dtype=np.uint8)
+        state = np.empty(N, dtype=np.uint8)
+        for v in range(N):
+            state[v] = 0 if mask[v] != 0 else 3
         nxt = np.empty(N, dtype=np.int32)
         prv = np.empty(N, dtype=np.int32)
         touched = np.empty(N, dtype=np.int32)
@@ -136,7 +142,7 @@ def natural_weights(mask, cost, pshape, spacing, d, own, points, nframes, *, lap
     if q:
         _natural_kernel(mask, cost, pshape, spacing, d, own, np.ascontiguousarray(points, dtype=np.float64),
                         int(nframes), bool(laplace), int(kmax), float(cost.min()), float(cost.max()), M.BALL,
-                        out_f, out_w, out_n)
+                        min(q, 2 * get_num_threads()), out_f, out_w, out_n)
     return out_f, out_w, out_n
 
 
