@@ -184,11 +184,38 @@ class ShapeFunction:
         return self._cache["centres"]
 
     def _smoothed(self):
+    def _centre_weights(self, chunk=262144):
+        """Frame indices and weights (V, parents) at the material voxel centres, as in
+        :meth:`centre_values` but without gradients and Hessians (the smoothing reads w only:
+        at 128³ the Hessians alone would take V x parents x 9 doubles, 600 MB)."""
+        mask = self.image.labels > 0
+        X = self.image.voxel_centers(mask)
+        nodes = self._node_of_voxel[mask]
+        m, P = len(X), self.parents
+        index = np.full((m, P), -1, dtype=np.int64)
+        w = np.zeros((m, P))
+        for a in range(0, m, chunk):
+            b = min(m, a + chunk)
+            index[a:b], w[a:b] = _weights_impl(X[a:b], self._node_pos[nodes[a:b]], self._node_frames[nodes[a:b]],
+                                               self._node_coef[nodes[a:b]], self._scale, P)
+        if self._anchor is not None:
+            own = self._anchor[mask]
+            a = own >= 0
+            index[a] = -1
+            w[a] = 0.0
+            index[a, 0] = own[a]
+            w[a, 0] = 1.0
+        return index, w
+
         if "smooth" not in self._cache:
             from .smoothing import SmoothWeights
 
-            c = self.centre_values()
-            self._cache["smooth"] = SmoothWeights(self.image, c.index, c.w, len(self.frames))
+            if "centres" in self._cache:
+                c = self._cache["centres"]
+                index, w = c.index, c.w
+            else:
+                index, w = self._centre_weights()
+            self._cache["smooth"] = SmoothWeights(self.image, index, w, len(self.frames))
         return self._cache["smooth"]
 
     def voxel_values(self) -> ShapeValues:
@@ -225,6 +252,30 @@ class ShapeFunction:
 
 
 def _evaluate_impl(X, npos, nfr, ncoef, h, P):
+def _weights_impl(X, npos, nfr, ncoef, h, P):
+    """Values only: the polynomial values at points, w <= 0 dropped, the P largest kept and renormalised."""
+    x = (X - npos) / h
+    phi, _, _ = _basis(x)
+    w = ncoef[..., 0] + np.einsum("mkb,mb->mk", ncoef[..., 1:], phi)
+    valid = (nfr >= 0) & (w > 0)
+    ws = np.where(valid, w, -np.inf)
+    K = w.shape[1]
+    if K > P:
+        part = np.sort(np.argpartition(-ws, P - 1, axis=1)[:, :P], axis=1)  # column order breaks ties as before
+    else:
+        part = np.broadcast_to(np.arange(K), ws.shape)
+    rows = np.arange(len(X))[:, None]
+    order = np.take_along_axis(part, np.argsort(-ws[rows, part], axis=1, kind="stable"), axis=1)
+    keep = valid[rows, order]
+    index = np.full((len(X), P), -1, dtype=np.int64)
+    out = np.zeros((len(X), P))
+    k = order.shape[1]
+    index[:, :k] = np.where(keep, nfr[rows, order], -1)
+    wk = np.where(keep, w[rows, order], 0.0)
+    out[:, :k] = wk / wk.sum(1)[:, None]
+    return index, out
+
+
     """Polynomial values at points, drop w <= 0, keep the P largest, renormalise (consistent derivatives)."""
     x = (X - npos) / h
     phi, dphi, H = _basis(x)
@@ -254,6 +305,13 @@ def _evaluate_impl(X, npos, nfr, ncoef, h, P):
     dn[pad] = 0.0
     hn[pad] = 0.0
     return fi, wn, dn, hn, pruned
+    k = fi.shape[1]
+    if k < P:  # fewer candidate frames than parents: pad the slots
+        m = len(X)
+        fi = np.concatenate([fi, np.full((m, P - k), -1, dtype=np.int64)], axis=1)
+        wn = np.concatenate([wn, np.zeros((m, P - k))], axis=1)
+        dn = np.concatenate([dn, np.zeros((m, P - k, 3))], axis=1)
+        hn = np.concatenate([hn, np.zeros((m, P - k, 3, 3))], axis=1)
 
 
 def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distance="geodesic", compliance=None,
