@@ -183,7 +183,6 @@ class ShapeFunction:
             self._cache["centres"] = sv
         return self._cache["centres"]
 
-    def _smoothed(self):
     def _centre_weights(self, chunk=262144):
         """Frame indices and weights (V, parents) at the material voxel centres, as in
         :meth:`centre_values` but without gradients and Hessians (the smoothing reads w only:
@@ -207,6 +206,7 @@ class ShapeFunction:
             w[a, 0] = 1.0
         return index, w
 
+    def _smoothed(self):
         if "smooth" not in self._cache:
             from .smoothing import SmoothWeights
 
@@ -251,7 +251,6 @@ class ShapeFunction:
         return ShapeValues(index=index, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=len(self.frames))
 
 
-def _evaluate_impl(X, npos, nfr, ncoef, h, P):
 def _weights_impl(X, npos, nfr, ncoef, h, P):
     """Values only: the polynomial values at points, w <= 0 dropped, the P largest kept and renormalised."""
     x = (X - npos) / h
@@ -276,6 +275,7 @@ def _weights_impl(X, npos, nfr, ncoef, h, P):
     return index, out
 
 
+def _evaluate_impl(X, npos, nfr, ncoef, h, P):
     """Polynomial values at points, drop w <= 0, keep the P largest, renormalise (consistent derivatives)."""
     x = (X - npos) / h
     phi, dphi, H = _basis(x)
@@ -304,7 +304,6 @@ def _weights_impl(X, npos, nfr, ncoef, h, P):
     pad = ~keep
     dn[pad] = 0.0
     hn[pad] = 0.0
-    return fi, wn, dn, hn, pruned
     k = fi.shape[1]
     if k < P:  # fewer candidate frames than parents: pad the slots
         m = len(X)
@@ -312,6 +311,7 @@ def _weights_impl(X, npos, nfr, ncoef, h, P):
         wn = np.concatenate([wn, np.zeros((m, P - k))], axis=1)
         dn = np.concatenate([dn, np.zeros((m, P - k, 3))], axis=1)
         hn = np.concatenate([hn, np.zeros((m, P - k, 3, 3))], axis=1)
+    return fi, wn, dn, hn, pruned
 
 
 def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distance="geodesic", compliance=None,
