@@ -5,9 +5,10 @@ Formats
 =================  ==========================================  =========  =========
 extension          library and layout                          direction  occupancy
 =================  ==========================================  =========  =========
-``.npy``           numpy; geometry in a JSON sidecar            yes        no
+``.npy``           numpy; geometry in a JSON sidecar            yes        yes
                    ``NAME.npy.json`` (absent: ``spacing=`` is
-                   required, origin 0, no rotation)
+                   required, origin 0, no rotation); occupancy
+                   in ``NAME.occupancy.npy`` (float32)
 ``.npz``           numpy; ``labels``, ``spacing``, ``origin``,  yes        yes
                    ``direction``, ``occupancy`` arrays
 ``.nii .nii.gz``   nibabel (NIfTI-1, sform and qform set)       yes        no
@@ -23,8 +24,9 @@ extension          library and layout                          direction  occupa
 =================  ==========================================  =========  =========
 
 Formats marked "no" for occupancy store the labels only: ``save`` writes the
-labels and leaves the partial-volume fractions out (``.npz``, ``.h5`` and
-``.vti`` keep them).  TIFF cannot record a rotated image: saving an image whose
+labels, leaves the partial-volume fractions out and warns
+(:class:`OccupancyLostWarning`, naming the loss and the formats that keep
+them: ``.npz``, ``.h5``, ``.vti``, ``.npy``).  TIFF cannot record a rotated image: saving an image whose
 ``direction`` is not the identity to TIFF raises :class:`InputError` rather
 than dropping the rotation.  Labels keep their integer dtype (uint8 / uint16)
 in every format.
@@ -106,7 +108,11 @@ SUPPORTED_EXTENSIONS = tuple(FORMATS)
 #: formats that can record a rotated ``direction``
 DIRECTION_FORMATS = ("NumPy", "NumPy archive", "NIfTI", "NRRD", "MetaImage", "HDF5", "VTK ImageData")
 #: formats that store ``occupancy`` besides the labels
-OCCUPANCY_FORMATS = ("NumPy archive", "HDF5", "VTK ImageData")
+OCCUPANCY_FORMATS = ("NumPy", "NumPy archive", "HDF5", "VTK ImageData")
+
+
+class OccupancyLostWarning(UserWarning):
+    """An image with occupancy fractions was saved to a format that stores the labels only."""
 
 _LPS_FROM_RAS = np.diag([-1.0, -1.0, 1.0])
 _ORTHO_TOL = 1e-4  # NIfTI stores its affine in float32: allow ~1e-7 noise, refuse real shear
@@ -265,6 +271,15 @@ def save_image(image: LabelImage, path) -> None:
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise InputError(f"output folder '{folder}' does not exist; create it or choose another path")
+    if image.occupancy is not None and fmt not in OCCUPANCY_FORMATS:
+        import warnings
+
+        warnings.warn(
+            f"{fmt} stores the labels only: the occupancy fractions of this image are not written to "
+            f"'{path.name}' (its volume becomes the full voxels'); save to .npz, .h5, .vti or .npy to keep them",
+            OccupancyLostWarning,
+            stacklevel=3,
+        )
     try:
         _WRITERS[fmt](image, path)
     except InputError:
@@ -428,7 +443,21 @@ def _read_npy(path):
         raise InputError(
             f"sidecar '{side.name}' is not valid voxflex geometry JSON ({_one_line(exc)}); fix or delete it"
         ) from None
-    return dict(labels=labels, **geometry)
+    out = dict(labels=labels, **geometry)
+    occ = meta.get("occupancy")
+    if occ is not None:
+        occ_path = path.with_name(str(occ))
+        if occ_path.name != str(occ) or not occ_path.exists():
+            raise InputError(f"sidecar '{side.name}' names the occupancy file '{occ}', which is missing; "
+                             "restore it or delete the 'occupancy' entry")
+        with open(occ_path, "rb") as fh:
+            out["occupancy"] = np.load(fh, allow_pickle=False)
+    return out
+
+
+def _occupancy_sidecar(path: Path) -> Path:
+    name = path.name
+    return path.with_name((name[:-4] if name.lower().endswith(".npy") else name) + ".occupancy.npy")
 
 
 def _write_npy(image, path):
@@ -440,9 +469,19 @@ def _write_npy(image, path):
         "direction": image.direction.tolist(),
         "note": "origin is the corner of voxel (0,0,0); direction columns are the array axes in the world",
     }
-    with atomic_path(path) as tmp, atomic_path(_sidecar(path)) as tmp_side:
+    if image.occupancy is None:
+        with atomic_path(path) as tmp, atomic_path(_sidecar(path)) as tmp_side:
+            with open(tmp, "wb") as fh:
+                np.save(fh, image.labels, allow_pickle=False)
+            Path(tmp_side).write_text(json.dumps(meta, indent=1) + "\n")
+        return
+    occ_path = _occupancy_sidecar(path)
+    meta["occupancy"] = occ_path.name  # partial-volume fractions (float32) in a second array beside it
+    with atomic_path(path) as tmp, atomic_path(_sidecar(path)) as tmp_side, atomic_path(occ_path) as tmp_occ:
         with open(tmp, "wb") as fh:
             np.save(fh, image.labels, allow_pickle=False)
+        with open(tmp_occ, "wb") as fh:
+            np.save(fh, np.asarray(image.occupancy, dtype=np.float32), allow_pickle=False)
         Path(tmp_side).write_text(json.dumps(meta, indent=1) + "\n")
 
 
