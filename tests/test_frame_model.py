@@ -101,7 +101,7 @@ def test_affine_motion_is_exact_and_stress_free_rigid_motion_has_no_energy():
 def test_free_body_with_enough_samples_has_exactly_six_zero_modes():
     """Per-voxel Gauss samples over 24 voxels and 5 frames: the rigid modes span the null space."""
     model = _model(material("hooke", young=1.0, poisson=0.3, strain="linear"))
-    K = model.hessian(model.rest).toarray()
+    K = np.asarray(model.hessian(model.rest))
     ev = np.linalg.eigvalsh(K)
     assert np.sum(ev < 1e-9 * ev.max()) == 6
     B = model.rigid_modes()
@@ -136,3 +136,35 @@ def test_implicit_euler_with_frames_never_gains_energy():
     total = np.array([r.elastic_energy + r.kinetic_energy for r in records])
     assert total[0] > 0 and np.all(np.diff(total) <= 1e-12 * total[0])
     assert total[-1] < 0.999 * total[0]
+
+
+def test_structured_kernels_equal_their_numpy_twins_and_the_generic_chain():
+    """F, forces and stiffness of the I3 (x) G kernels equal the numpy twins and the generic
+    DeformationGradientMapping chain (J^T P, J^T A J) to 1e-12 relative."""
+    from voxflex.deform import _frame_kernels as K
+    from voxflex.deform.mappings import DeformationGradientMapping
+
+    model = _model(material("neo-hookean", young=1e3, poisson=0.3), quadrature="midpoint")
+    q = _perturbed(model, 0.05)
+    idx, G = model._index, model._G
+    F = np.empty((model.n_samples, 3, 3))
+    K.frame_F(idx, G, q, F)
+    fmap = DeformationGradientMapping(model.nodes, model.samples.values)
+    assert np.allclose(F, fmap.apply(q), rtol=0, atol=1e-12) and np.allclose(F, K.frame_F_numpy(idx, G, q), atol=1e-12)
+    rng = np.random.default_rng(4)
+    VP = rng.standard_normal(F.shape)
+    g = np.zeros((model.n_nodes, 12))
+    K.frame_forces(idx, G, VP, g)
+    assert np.allclose(g, fmap.vjp(q, VP), atol=1e-12 * np.abs(g).max())
+    assert np.allclose(g, K.frame_forces_numpy(idx, G, VP, model.n_nodes), atol=1e-12 * np.abs(g).max())
+    A = rng.standard_normal((len(F), 9, 9))
+    A = (A + A.transpose(0, 2, 1)).reshape(-1, 3, 3, 3, 3)
+    Kd = np.zeros((12 * model.n_nodes,) * 2)
+    K.frame_stiffness(idx, G, A, Kd)
+    J = fmap.jacobian(q).toarray()
+    D = np.zeros((9 * len(F), 9 * len(F)))
+    for s in range(len(F)):
+        D[9 * s:9 * s + 9, 9 * s:9 * s + 9] = A[s].reshape(9, 9)
+    ref = J.T @ D @ J
+    assert np.allclose(Kd, ref, atol=1e-12 * np.abs(ref).max())
+    assert np.allclose(Kd, K.frame_stiffness_numpy(idx, G, A, model.n_nodes), atol=1e-12 * np.abs(ref).max())

@@ -137,8 +137,11 @@ def _frame_model(scene: Scene, image, materials):
     """
     import time
 
+    import dataclasses
+
     from .deform.frame_model import FrameModel, voxel_samples
     from .voronoi import place_frames, shape_function
+    from .voronoi.shape_functions import keep_largest
 
     t0 = time.perf_counter()
     nodes = scene.nodes
@@ -164,6 +167,9 @@ def _frame_model(scene: Scene, image, materials):
         from .sampling import sample
 
         samples = sample(image, sf, kind=quadrature, count=scene.elasticity.samples, seed=nodes.seed)
+    # at most `parents` frames per sample: the blended weights of a sample (and the union over a
+    # region) have more, and the stiffness costs ~432 P^2 flops per sample
+    samples = dataclasses.replace(samples, values=keep_largest(samples.values, nodes.parents))
     info = {"shape_function": kind, "parents": int(nodes.parents), "distance": nodes.distance}
     model = FrameModel.from_image(image, frames, sf, materials, samples=samples, use_occupancy=occupancy, info=info)
     if quadrature != "gauss-legendre":

@@ -408,7 +408,8 @@ class ContactModel:
         if gradient and len(act):
             g = g + self.mapping.vjp(q, fpts)
         if hessian and len(act):
-            H = H + self._barrier_hessian(q, blocks, act)
+            Hb = self._barrier_hessian(q, blocks, act)
+            H = H + Hb.toarray() if isinstance(H, np.ndarray) else H + Hb  # frame models give dense Hessians
         return E, g, H
 
     def _barrier_hessian(self, q, blocks, act):

@@ -51,6 +51,8 @@ from ..errors import InputError
 from ..sampling.quadrature import unit_cube_rule
 from ..voronoi.shape_functions import ShapeValues
 from ..voronoi.trilinear import TrilinearGrid
+from . import _frame_kernels as K
+from ._frame_kernels import frame_tables
 from .linear_solvers import vdot
 from .mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping, PointMapping
 from .nodes import AffineFrames
@@ -140,6 +142,9 @@ class FrameModel:
                     )
         else:
             self._fmap = DeformationGradientMapping(self.nodes, samples.values)
+            # the structured kernels: F = (I3 (x) G) d, forces and stiffness per sample (_frame_kernels)
+            self._index = np.ascontiguousarray(samples.values.index)
+            self._G = frame_tables(samples.values, self.frames)
         self._J = None
         self._groups = [(int(lab), np.flatnonzero(samples.label == lab)) for lab in np.unique(samples.label)]
         self._surface = None
@@ -219,8 +224,12 @@ class FrameModel:
 
     def deformation_gradients(self, q) -> np.ndarray:
         """F (m, 3, 3) at the samples."""
-        out = self._fmap.apply(self._check_q(q))
-        return out[0] if self.elaston else out
+        q = self._check_q(q)
+        if self.elaston:
+            return self._fmap.apply(q)[0]
+        F = np.empty((self.n_samples, 3, 3))
+        K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
+        return F
 
     def sample_fields(self, q) -> dict:
         """What result fields are computed from (see :meth:`voxflex.deform.model.Model.sample_fields`): every
@@ -253,26 +262,29 @@ class FrameModel:
         q = self._check_q(q)
         if self.elaston:
             return self._elaston_pass(q, gradient, hessian)
-        F = self._fmap.apply(q)
         vol = self.samples.volume
         m = len(vol)
+        F = np.empty((m, 3, 3))
+        K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
         energy = 0.0
-        VP = np.zeros((m, 3, 3)) if gradient else None
-        blocks = np.zeros((m, 9, 9)) if hessian else None
+        VP = np.empty((m, 3, 3)) if gradient else None
+        VA = np.empty((m, 3, 3, 3, 3)) if hessian else None
         for label, ids in self._groups:
             W, P, A = self.materials[label].evaluate(F[ids], tangent=hessian)
             energy += vdot(vol[ids], W)
             if gradient:
                 VP[ids] = vol[ids, None, None] * P
             if hessian:
-                blocks[ids] = vol[ids, None, None] * A.reshape(-1, 9, 9)
-        grad = self._fmap.vjp(q, VP) if gradient else None
+                VA[ids] = vol[ids, None, None, None, None] * A
+        grad = None
+        if gradient:
+            grad = np.zeros((self.n_nodes, 12))
+            K.frame_forces(self._index, self._G, VP, grad)
         H = None
         if hessian:
-            J = self.jacobian()
-            D = sp.bsr_matrix((blocks, np.arange(m), np.arange(m + 1)), shape=(9 * m, 9 * m)).tocsr()
-            H = (J.T @ (D @ J)).tocsr()
-            H = 0.5 * (H + H.T)
+            N = 12 * self.n_nodes
+            H = np.zeros((N, N))  # a dense Hessian: frames sharing material couple (the solver takes it as is)
+            K.frame_stiffness(self._index, self._G, VA, H)
         return float(energy), grad, H
 
     def _elaston_pass(self, q, gradient, hessian):

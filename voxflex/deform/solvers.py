@@ -179,7 +179,7 @@ class _Problem:
             if g is not None:
                 g = g + Mdx / self.h**2
             if H is not None:
-                H = H + self.M / self.h**2
+                H = _add(H, self.M / self.h**2)
             if self.D is not None:
                 dn = delta + self.off_n
                 Ddn = self.D @ dn
@@ -189,8 +189,17 @@ class _Problem:
                 if g is not None:
                     g = g + Ddn / self.h
                 if H is not None:
-                    H = H + self.D / self.h
-        return pot, E, g, (sp.csr_matrix(H) if H is not None else None), mag
+                    H = _add(H, self.D / self.h)
+        if H is not None and not isinstance(H, np.ndarray):
+            H = sp.csr_matrix(H)
+        return pot, E, g, H, mag
+
+
+def _add(H, S):
+    """H + S for a sparse or dense (ndarray) Hessian H and a sparse S; dense stays dense."""
+    if isinstance(H, np.ndarray):
+        return H + S.toarray()
+    return H + S
 
 
 def _forcing(rn, rn_prev, eta_prev, scale):
@@ -259,6 +268,8 @@ class _FreeBlock:
 
     def __call__(self, H) -> sp.csr_matrix:
         """``H[free][:, free]`` of a CSR matrix H (N, N) with sorted indices."""
+        if isinstance(H, np.ndarray):  # a dense Hessian (reduced models): plain indexing
+            return H[np.ix_(self.free, self.free)]
         H = sp.csr_matrix(H)
         if not self._same_pattern(H):
             if not H.has_canonical_format:
@@ -279,11 +290,19 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None):
     geometric-multigrid CG (see :func:`voxflex.deform.linear_solvers.choose_method`).
     """
     method = options.linear_solver
+    if isinstance(H, np.ndarray):
+        # a dense Hessian (frame models): dense Cholesky unless a sparse method was asked for
+        if method in ("auto", "cholesky"):
+            Hff = reduce(H)
+            d, info = solve_linear(Hff, rhs, method="cholesky")
+            return d, info, Hff
+        H = sp.csr_matrix(H)
     if method == "auto":
         nf = len(free)
         # a reduced model's stiffness is small and nearly dense (frames couple through shared
         # material): a dense Cholesky beats sparse LU there (measured in benchmarks/bench_frames.py)
-        dense = nf <= DENSE_AUTO_MAX and H.nnz >= DENSE_FILL * H.shape[0] ** 2
+        nnz = np.count_nonzero(H) if isinstance(H, np.ndarray) else H.nnz
+        dense = nf <= DENSE_AUTO_MAX and nnz >= DENSE_FILL * H.shape[0] ** 2
         method = "cholesky" if dense else choose_method(nf, grid=grid)
     if method == "cg":
         d, info = cg_on_free_dofs(H, rhs, free, rtol=eta)
@@ -406,7 +425,8 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             diag = np.abs(Hff.diagonal())
             mu = 1e-4 * float(np.mean(diag)) if len(diag) else 1.0
             for _ in range(12):
-                d, info = solve_linear(Hff + mu * sp.identity(Hff.shape[0], format="csr"), rhs, method="direct")
+                shift = mu * np.eye(Hff.shape[0]) if isinstance(Hff, np.ndarray) else mu * sp.identity(Hff.shape[0], format="csr")
+                d, info = solve_linear(Hff + shift, rhs, method="cholesky" if isinstance(Hff, np.ndarray) else "direct")
                 slope = vdot(r, d)
                 if slope < 0:
                     break

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["ShapeValues", "shepard", "SHAPE_FUNCTION_KINDS", "VOXEL_SHAPE_FUNCTIONS"]
+__all__ = ["ShapeValues", "shepard", "keep_largest", "SHAPE_FUNCTION_KINDS", "VOXEL_SHAPE_FUNCTIONS"]
 
 SHAPE_FUNCTION_KINDS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard")
 """Shape functions of frames over a label image (``natural-neighbour`` is ``sibson``)."""
@@ -192,6 +192,39 @@ class ShapeValues:
         mask = self.index >= 0
         rows = np.broadcast_to(np.arange(self.m)[:, None], self.index.shape)[mask]
         return sp.csr_matrix((self.w[mask], (rows, self.index[mask])), shape=(self.m, n))
+
+
+def keep_largest(values: ShapeValues, parents: int) -> ShapeValues:
+    """The ``parents`` largest weights of every child, renormalised to a partition of unity.
+
+    With ``S = sum of the kept w``: ``w' = w / S``, ``dw' = (dw - w' dS) / S`` and
+    ``ddw' = (ddw - dw' dS^T - dS dw'^T - w' ddS) / S`` — the exact derivatives of the
+    renormalised functions while the kept set does not change (it jumps where the
+    set changes: that is the cost of a bounded number of parents).
+    """
+    parents = int(parents)
+    if parents < 1:
+        raise InputError(f"parents must be >= 1, got {parents}")
+    if values.n_parents <= parents:
+        return values
+    order = np.argsort(-np.where(values.index >= 0, values.w, -np.inf), axis=1, kind="stable")[:, :parents]
+    r = np.arange(values.m)[:, None]
+    idx = values.index[r, order]
+    keep = idx >= 0
+    w = np.where(keep, values.w[r, order], 0.0)
+    dw = np.where(keep[..., None], values.dw[r, order], 0.0)
+    S = w.sum(1)
+    dS = dw.sum(1)
+    wn = w / S[:, None]
+    dn = np.where(keep[..., None], (dw - wn[..., None] * dS[:, None, :]) / S[:, None, None], 0.0)
+    ddn = None
+    if values.ddw is not None:
+        ddw = np.where(keep[..., None, None], values.ddw[r, order], 0.0)
+        hS = ddw.sum(1)
+        ddn = (ddw - dn[..., :, None] * dS[:, None, None, :] - dS[:, None, :, None] * dn[..., None, :]
+               - wn[..., None, None] * hS[:, None]) / S[:, None, None, None]
+        ddn = np.where(keep[..., None, None], 0.5 * (ddn + ddn.transpose(0, 1, 3, 2)), 0.0)
+    return ShapeValues(index=np.where(keep, idx, -1), w=wn, dw=dn, ddw=ddn, rest=values.rest, n_nodes=values.n_nodes)
 
 
 def shepard(points, nodes, *, power: float = 2.0, n_parents: int | None = None, hessians: bool = True) -> ShapeValues:
