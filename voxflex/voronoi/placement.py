@@ -12,9 +12,11 @@ where it is:
 4. farthest-point sampling up to ``count``: each new frame is the material
    voxel farthest (geodesically) from all frames so far (the first in C order
    on ties); adding one only re-propagates where the new frame is nearer;
-5. Lloyd relaxation of the frames of steps 3-4: each moves to the voxel of its
-   geodesic Voronoi cell nearest the cell's centroid, until nothing moves or
-   ``iterations`` is reached.
+5. Lloyd relaxation of the frames of steps 3-4 on continuous positions: each
+   moves to the centroid of its geodesic Voronoi cell (to the cell's voxel
+   nearest the centroid when the centroid lies outside the cell), until no
+   frame moves by more than 1e-3 voxel or ``iterations`` is reached; each then
+   snaps to the centre of the voxel it lies in.
 
 Example
 -------
@@ -202,25 +204,45 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
         frame_vox.append(v)
         M.march(mask, cost, pshape, spacing, seeds_of(centres[v]), [len(frames) - 1], fmm=2, dist=dist, owner=owner)
 
-    # Lloyd relaxation of the automatic frames (user and fixed-box frames stay)
+    # Lloyd relaxation of the automatic frames (user and fixed-box frames stay), on continuous
+    # positions: a frame moves to its cell's centroid (or, when the centroid is not in a voxel
+    # of the cell, to the cell's voxel centre nearest it, lowest index on ties) and snaps to the
+    # centre of its voxel at the end.  Moving voxel by voxel instead stalls wherever the
+    # centroid is within half a voxel of the frame, or exactly half-way between two centres.
     frame_vox = np.asarray(frame_vox, dtype=np.int64)
-    movable = np.arange(len(frames)) >= n_pinned
-    for _ in range(iterations if movable.any() else 0):
+    movable = np.flatnonzero(np.arange(len(frames)) >= n_pinned)
+    pos = np.array(frames, dtype=np.float64).reshape(-1, 3)
+    n = len(pos)
+    tol = 1e-3 * float(np.min(image.spacing))
+    for it in range(iterations if len(movable) else 0):
+        if it:
+            dist, owner = M.march(mask, cost, pshape, spacing, seeds_of(pos), np.arange(n), fmm=2)
         own = owner[mflat]
-        n = len(frames)
         cnt = np.bincount(own, minlength=n).astype(np.float64)
         cen = np.stack([np.bincount(own, weights=centres[:, a], minlength=n) for a in range(3)], axis=1)
         cen /= np.maximum(cnt, 1.0)[:, None]
+        cijk = np.floor(image.world_to_index(cen)).astype(np.int64)
+        inside = np.all((cijk >= 0) & (cijk < np.array(image.shape)), axis=1)
+        cvox = np.full(n, -1, dtype=np.int64)
+        cvox[inside] = vox_id[tuple(cijk[inside].T)]
+        ok = (cvox >= 0) & (cnt > 0)
+        ok[ok] = own[cvox[ok]] == np.flatnonzero(ok)
         d2 = ((centres - cen[own]) ** 2).sum(1)
         order = np.lexsort((np.arange(nmat), d2, own))
         first = np.r_[0, np.flatnonzero(np.diff(own[order])) + 1]
         best = np.full(n, -1, dtype=np.int64)
         best[own[order[first]]] = order[first]
-        new_vox = np.where(movable & (best >= 0), best, frame_vox)
-        if np.array_equal(new_vox, frame_vox):
+        new = pos.copy()
+        for i in movable:
+            if ok[i]:
+                new[i] = cen[i]
+            elif best[i] >= 0:
+                new[i] = centres[best[i]]
+        moved = float(np.max(np.linalg.norm(new - pos, axis=1)))
+        pos = new
+        if moved < tol:
             break
-        frame_vox = new_vox
-        for i in np.flatnonzero(movable):
-            frames[i] = centres[frame_vox[i]]
-        dist, owner = M.march(mask, cost, pshape, spacing, seeds_of(frames), np.arange(n), fmm=2)
+    for i in movable:
+        ijk = np.floor(image.world_to_index(pos[i][None])[0]).astype(np.int64)
+        frames[i] = image.index_to_world((ijk + 0.5)[None])[0]
     return np.array(frames, dtype=np.float64).reshape(-1, 3)
