@@ -29,7 +29,7 @@ def cube():
     return img, frames
 
 
-@pytest.mark.parametrize("kind", ["natural-neighbour", "laplace"])
+@pytest.mark.parametrize("kind", ["natural-neighbour", "laplace", "distance-ratio", "shepard"])
 def test_partition_of_unity_positivity_interpolation(cube, kind):
     img, frames = cube
     sf = shape_function(img, frames, kind=kind, parents=4, smooth=False)
@@ -58,17 +58,72 @@ def test_one_dimensional_bar_is_linear():
     np.testing.assert_allclose(w0, 1 - (x - 0.5) / L, atol=2.5 / L)
 
 
-def test_no_leak_across_a_one_voxel_slit():
+def test_distance_ratio_on_a_bar_is_exactly_linear():
+    """1 - d/L between two frames: 1 at a frame, 1/2 at the border, 0 at the other frame.
+    Oracle: the formula.  Distances along a bar are exact sums of voxel steps and every
+    voxel of this bar is a weight node, so the centre values match to round-off (1e-12);
+    between centres the per-node quadratic fit reproduces the linear function up to its
+    1e-8 ridge (measured 3.5e-10; allowed 1e-8)."""
+    L = 40
+    img = LabelImage(np.ones((L + 1, 1, 1), np.uint8))
+    frames = np.array([[0.5, 0.5, 0.5], [L + 0.5, 0.5, 0.5]])
+    sf = shape_function(img, frames, kind="distance-ratio", parents=2, smooth=False)
+    c = sf.centre_values()
+    w0 = np.where(c.index == 0, c.w, 0).sum(1)
+    np.testing.assert_allclose(w0, 1 - np.arange(L + 1) / L, rtol=0, atol=1e-12)
+    assert w0[L // 2] == pytest.approx(0.5, abs=1e-12)
+    x = np.linspace(0.5, L + 0.5, 97)
+    sv = sf(np.stack([x, np.full_like(x, 0.5), np.full_like(x, 0.5)], 1))
+    np.testing.assert_allclose(np.where(sv.index == 0, sv.w, 0).sum(1), 1 - (x - 0.5) / L, rtol=0, atol=1e-8)
+
+
+def test_distance_ratio_is_one_half_on_a_two_cell_border():
+    """Two frames in a box: every point has just these two natural neighbours, so on the
+    bisector plane (the slice of voxel centres equidistant from both) w = 1/2.  The centre
+    values come from per-node quadratic fits of nodes off the plane; measured max deviation 2.4e-5;
+    allowed 1e-3 (the fit of a smooth function over nodes 2 voxels apart)."""
+    img = LabelImage(np.ones((21, 9, 9), np.uint8))
+    frames = np.array([[3.5, 4.5, 4.5], [17.5, 4.5, 4.5]])
+    sf = shape_function(img, frames, kind="distance-ratio", parents=2, smooth=False)
+    c = sf.centre_values()
+    ijk = np.argwhere(img.labels > 0)
+    mid = ijk[:, 0] == 10
+    w0 = np.where(c.index == 0, c.w, 0).sum(1)
+    assert np.abs(w0[mid] - 0.5).max() < 1e-3
+    assert np.all(w0[ijk[:, 0] < 10] > 0.5) and np.all(w0[ijk[:, 0] > 10] < 0.5)
+
+
+def test_shepard_on_a_bar_matches_inverse_square_distance():
+    """Oracle: w_i = d_i^-2 / sum_j d_j^-2 with exact distances along the bar; every voxel is
+    a weight node here, so centre values agree to round-off (1e-12)."""
+    L = 40
+    img = LabelImage(np.ones((L + 1, 1, 1), np.uint8))
+    xs = np.array([0, 15, 40])
+    frames = np.stack([xs + 0.5, np.full(3, 0.5), np.full(3, 0.5)], 1)
+    sf = shape_function(img, frames, kind="shepard", parents=3, smooth=False)
+    c = sf.centre_values()
+    x = np.arange(L + 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = 1.0 / (x[:, None] - xs[None]) ** 2
+        ref = np.where(np.isinf(g).any(1, keepdims=True), np.isinf(g).astype(float), g / g.sum(1, keepdims=True))
+    got = np.zeros((L + 1, 3))
+    for j in range(3):
+        got[np.arange(L + 1), np.maximum(c.index[:, j], 0)] += np.where(c.index[:, j] >= 0, c.w[:, j], 0)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["sibson", "distance-ratio"])
+def test_no_leak_across_a_one_voxel_slit(kind):
     labels = np.ones((20, 21, 2), np.uint8)
     labels[:16, 10, :] = 0  # slit along x, open at x >= 16
     img = LabelImage(labels)
     frames = np.array([[2.5, 4.5, 0.5], [2.5, 16.5, 0.5], [18.5, 10.5, 0.5]])
     for smooth in (False, True):
-        _no_leak(img, frames, labels, smooth)
+        _no_leak(img, frames, labels, smooth, kind)
 
 
-def _no_leak(img, frames, labels, smooth):
-    sf = shape_function(img, frames, kind="sibson", parents=3, smooth=smooth)
+def _no_leak(img, frames, labels, smooth, kind):
+    sf = shape_function(img, frames, kind=kind, parents=3, smooth=smooth)
     sv = sf.voxel_values()
     ijk = np.argwhere(labels > 0)
     below = (ijk[:, 1] < 10) & (ijk[:, 0] < 8)
@@ -139,8 +194,6 @@ def test_errors(cube):
         shape_function(img, frames, kind="mls")
     with pytest.raises(InputError, match="parents"):
         shape_function(img, frames, parents=0)
-    with pytest.raises(InputError, match="not implemented"):
-        shape_function(img, frames, kind="distance-ratio")
     sf = shape_function(img, frames, kind="sibson")
     with pytest.raises(InputError, match="point 1"):
         sf(np.array([[0.05, 0.05, 0.05], [0.5, 0.5, 0.5]]))

@@ -37,7 +37,7 @@ def _one_point(mask, cost, shape, spacing, d, own, p, nframes, laplace,
                   ball_i[:cnt], ball_d[:cnt], ball_o[:cnt], 2, touched, 0, smin, smax)
     s1 = shape[1] * shape[2]
     s2 = shape[2]
-    if not laplace:
+    if laplace == 0:
         for k in range(nt):
             acc[own[touched[k]]] += 1.0
     else:
@@ -93,10 +93,13 @@ def _natural_kernel(mask, cost, shape, spacing, d, own, points, nframes, laplace
         for q in range(t, points.shape[0], nthreads):
             _one_point(mask, cost, shape, spacing, d, own, points[q], nframes, laplace,
                        dx, ox, state, nxt, prv, touched, acc, hmin, smin, smax, radius, ball_i, ball_d, ball_o)
-            if laplace:
+            if laplace == 1:
                 for f in range(nframes):
                     if acc[f] > 0:
                         acc[f] = acc[f] / hmin[f]
+            elif laplace == 2:  # distance ratio: inverse distance over the natural neighbours
+                for f in range(nframes):
+                    acc[f] = 1.0 / hmin[f] if hmin[f] < np.inf else 0.0
             tot = 0.0
             for f in range(nframes):
                 tot += acc[f]
@@ -133,6 +136,10 @@ def _natural_kernel(mask, cost, shape, spacing, d, own, points, nframes, laplace
 def natural_weights(mask, cost, pshape, spacing, d, own, points, nframes, *, laplace, kmax=32):
     """Natural-neighbour weights of points (q, 3) in padded index coords.
 
+    ``laplace``: False or 0 Sibson, True or 1 Laplace, 2 distance ratio (``1 / h_i``
+    over the natural neighbours i, h_i the distance from the point to frame i through
+    the shared boundary, as for Laplace).
+
     Returns frames (q, kmax) int64 (-1 padded), weights (q, kmax) (sum 1 per row) and counts (q,).
     """
     q = len(points)
@@ -141,7 +148,7 @@ def natural_weights(mask, cost, pshape, spacing, d, own, points, nframes, *, lap
     out_n = np.zeros(q, dtype=np.int64)
     if q:
         _natural_kernel(mask, cost, pshape, spacing, d, own, np.ascontiguousarray(points, dtype=np.float64),
-                        int(nframes), bool(laplace), int(kmax), float(cost.min()), float(cost.max()), M.BALL,
+                        int(nframes), int(laplace), int(kmax), float(cost.min()), float(cost.max()), M.BALL,
                         min(q, 2 * get_num_threads()), out_f, out_w, out_n)
     return out_f, out_w, out_n
 
@@ -157,7 +164,7 @@ def natural_naive(mask, cost, pshape, spacing, frame_points, point, *, laplace):
     d2, _ = M.march(mask, cost, pshape, spacing, np.asarray(point, dtype=np.float64)[None], [n], fmm=2)
     stolen = (d2 < d) & (mask > 0)
     acc = np.zeros(n)
-    if not laplace:
+    if int(laplace) == 0:
         np.add.at(acc, own[stolen], 1.0)
     else:
         hmin = np.full(n, np.inf)
@@ -170,5 +177,8 @@ def natural_naive(mask, cost, pshape, spacing, frame_points, point, *, laplace):
                     if mask[u] and not stolen[u]:
                         acc[own[u]] += areas[a]
                         hmin[own[u]] = min(hmin[own[u]], d2[v] + d[u] + spacing[a] * 0.5 * (cost[u] + cost[v]))
-        acc = np.where(acc > 0, acc / hmin, 0.0)
+        if int(laplace) == 2:
+            acc = np.where(np.isfinite(hmin), 1.0 / hmin, 0.0)
+        else:
+            acc = np.where(acc > 0, acc / hmin, 0.0)
     return acc / acc.sum()

@@ -325,8 +325,15 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
         Frame positions, each in a material voxel, at most one per voxel, at
         least one in every connected component of the material.
     kind : {"natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard"}
-        ``"natural-neighbour"`` is Sibson's coordinates.  ``"distance-ratio"``
-        and ``"shepard"`` are not implemented yet (InputError).
+        ``"natural-neighbour"`` is Sibson's coordinates.  ``"distance-ratio"``:
+        ``w_i ~ 1 / h_i`` over the point's natural neighbours i (the frames
+        whose cells it would steal from), ``h_i`` its geodesic distance to frame
+        i measured through the boundary it shares with i's cell: 1 at the frame,
+        0 at the neighbouring frames, 1/2 on a border between two cells where
+        no third cell is a natural neighbour, exactly ``1 - d/L`` along a bar.
+        ``"shepard"``: ``w_i ~ d_i^-2`` over all frames (geodesic ``d_i``; one
+        full propagation per frame, so the cost grows as n times the image),
+        for comparison: no linear precision, global support.
     parents : int
         At most this many frames per point (>= 1); see the module notes.
     distance : {"geodesic", "compliance"}
@@ -364,8 +371,6 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
     elastic models", ACM TOG 30(2), 2011.
     """
     check_choice("kind", kind, KINDS)
-    if kind in ("distance-ratio", "shepard"):
-        raise InputError(f"kind='{kind}' is not implemented yet on label images; use 'natural-neighbour' or 'laplace'")
     comp = _compliance_for(distance, compliance)
     if isinstance(parents, bool) or not isinstance(parents, (int, np.integer)) or int(parents) < 1:
         raise InputError(f"parents must be an integer >= 1, got {parents!r}")
@@ -436,8 +441,11 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
     nf[:n, 0] = np.arange(n)
     nw[:n, 0] = 1.0
     pts = image.world_to_index(node_pos[n:]) + M.PAD
-    nf[n:], nw[n:], _ = natural_weights(mask, cost, pshape, spacing, d, own, pts, n,
-                                        laplace=(kind == "laplace"), kmax=kmax)
+    if kind == "shepard":
+        nf[n:], nw[n:] = _shepard_nodes(mask, cost, pshape, spacing, fc + M.PAD, pts, kmax)
+    else:
+        mode = {"natural-neighbour": 0, "sibson": 0, "laplace": 1, "distance-ratio": 2}[kind]
+        nf[n:], nw[n:], _ = natural_weights(mask, cost, pshape, spacing, d, own, pts, n, laplace=mode, kmax=kmax)
     if np.any(anchored):
         # nodes in a frame's own seed region belong to it alone (a point there steals nothing)
         nijk = np.floor(image.world_to_index(node_pos[n:])).astype(np.int64)
@@ -483,6 +491,27 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
                          image=image, _node_pos=node_pos, _node_of_voxel=node_of_voxel,
                          _node_frames=node_frames, _node_coef=node_coef, _scale=h,
                          _anchor=np.where(anchored, seed_owner, -1) if np.any(anchored) else None, smooth=bool(smooth))
+
+
+def _shepard_nodes(mask, cost, pshape, spacing, frame_pts, pts, kmax, power=2.0):
+    """Shepard weights ``d_i^-power / sum_j d_j^-power`` (geodesic d) at node points (q, 3), padded
+    index coords, by one full propagation per frame (cost n x the image): the kmax largest, normalised."""
+    n, q = len(frame_pts), len(pts)
+    ijk = np.floor(pts).astype(np.int64)
+    flat = (ijk[:, 0] * pshape[1] + ijk[:, 1]) * pshape[2] + ijk[:, 2]
+    g = np.zeros((q, n))
+    for i in range(n):
+        di, _ = M.march(mask, cost, pshape, spacing, frame_pts[i][None], [i], fmm=2)
+        dq = di[flat]
+        g[:, i] = np.where(np.isfinite(dq), np.maximum(dq, 1e-300) ** -power, 0.0)
+    k = min(kmax, n)
+    order = np.argsort(-g, axis=1, kind="stable")[:, :k]
+    gk = np.take_along_axis(g, order, axis=1)
+    nf = np.full((q, kmax), -1, dtype=np.int64)
+    nw = np.zeros((q, kmax))
+    nf[:, :k] = np.where(gk > 0, order, -1)
+    nw[:, :k] = gk / gk.sum(1)[:, None]
+    return nf, nw
 
 
 def _fit_nodes(node_pos, nf, nw, nbr, h, n):
