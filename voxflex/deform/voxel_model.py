@@ -21,11 +21,42 @@ product and ``E = E0 + g0 . u + u^T K u / 2`` one small product per voxel
 (on displacements relative to the voxel's mean, so that a translated body
 keeps round-off-free energy).
 
+Volumetric locking (``volumetric``): trilinear voxels cannot bend without
+changing volume at their Gauss points, so a nearly incompressible body is far
+too stiff (a 16x4x4 cantilever bends 5.4x too little at nu = 0.4999).
+``volumetric="reduced"`` lets the volumetric part of the energy see one
+dilatation per voxel: the F-bar method, ``F_bar_q = (J_c / J_q)^(1/3) F_q`` with
+``J_c = det F_c`` at the voxel centre (``F_c`` the mean of the Gauss-point
+gradients), the energy ``sum vol W(F_bar)`` and its exact gradient and
+Hessian (symmetric: the energy is a function of q).  Materials with a
+constant tangent get its linearisation, B-bar (the Gauss-point dilatation
+replaced by the voxel mean), which keeps their energy quadratic.  Affine
+motions give ``F_bar = F`` (the patch test holds).  With F-bar a Gauss point
+cannot pass through ``J = 0`` (its deviatoric part blows up there): samples
+whose ``J_q`` and ``J_c`` differ in sign or vanish have infinite energy, and
+inverted starts need ``volumetric="full"``.  ``"auto"`` (the scenes' default) chooses
+"reduced" for the labels whose material has an effective Poisson ratio
+>= 0.4 at rest (read from its rest tangent) and "full" otherwise, so the
+peer-library reference numbers at nu = 0.3 are untouched.
+
 Mid-point quadrature: one sample per voxel cannot see the voxel's hourglass
 motions (bilinear "checkerboard" modes), so the stiffness has zero modes
-besides the 6 rigid motions (12 per isolated voxel, fewer for connected
-voxels but still many).  It is offered for speed comparisons, not hidden:
-static problems with it are often singular.
+besides the 6 rigid motions.  ``hourglass="stiffness"`` adds to every voxel the
+Gauss-minus-mid-point difference of its material's stiffness at rest,
+``K_hg = sum_q w_q B_q^T C B_q - B_c^T C B_c`` (positive semi-definite, zero
+on affine motions, finite rotations included), with ``C`` the rest tangent,
+deviatoric part only (``P C P``, P the deviatoric projector) where the
+volumetric term is reduced.  For linear elasticity mid-point plus ``K_hg`` is
+then exactly the Gauss stiffness (full) or B-bar (reduced); for nonlinear
+materials the stabilisation is that linear stiffness on the displacement's
+non-affine part (not objective under large rotations of a voxel's hourglass
+shape: use Gauss-Legendre for those).  ``hourglass="none"`` keeps the bare
+one-point rule (static problems with it are often singular).
+
+Defaults: this class builds the plain rules (``volumetric="full"``,
+``hourglass="none"``), the discretisation the peer libraries share and the
+tests pin; scenes default to the remedies (``[elasticity] volumetric =
+"auto"``, ``hourglass = "stiffness"``).
 
 >>> import numpy as np
 >>> from voxflex.image.label_image import LabelImage
@@ -55,6 +86,18 @@ from .nodes import Points
 
 CHUNK_ELEMENTS = 16384
 """Voxels evaluated per batch (bounds the memory of F, P, A: ~80 MB of tangents with 8 samples each)."""
+
+FBAR_CHUNK_ELEMENTS = 4096
+"""Voxels per batch with F-bar (three tangent-sized arrays per sample instead of one)."""
+
+VOLUMETRIC = ("auto", "full", "reduced")
+"""``volumetric`` values: reduced where the material is nearly incompressible, full Gauss, F-bar / B-bar."""
+
+HOURGLASS = ("stiffness", "none")
+"""``hourglass`` values (mid-point quadrature): the rest-stiffness stabilisation, or the bare one-point rule."""
+
+AUTO_REDUCED_POISSON = 0.4
+"""``volumetric="auto"`` reduces the volumetric term of labels whose effective Poisson ratio at rest is at least this."""
 
 
 def tangent_is_constant(material) -> bool:
@@ -126,6 +169,143 @@ def _as_slice(ids):
     return ids
 
 
+def effective_lame(A0) -> tuple[float, float]:
+    """Isotropic Lame constants (lambda, mu) of a rest tangent ``A0`` (3, 3, 3, 3), Pa.
+
+    The isotropic projection: ``sum_ik A_iikk = 9 lambda + 6 mu`` and
+    ``sum_ij A_ijij = 3 lambda + 12 mu`` (exact for an isotropic tangent).
+    """
+    a = float(np.einsum("iikk->", A0))
+    b = float(np.einsum("ijij->", A0))
+    mu = (3.0 * b - a) / 30.0
+    return (a - 6.0 * mu) / 9.0, mu
+
+
+def nearly_incompressible(material) -> bool:
+    """Whether ``material``'s effective Poisson ratio at rest is >= :data:`AUTO_REDUCED_POISSON`.
+
+    Read from its tangent at F = I (any material, anisotropic ones through
+    their isotropic projection); a material without a finite rest tangent counts as not.
+    """
+    A0 = material.evaluate(np.eye(3)[None], tangent=True)[2][0]
+    if not np.all(np.isfinite(A0)):
+        return False
+    lam, mu = effective_lame(A0)
+    nu_bound = AUTO_REDUCED_POISSON
+    # nu = lam / (2 (lam + mu)) >= nu_bound  <=>  lam (1 - 2 nu_bound) >= 2 nu_bound mu (lam, mu > 0)
+    return lam > 0 and lam * (1.0 - 2.0 * nu_bound) >= 2.0 * nu_bound * mu
+
+
+def _b_matrices(G) -> np.ndarray:
+    """B (Q, 9, 24) with ``vec(F_q) = B_q vec(X)``: ``F_ij = sum_a X_ai G_qaj``, row ``3 i + j``, column ``3 a + i``."""
+    nq = len(G)
+    B = np.zeros((nq, 3, 3, 8, 3))
+    for i in range(3):
+        B[:, i, :, :, i] = G.transpose(0, 2, 1)
+    return B.reshape(nq, 9, 24)
+
+
+def _deviatoric(C) -> np.ndarray:
+    """``P C P`` (9, 9) with P the projector onto traceless 3x3 tensors."""
+    i9 = np.eye(3).reshape(9)
+    P = np.eye(9) - np.outer(i9, i9) / 3.0
+    return P @ C @ P
+
+
+def _nodal(M, G) -> np.ndarray:
+    """``B_q^T vec(M_q)`` for every sample: (k, Q, 3, 3) and G (Q, 8, 3) -> (k, Q, 24)."""
+    k, nq = M.shape[:2]
+    return np.einsum("eqij,qaj->eqai", M, G).reshape(k, nq, 24)
+
+
+def fbar_evaluate(material, F, vol, G, qweights, *, gradient=True, tangent=True):
+    """Energy, effective stresses and element stiffness of F-bar voxels (numpy).
+
+    The energy of a voxel is ``sum_q vol_q W(F_bar_q)`` with
+    ``F_bar_q = r_q F_q``, ``r_q = (J_c / J_q)^(1/3)``, ``F_c = sum_q w_q F_q``
+    (the voxel centre; ``G_c = sum_q w_q G_q``).  With ``s = P_bar : F_q`` and
+    ``S = sum_q vol_q r_q s_q / 3`` per voxel, the gradient is
+    ``sum_q vol_q B_q^T P_eff_q`` with
+    ``P_eff = r P_bar - (r s / 3) F_q^-T + (S / V) F_c^-T`` and the Hessian
+    ``sum_q vol_q [B_q^T M_q B_q + u g^T + g u^T + beta g g^T] - S B_c^T T_c B_c``,
+    where ``M = r^2 A_bar + (r s / 3) T_q``, ``T(F)[ijkl] = F^-1_li F^-1_jk``,
+    ``g = (B_c^T F_c^-T - B_q^T F_q^-T) / 3``, ``u = B_q^T (r^2 A_bar:F + r P_bar)``
+    and ``beta = r^2 F:A_bar:F + r s``.
+
+    Parameters
+    ----------
+    material : Material
+    F : (k * Q, 3, 3) float
+        Gauss-point deformation gradients, element-major.
+    vol : (k * Q,) float
+        Sample volumes (m^3).
+    G : (Q, 8, 3) float
+        World gradients of the corner weights (1/m).
+    qweights : (Q,) float, summing to 1
+
+    Returns
+    -------
+    W : (k * Q,) float
+        Energy density at the samples (Pa), +inf where ``J_q J_c <= 0``.
+    P_eff : (k * Q, 3, 3) float or None
+        Stress whose ``B_q^T`` products give the gradient (Pa).
+    K : (k, 24, 24) float or None
+        Element stiffness (N/m), DOF ``3 * corner + component``.
+    """
+    nq = len(qweights)
+    k = len(F) // nq
+    Fq = F.reshape(k, nq, 3, 3)
+    Fc = np.einsum("q,eqij->eij", qweights, Fq)
+    Jq = np.linalg.det(Fq)
+    Jc = np.linalg.det(Fc)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = Jc[:, None] / Jq
+    ok = np.isfinite(ratio) & (ratio > 0)
+    r = np.where(ok, np.cbrt(np.where(ok, ratio, 1.0)), 1.0)
+    Fq_safe = np.where(ok[..., None, None], Fq, np.eye(3))
+    Fbar = r[..., None, None] * Fq_safe
+    need_tangent = tangent
+    W, Pbar, Abar = material.evaluate(Fbar.reshape(-1, 3, 3), tangent=need_tangent)
+    bad = ~ok.reshape(-1)
+    if np.any(bad):
+        W = np.where(bad, np.inf, W)
+    if not (gradient or tangent):
+        return W, None, None
+    Pbar = Pbar.reshape(k, nq, 3, 3)
+    vq = vol.reshape(k, nq)
+    s = np.einsum("eqij,eqij->eq", Pbar, Fq_safe)
+    Fq_inv = np.linalg.inv(Fq_safe)
+    Fc_safe = np.where((np.abs(Jc) > 0)[:, None, None], Fc, np.eye(3))
+    Fc_inv = np.linalg.inv(Fc_safe)
+    Ve = vq.sum(axis=1)
+    S = np.einsum("eq,eq,eq->e", vq, r, s) / 3.0
+    SV = np.divide(S, Ve, out=np.zeros_like(S), where=Ve > 0)
+    P_eff = (r[..., None, None] * Pbar - (r * s / 3.0)[..., None, None] * Fq_inv.transpose(0, 1, 3, 2)
+             + SV[:, None, None, None] * Fc_inv.transpose(0, 2, 1)[:, None])
+    if np.any(bad):
+        P_eff[bad.reshape(k, nq)] = np.nan
+    P_eff = P_eff.reshape(-1, 3, 3)
+    if not tangent:
+        return W, P_eff, None
+    Abar = Abar.reshape(k, nq, 3, 3, 3, 3)
+    Tq = np.einsum("eqli,eqjk->eqijkl", Fq_inv, Fq_inv)
+    M = (r**2)[..., None, None, None, None] * Abar + (r * s / 3.0)[..., None, None, None, None] * Tq
+    K = kern.element_stiffness(G, M.reshape(-1, 3, 3, 3, 3), vol)
+    AF = np.einsum("eqijkl,eqkl->eqij", Abar, Fq_safe)
+    Gc = np.einsum("q,qaj->aj", qweights, G)
+    gc = np.einsum("eji,aj->eai", Fc_inv, Gc).reshape(k, 1, 24)  # B_c^T F_c^-T
+    g = (gc - _nodal(Fq_inv.transpose(0, 1, 3, 2), G)) / 3.0
+    u = _nodal((r**2)[..., None, None] * AF + r[..., None, None] * Pbar, G)
+    beta = r**2 * np.einsum("eqij,eqij->eq", AF, Fq_safe) + r * s
+    ug = np.einsum("eqa,eqb->eab", vq[..., None] * u, g)
+    K += ug + ug.transpose(0, 2, 1) + np.einsum("eqa,eqb->eab", (vq * beta)[..., None] * g, g)
+    Tc = np.einsum("eli,ejk->eijkl", Fc_inv, Fc_inv)
+    K += kern.element_stiffness(Gc[None], Tc, -S)
+    if np.any(bad):
+        K[np.any(bad.reshape(k, nq), axis=1)] = np.nan
+    return W, P_eff, K
+
+
 class VoxelModel:
     """Trilinear voxel model of a labelled image (see the module docstring).
 
@@ -141,6 +321,10 @@ class VoxelModel:
     element_volume : (m,) float
         Voxel volume times occupancy (m^3).
     quadrature : str
+    volumetric : dict label -> bool
+        Whether the label's volumetric term is reduced (F-bar / B-bar).
+    hourglass : str
+        ``"stiffness"`` or ``"none"`` (only acts with mid-point quadrature).
     """
 
     node_kind = "voxel"
@@ -151,7 +335,8 @@ class VoxelModel:
         """The voxel grid whose corners are the nodes (geometric multigrid uses it)."""
         return self.grid
 
-    def __init__(self, grid: TrilinearGrid, labels, volumes, materials, quadrature, mask, image=None):
+    def __init__(self, grid: TrilinearGrid, labels, volumes, materials, quadrature, mask, image=None, *,
+                 volumetric="full", hourglass="none"):
         self.image = image
         self.grid = grid
         self.rest = grid.node_positions
@@ -175,7 +360,16 @@ class VoxelModel:
             self._groups.append((int(label), ids, tangent_is_constant(self.materials[int(label)])))
         self._pattern = None
         self._node_type = None
-        self._constant = None  # (data, E0, g0) of the constant-tangent groups, built on first use
+        self._constant = None  # (data, E0, g0, units) of the quadratic terms, built on first use
+        self.volumetric_option = volumetric
+        self.volumetric = {}
+        for label, _, _ in self._groups:
+            mat = self.materials[label]
+            self.volumetric[label] = volumetric == "reduced" or (volumetric == "auto" and nearly_incompressible(mat))
+        self.hourglass = hourglass
+        # quadratic stabilisation of the mid-point rule on the nonlinear labels (constant ones fold it into their unit)
+        self._stabilised = {label for label, _, const in self._groups
+                            if quadrature == "midpoint" and hourglass == "stiffness" and not const}
 
     # -- construction -------------------------------------------------------
     @classmethod
@@ -186,6 +380,8 @@ class VoxelModel:
         *,
         quadrature: str = "gauss-legendre",
         use_occupancy: bool = True,
+        volumetric: str = "full",
+        hourglass: str = "none",
     ) -> "VoxelModel":
         """Voxel model of ``image`` with one material per label.
 
@@ -199,13 +395,26 @@ class VoxelModel:
             point per voxel (hourglass modes, see the module docstring).
         use_occupancy : bool
             Scale each voxel's volume by ``image.occupancy`` when the image has one.
+        volumetric : {"full", "reduced", "auto"}
+            Integration of the volumetric term (see the module docstring):
+            plain Gauss (this class's default, the discretisation the peer
+            libraries share), F-bar / B-bar for ``"reduced"``; ``"auto"`` (the
+            scenes' default, ``[elasticity] volumetric``) reduces it for the
+            labels whose material has an effective Poisson ratio >= 0.4 at rest.
+        hourglass : {"none", "stiffness"}
+            Mid-point quadrature only: keep the bare one-point rule (this
+            class's default, the rule itself as the tests and the peer
+            libraries define it), or add the rest-stiffness hourglass
+            stabilisation (the scenes' default, ``[elasticity] hourglass``).
 
         Raises
         ------
         InputError
-            Empty image, a label without material, an unknown quadrature.
+            Empty image, a label without material, an unknown quadrature or option.
         """
         check_choice("quadrature", quadrature, RULES)
+        check_choice("volumetric", volumetric, VOLUMETRIC)
+        check_choice("hourglass", hourglass, HOURGLASS)
         labels = np.asarray(image.labels)
         mask = labels > 0
         if not np.any(mask):
@@ -230,7 +439,8 @@ class VoxelModel:
         volumes = np.full(len(ijk), float(image.voxel_volume))
         if use_occupancy and image.occupancy is not None:
             volumes *= np.asarray(image.occupancy, dtype=float)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
-        return cls(grid, element_label, volumes, {int(k): materials[int(k)] for k in present}, quadrature, mask, image)
+        return cls(grid, element_label, volumes, {int(k): materials[int(k)] for k in present}, quadrature, mask, image,
+                   volumetric=volumetric, hourglass=hourglass)
 
     # -- sizes -----------------------------------------------------------------
     @property
@@ -257,12 +467,19 @@ class VoxelModel:
         return q
 
     # -- kinematics ------------------------------------------------------------
-    def _chunks(self, only_variable=False, only_constant=False):
+    def _fbar(self, label) -> bool:
+        """Whether ``label``'s nonlinear samples use F-bar (reduced volumetric term, several samples per voxel)."""
+        return self.volumetric[label] and len(self._qweights) > 1
+
+    def _chunks(self, only_variable=False, only_constant=False, labels=None):
         for label, ids, const in self._groups:
             if (only_variable and const) or (only_constant and not const):
                 continue
-            for start in range(0, len(ids), CHUNK_ELEMENTS):
-                yield label, _as_slice(ids[start : start + CHUNK_ELEMENTS]), const
+            if labels is not None and label not in labels:
+                continue
+            size = FBAR_CHUNK_ELEMENTS if (self._fbar(label) and not const) else CHUNK_ELEMENTS
+            for start in range(0, len(ids), size):
+                yield label, _as_slice(ids[start : start + size]), const
 
     def _deformation_gradient(self, q, elements):
         """F (k * Q, 3, 3) at the samples of ``elements`` (element-major)."""
@@ -331,7 +548,7 @@ class VoxelModel:
         energy = 0.0
         grad = np.zeros((n, 3)) if gradient else None
         data = None
-        has_constant = any(const for _, _, const in self._groups)
+        has_constant = any(const for _, _, const in self._groups) or bool(self._stabilised)
         if hessian or has_constant:
             self._ensure_pattern()
         if has_constant:
@@ -366,7 +583,12 @@ class VoxelModel:
             F = self._deformation_gradient(q, elements)
             vol = self._sample_volumes(elements)
             need_tangent = data is not None
-            W, P, A = mat.evaluate(F, tangent=need_tangent)
+            Ke = None
+            if self._fbar(label):
+                W, P, Ke = fbar_evaluate(mat, F, vol, self._G, self._qweights,
+                                         gradient=grad is not None, tangent=need_tangent)
+            else:
+                W, P, A = mat.evaluate(F, tangent=need_tangent)
             energy += vdot(vol, W)
             if grad is not None:
                 VP = (P * vol[:, None, None]).reshape(-1, len(self._qweights), 3, 3)
@@ -377,7 +599,8 @@ class VoxelModel:
                 grad += np.bincount(dof.ravel(), weights=fe.ravel(), minlength=3 * n).reshape(n, 3)
             if need_tangent:
                 indptr_b, blockmap = self._pattern[2:]
-                Ke = kern.element_stiffness(self._G, A, vol)
+                if Ke is None:
+                    Ke = kern.element_stiffness(self._G, A, vol)
                 kern.scatter_blocks(Ke, conn[elements], blockmap[elements], indptr_b, data)
         return energy
 
@@ -391,7 +614,7 @@ class VoxelModel:
         """
         energy = 0.0
         conn = self.grid.element_nodes
-        for label, elements, const in self._chunks(only_constant=True):
+        for label, elements, const in self._chunks(labels=units):
             ue = u[conn[elements]]  # (k, 8, 3)
             ue = (ue - ue.mean(axis=1, keepdims=True)).reshape(len(ue), 1, 24)
             Ke_u = np.matmul(ue, units[label])  # (k, 1, 24), a batch of small products
@@ -415,23 +638,61 @@ class VoxelModel:
         """Energy (J/m^3), forces (8, 3) (N/m^3) and stiffness (24, 24) of one voxel at rest per unit volume.
 
         At rest F = I at every sample, so one evaluation of the material at the
-        Q quadrature points serves every voxel of the label.
+        Q quadrature points serves every voxel of the label.  With a reduced
+        volumetric term the samples see B-bar, ``B_bar_q = B_q + vec(I) g_q^T``
+        with ``g_q = (B_c - B_q)^T vec(I) / 3`` (the dilatation replaced by the
+        voxel mean); with mid-point quadrature the hourglass stiffness is added.
         """
         label = int(label)
         if label not in self.materials or not tangent_is_constant(self.materials[label]):
             consts = [lab for lab, _, c in self._groups if c]
             raise InputError(f"label {label} has no constant-tangent material; labels with one: {consts}")
-        F = np.broadcast_to(np.eye(3), (len(self._qweights), 3, 3)).copy()
+        nq = len(self._qweights)
+        F = np.broadcast_to(np.eye(3), (nq, 3, 3)).copy()
         W, P, A = self.materials[label].evaluate(F, tangent=True)
         w0 = float(self._qweights @ W)
-        f0 = np.einsum("q,qij,qaj->ai", self._qweights, P, self._G)
-        return w0, f0, kern.element_stiffness(self._G, A, self._qweights)[0]
+        if not (self.volumetric[label] and nq > 1):
+            f0 = np.einsum("q,qij,qaj->ai", self._qweights, P, self._G)
+            Ku = kern.element_stiffness(self._G, A, self._qweights)[0]
+        else:
+            B = _b_matrices(self._G)  # (Q, 9, 24)
+            i9 = np.eye(3).reshape(9)
+            bI = np.einsum("i,qia->qa", i9, B)  # B_q^T vec(I)
+            g = (self._qweights @ bI - bI) / 3.0
+            B = B + i9[None, :, None] * g[:, None, :]
+            f0 = np.einsum("q,qia,qi->a", self._qweights, B, P.reshape(nq, 9)).reshape(8, 3)
+            Ku = np.einsum("q,qia,qij,qjb->ab", self._qweights, B, A.reshape(nq, 9, 9), B)
+            Ku = 0.5 * (Ku + Ku.T)
+        if self.quadrature == "midpoint" and self.hourglass == "stiffness":
+            Ku = Ku + self._hourglass_unit(label)
+        return w0, f0, Ku
+
+    def _hourglass_unit(self, label) -> np.ndarray:
+        """Hourglass stiffness (24, 24) per unit volume (N/m^4): Gauss minus mid-point stiffness of the rest tangent.
+
+        ``sum_q w_q B_q^T C B_q - B_c^T C B_c`` with ``C`` the material's
+        tangent at F = I (deviatoric part ``P C P`` when the label's volumetric
+        term is reduced); positive semi-definite for a positive semi-definite
+        ``C`` and zero on affine displacements.
+        """
+        C = self.materials[int(label)].evaluate(np.eye(3)[None], tangent=True)[2][0].reshape(9, 9)
+        C = 0.5 * (C + C.T)
+        if self.volumetric[int(label)]:
+            C = _deviatoric(C)
+        local, weights = unit_cube_rule("gauss-legendre")
+        Bg = _b_matrices(self.grid.reference_gradients(local))
+        Bc = np.einsum("q,qia->ia", weights, Bg)
+        K = np.einsum("q,qia,ij,qjb->ab", weights, Bg, C, Bg) - Bc.T @ C @ Bc
+        return 0.5 * (K + K.T)
 
     def _constant_part(self):
-        """Stiffness data, energy and gradient at rest, unit stiffness per label (constant-tangent groups, cached).
+        """Stiffness data, energy and gradient at rest, unit stiffness per label of the quadratic terms (cached).
 
-        For a quadratic energy ``E(q) = E0 + g0 . u + u^T K u / 2`` exactly, with
-        ``E0``, ``g0`` the energy and gradient at rest (zero for a stress-free rest state).
+        The constant-tangent groups have a quadratic energy
+        ``E(q) = E0 + g0 . u + u^T K u / 2`` exactly, with ``E0``, ``g0`` the
+        energy and gradient at rest (zero for a stress-free rest state); the
+        hourglass stabilisation of nonlinear mid-point groups adds its own
+        ``u^T K_hg u / 2``.
         """
         if self._constant is None:
             self._ensure_pattern()
@@ -443,9 +704,12 @@ class VoxelModel:
             g0 = np.zeros(3 * n)
             units = {}
             for label, ids, const in self._groups:
-                if not const:
+                if const:
+                    w0, f0, Ku = self._unit_terms(label)
+                elif label in self._stabilised:
+                    w0, f0, Ku = 0.0, np.zeros((8, 3)), self._hourglass_unit(label)
+                else:
                     continue
-                w0, f0, Ku = self._unit_terms(label)
                 units[label] = Ku
                 for start in range(0, len(ids), 4 * CHUNK_ELEMENTS):
                     el = _as_slice(ids[start : start + 4 * CHUNK_ELEMENTS])
@@ -624,16 +888,25 @@ class VoxelModel:
 
     def advice(self) -> str:
         """Model-specific advice appended to a solver failure ('' when none)."""
-        if self.quadrature == "midpoint":
+        if self.quadrature == "midpoint" and self.hourglass == "none":
             return ("mid-point quadrature leaves hourglass (zero-energy) modes in trilinear voxels, "
-                    'use [elasticity] quadrature = "gauss-legendre"')
+                    'use [elasticity] hourglass = "stiffness" or quadrature = "gauss-legendre"')
         return ""
 
     def describe(self) -> dict:
         """Attributes of the result file's ``/model`` group."""
         return {"node_kind": self.node_kind, "count": self.n_nodes, "dofs": 3 * self.n_nodes,
                 "quadrature": self.quadrature, "samples": self.n_samples, "shape_function": "trilinear",
-                "voxels": self.n_elements}
+                "voxels": self.n_elements, "volumetric": self.volumetric_summary(), "hourglass": self.hourglass}
+
+    def volumetric_summary(self) -> str:
+        """``"full"``, ``"reduced"``, or ``"reduced for labels [..]"`` when the labels differ."""
+        reduced = sorted(lab for lab, red in self.volumetric.items() if red)
+        if not reduced:
+            return "full"
+        if len(reduced) == len(self.volumetric):
+            return "reduced"
+        return f"reduced for labels {reduced}"
 
     def nodes_in_box(self, lo, hi) -> np.ndarray:
         """Indices of the nodes whose rest position lies in the box [lo, hi] (inclusive)."""
