@@ -43,6 +43,7 @@ from .deform.contact import POINT_RULES as CONTACT_POINT_RULES
 from .deform.fields import check_field_names
 from .deform.solvers import KINDS as SOLVER_KINDS, MASS_KINDS
 from .deform.strains import STRAINS
+from .deform.voxel_model import HOURGLASS, VOLUMETRIC
 from .errors import InputError, did_you_mean
 from .rasterize.primitives import PRIMITIVES
 from .sampling.quadrature import QUADRATURES
@@ -374,14 +375,19 @@ class NodesSpec:
 
 @dataclass(frozen=True)
 class ElasticitySpec:
-    """``[elasticity]``: quadrature (default ``"gauss-legendre"``, 2x2x2 per voxel), samples, strain."""
+    """``[elasticity]``: quadrature (default ``"gauss-legendre"``, 2x2x2 per voxel), samples, strain,
+    volumetric (``"auto"``: F-bar where nu >= 0.4) and hourglass (mid-point stabilisation)."""
 
     quadrature: str = "gauss-legendre"
     samples: int = 200
     strain: str | None = None
+    volumetric: str = "auto"
+    hourglass: str = "stiffness"
 
     def __post_init__(self):
         _string("elasticity", "quadrature", self.quadrature, QUADRATURES)
+        _string("elasticity", "volumetric", self.volumetric, VOLUMETRIC)
+        _string("elasticity", "hourglass", self.hourglass, HOURGLASS)
         object.__setattr__(self, "samples", _number("elasticity", "samples", self.samples, integer=True, minimum=1))
         if self.strain is not None:
             _string("elasticity", "strain", self.strain, STRAIN_NAMES)
