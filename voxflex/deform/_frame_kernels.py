@@ -22,7 +22,7 @@ import numpy as np
 
 from .._jit import njit
 
-__all__ = ["frame_tables", "frame_F", "frame_forces", "frame_stiffness"]
+__all__ = ["frame_tables", "frame_F", "frame_forces", "frame_stiffness", "frame_stiffness_blocks"]
 
 
 def frame_tables(values, frames) -> np.ndarray:
@@ -81,14 +81,20 @@ def frame_forces(index, G, VP, g):  # pragma: no cover - compiled
 
 
 @njit
-def frame_stiffness(index, G, VA, K):  # pragma: no cover - compiled
-    """K (12n, 12n) += sum_s J_s^T VA_s J_s with VA (m, 3, 3, 3, 3) volume-weighted tangents (dense K).
+def frame_stiffness_blocks(index, G, VA, K4):  # pragma: no cover - compiled
+    """K4 (n, n, 12, 12) += the frame-pair blocks of sum_s J_s^T VA_s J_s (VA (m, 3, 3, 3, 3) volume-weighted).
 
-    VA must have the major symmetry ``VA[i, j, k, l] = VA[k, l, i, j]`` (every hyperelastic tangent
-    has it): only the parent pairs q >= p are computed, the others are their transposes.
+    The frame-pair layout keeps every write of a parent pair inside one 12x12 block (1152 bytes),
+    not scattered over the (12n)^2 matrix.  VA must have the major symmetry ``VA[i, j, k, l] =
+    VA[k, l, i, j]`` (every hyperelastic tangent has it): only the parent pairs q >= p are
+    computed, the others are their transposes.
     """
     m, P = index.shape
     T = np.empty((P, 4, 3, 3, 3))
+    loc = np.empty((4, 3), dtype=np.int64)
+    for c in range(4):
+        for i in range(3):
+            loc[c, i] = 3 * i + c if c < 3 else 9 + i
     for s in range(m):
         for p in range(P):
             if index[s, p] < 0:
@@ -105,22 +111,29 @@ def frame_stiffness(index, G, VA, K):  # pragma: no cover - compiled
             a = index[s, p]
             if a < 0:
                 continue
-            for q in range(p, P):  # the (q, p) block is the transpose of (p, q) (VA has major symmetry)
+            for q in range(p, P):
                 b = index[s, q]
                 if b < 0:
                     continue
                 for c in range(4):
                     for i in range(3):
-                        row = _dof(a, i, c)
+                        r = loc[c, i]
                         for d in range(4):
                             for k in range(3):
-                                acc = 0.0
-                                for l in range(3):
-                                    acc += T[p, c, i, k, l] * G[s, q, d, l]
-                                col = _dof(b, k, d)
-                                K[row, col] += acc
+                                acc = (T[p, c, i, k, 0] * G[s, q, d, 0] + T[p, c, i, k, 1] * G[s, q, d, 1]
+                                       + T[p, c, i, k, 2] * G[s, q, d, 2])
+                                col = loc[d, k]
+                                K4[a, b, r, col] += acc
                                 if q != p:
-                                    K[col, row] += acc
+                                    K4[b, a, col, r] += acc
+
+
+def frame_stiffness(index, G, VA, K):
+    """K (12n, 12n) += sum_s J_s^T VA_s J_s (dense; see :func:`frame_stiffness_blocks`)."""
+    n = K.shape[0] // 12
+    K4 = np.zeros((n, n, 12, 12))
+    frame_stiffness_blocks(index, G, VA, K4)
+    K += K4.transpose(0, 2, 1, 3).reshape(12 * n, 12 * n)
 
 
 # ----------------------------------------------------------------------------------------------
