@@ -193,7 +193,8 @@ def nearly_incompressible(material) -> bool:
     lam, mu = effective_lame(A0)
     nu_bound = AUTO_REDUCED_POISSON
     # nu = lam / (2 (lam + mu)) >= nu_bound  <=>  lam (1 - 2 nu_bound) >= 2 nu_bound mu (lam, mu > 0)
-    return lam > 0 and lam * (1.0 - 2.0 * nu_bound) >= 2.0 * nu_bound * mu
+    # (a relative 1e-9 of slack so that a material given nu = 0.4 exactly is reduced despite round-off)
+    return lam > 0 and lam * (1.0 - 2.0 * nu_bound) >= 2.0 * nu_bound * mu * (1.0 - 1e-9)
 
 
 def _b_matrices(G) -> np.ndarray:
