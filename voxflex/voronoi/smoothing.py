@@ -35,6 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError
+from .._jit import njit
 from .shape_functions import ShapeValues
 
 __all__ = ["SmoothWeights"]
@@ -51,6 +52,157 @@ def _bspline2(t):
     return b, db, ddb
 
 
+def _finish(idx, w, dw, ddw, prune):
+    """Drop parents below ``prune`` (renormalising with exact derivatives) and symmetrise the Hessians."""
+    if prune > 0:
+        keep = (idx >= 0) & (w >= prune)
+        w = np.where(keep, w, 0.0)
+        dw = np.where(keep[..., None], dw, 0.0)
+        ddw = np.where(keep[..., None, None], ddw, 0.0)
+        idx = np.where(keep, idx, -1)
+        s = w.sum(1)
+        ds = dw.sum(1)
+        hs = ddw.sum(1)
+        wn = w / s[:, None]
+        dn = (dw - wn[..., None] * ds[:, None, :]) / s[:, None, None]
+        hn = (ddw - dn[..., :, None] * ds[:, None, None, :] - ds[:, None, :, None] * dn[..., None, :]
+              - wn[..., None, None] * hs[:, None]) / s[:, None, None, None]
+        w, dw, ddw = wn, np.where(keep[..., None], dn, 0.0), np.where(keep[..., None, None], hn, 0.0)
+    return idx, w, dw, 0.5 * (ddw + ddw.transpose(0, 1, 3, 2))
+
+
+@njit
+def _b2(t):  # pragma: no cover - compiled
+    a = abs(t)
+    if a <= 0.5:
+        return 0.75 - t * t, -2.0 * t, -2.0
+    if a < 1.5:
+        sg = 1.0 if t > 0 else -1.0
+        return 0.5 * (1.5 - a) ** 2, -(1.5 - a) * sg, 1.0
+    return 0.0, 0.0, 0.0
+
+
+@njit
+def _blend_kernel(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts):  # pragma: no cover - compiled
+    """Blend of the voxel-centre weights (CSR rows per material voxel) at lattice points u (m, 3).
+
+    With ``P == 0`` it only counts the parents of each point into ``counts`` (-1: no material in the
+    stencil); otherwise it fills idx/w/dw/ddw (derivatives in lattice coordinates).
+    """
+    m = u.shape[0]
+    nx, ny, nz = vid.shape
+    cap = 27 * 64
+    fr = np.empty(cap, np.int64)
+    N = np.empty(cap)
+    dN = np.empty((cap, 3))
+    HN = np.empty((cap, 3, 3))
+    bv = np.empty(3)
+    dv = np.empty(3)
+    hv = np.empty(3)
+    for s in range(m):
+        nf = 0
+        S = 0.0
+        dS = np.zeros(3)
+        HS = np.zeros((3, 3))
+        base0 = int(np.floor(u[s, 0] + 0.5)) - 1
+        base1 = int(np.floor(u[s, 1] + 0.5)) - 1
+        base2 = int(np.floor(u[s, 2] + 0.5)) - 1
+        for a in range(3):
+            i = base0 + a
+            if i < 0 or i >= nx:
+                continue
+            bx, dx, hx = _b2(u[s, 0] - i)
+            for b in range(3):
+                j = base1 + b
+                if j < 0 or j >= ny:
+                    continue
+                by, dy, hy = _b2(u[s, 1] - j)
+                for c in range(3):
+                    k = base2 + c
+                    if k < 0 or k >= nz:
+                        continue
+                    v = vid[i, j, k]
+                    if v < 0:
+                        continue
+                    bz, dz, hz = _b2(u[s, 2] - k)
+                    bv[0], bv[1], bv[2] = bx, by, bz
+                    dv[0], dv[1], dv[2] = dx, dy, dz
+                    hv[0], hv[1], hv[2] = hx, hy, hz
+                    val = bx * by * bz
+                    g0 = dx * by * bz
+                    g1 = bx * dy * bz
+                    g2 = bx * by * dz
+                    if val == 0.0 and g0 == 0.0 and g1 == 0.0 and g2 == 0.0 and hx * by * bz == 0.0 \
+                            and bx * hy * bz == 0.0 and bx * by * hz == 0.0 and dx * dy * bz == 0.0 \
+                            and dx * by * dz == 0.0 and bx * dy * dz == 0.0:
+                        continue
+                    H = np.empty((3, 3))
+                    for p in range(3):
+                        for q in range(3):
+                            f = 1.0
+                            for r in range(3):
+                                order = (1 if p == r else 0) + (1 if q == r else 0)
+                                f *= bv[r] if order == 0 else (dv[r] if order == 1 else hv[r])
+                            H[p, q] = f
+                    S += val
+                    dS[0] += g0
+                    dS[1] += g1
+                    dS[2] += g2
+                    for p in range(3):
+                        for q in range(3):
+                            HS[p, q] += H[p, q]
+                    for e in range(indptr[v], indptr[v + 1]):
+                        f_id = indices[e]
+                        wv = data[e]
+                        slot = -1
+                        for t in range(nf):
+                            if fr[t] == f_id:
+                                slot = t
+                                break
+                        if slot < 0:
+                            slot = nf
+                            fr[slot] = f_id
+                            N[slot] = 0.0
+                            for p in range(3):
+                                dN[slot, p] = 0.0
+                                for q in range(3):
+                                    HN[slot, p, q] = 0.0
+                            nf += 1
+                        N[slot] += val * wv
+                        dN[slot, 0] += g0 * wv
+                        dN[slot, 1] += g1 * wv
+                        dN[slot, 2] += g2 * wv
+                        for p in range(3):
+                            for q in range(3):
+                                HN[slot, p, q] += H[p, q] * wv
+        if S <= 0.0:
+            counts[s] = -1
+            continue
+        if P == 0:
+            counts[s] = nf
+            continue
+        # sort the parents by decreasing weight (insertion sort, nf is small)
+        order = np.arange(nf)
+        for t in range(1, nf):
+            key = order[t]
+            r = t - 1
+            while r >= 0 and N[order[r]] < N[key]:
+                order[r + 1] = order[r]
+                r -= 1
+            order[r + 1] = key
+        for t in range(min(nf, P)):
+            o = order[t]
+            wv = N[o] / S
+            idx[s, t] = fr[o]
+            w[s, t] = wv
+            for p in range(3):
+                dw[s, t, p] = (dN[o, p] - wv * dS[p]) / S
+            for p in range(3):
+                for q in range(3):
+                    ddw[s, t, p, q] = (HN[o, p, q] - dw[s, t, p] * dS[q] - dS[p] * dw[s, t, q]
+                                       - wv * HS[p, q]) / S
+
+
 class SmoothWeights:
     """Quadratic B-spline blend of per-voxel weights over the material (see the module docstring).
 
@@ -63,7 +215,8 @@ class SmoothWeights:
     n_frames : int
     """
 
-    def __init__(self, image, index, w, n_frames: int):
+    def __init__(self, image, index, w, n_frames: int, *, backend: str = "numba"):
+        self.backend = backend
         self.image = image
         self.n_frames = int(n_frames)
         mask = image.labels > 0
@@ -105,6 +258,29 @@ class SmoothWeights:
         return ShapeValues(index=index, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=self.n_frames)
 
     def _chunk(self, X, prune):
+        if self.backend == "numpy":
+            return self._chunk_numpy(X, prune)
+        u = np.ascontiguousarray(self.image.world_to_index(X) - 0.5)
+        counts = np.zeros(len(X), dtype=np.int64)
+        W = self._W
+        _blend_kernel(u, self._vid, W.indptr.astype(np.int64), W.indices.astype(np.int64), W.data, 0,
+                      np.zeros((0, 1), np.int64), np.zeros((0, 1)), np.zeros((0, 1, 3)), np.zeros((0, 1, 3, 3)), counts)
+        if np.any(counts < 0):
+            bad = int(np.flatnonzero(counts < 0)[0])
+            raise InputError(f"point {X[bad].tolist()} lies outside the material; evaluate shape functions inside the object")
+        P = max(1, int(counts.max()))
+        idx = np.full((len(X), P), -1, dtype=np.int64)
+        w = np.zeros((len(X), P))
+        dw = np.zeros((len(X), P, 3))
+        ddw = np.zeros((len(X), P, 3, 3))
+        _blend_kernel(u, self._vid, W.indptr.astype(np.int64), W.indices.astype(np.int64), W.data, P,
+                      idx, w, dw, ddw, counts)
+        J = self._dir / self._step[None, :]
+        dw = dw @ J.T
+        ddw = np.einsum("ak,mfkl,bl->mfab", J, ddw, J)
+        return _finish(idx, w, dw, ddw, prune)
+
+    def _chunk_numpy(self, X, prune):
         m = len(X)
         img = self.image
         u = img.world_to_index(X) - 0.5  # lattice coordinates of the voxel centres
@@ -162,23 +338,10 @@ class SmoothWeights:
         # stencil voxel can give b ~ 1e-31 with a finite second derivative: dropping it would break
         # the zero sum of the Hessians)
         touched = (wv != 0) | np.any(dwv != 0, axis=-1) | np.any(Hw != 0, axis=(-2, -1))
-        keep = touched & (wv >= prune) if prune > 0 else touched
-        P = max(1, int(keep.sum(1).max()))
-        order = np.argsort(-np.where(keep, wv, -1.0), axis=1, kind="stable")[:, :P]
+        P = max(1, int(touched.sum(1).max()))
+        order = np.argsort(-np.where(touched, wv, -1.0), axis=1, kind="stable")[:, :P]
         r = np.arange(m)[:, None]
-        k = keep[r, order]
+        k = touched[r, order]
         idx = np.where(k, order, -1)
-        wk = np.where(k, wv[r, order], 0.0)
-        dk = np.where(k[..., None], dwv[r, order], 0.0)
-        hk = np.where(k[..., None, None], Hw[r, order], 0.0)
-        if prune > 0:
-            s = wk.sum(1)
-            ds = dk.sum(1)
-            hs = hk.sum(1)
-            wn = wk / s[:, None]
-            dn = (dk - wn[..., None] * ds[:, None, :]) / s[:, None, None]
-            hn = (hk - dn[..., :, None] * ds[:, None, None, :] - ds[:, None, :, None] * dn[..., None, :]
-                  - wn[..., None, None] * hs[:, None]) / s[:, None, None, None]
-            wk, dk, hk = wn, np.where(k[..., None], dn, 0.0), np.where(k[..., None, None], hn, 0.0)
-        hk = 0.5 * (hk + hk.transpose(0, 1, 3, 2))
-        return idx, wk, dk, hk
+        return _finish(idx, np.where(k, wv[r, order], 0.0), np.where(k[..., None], dwv[r, order], 0.0),
+                       np.where(k[..., None, None], Hw[r, order], 0.0), prune)
