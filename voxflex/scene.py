@@ -347,7 +347,7 @@ class NodesSpec:
     count: int = 20
     positions: tuple[tuple[float, float, float], ...] | None = None
     shape_function: str | None = None
-    parents: int = 4
+    parents: int = 6
     distance: str = "geodesic"
     seed: int = 0
 
