@@ -39,12 +39,12 @@ __all__ = ["Estimate", "estimate", "check", "available_memory", "MEMORY_FRACTION
 MEMORY_FRACTION = 0.8
 """Share of the available memory a run may plan to use (the rest: Python, the OS, other processes)."""
 
-# measured by benchmarks/bench_resources.py (slope of peak RSS over DOF between 28k and 94k DOF)
-BYTES_PER_DOF = {"constant": 3.1e3, "nonlinear": 7.1e3, "reduced": 8.5e3}
+# measured by benchmarks/bench_resources.py: slope of peak RSS over DOF, 28k -> 92k DOF (Hooke), 4k -> 29k (neo-Hooke)
+BYTES_PER_DOF = {"constant": 4.3e3, "nonlinear": 7.1e3, "reduced": 8.5e3}
 """Voxel model, peak bytes per DOF of a static solve: constant tangent (linear Hooke), nonlinear, nonlinear F-bar."""
 CHUNK_BYTES = 2.5e8
 """Bounded per-batch work arrays of the voxel model (tangents of CHUNK_ELEMENTS voxels) once the model exceeds one batch."""
-SECONDS_PER_DOF_ITERATION = {"constant": 2.9e-5, "nonlinear": 2.5e-5, "reduced": 6.6e-5}
+SECONDS_PER_DOF_ITERATION = {"constant": 3.1e-5, "nonlinear": 2.5e-5, "reduced": 6.6e-5}
 """Seconds per Newton iteration per DOF (voxel model, 2-core machine, sparse solve included)."""
 ITERATIONS_PER_STEP = {"constant": 1, "nonlinear": 5, "reduced": 5}
 """Newton iterations a step typically takes (a constant tangent converges in one)."""
