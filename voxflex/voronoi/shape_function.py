@@ -11,7 +11,11 @@ How values are computed
    cell width, default 3), plus extra nodes wherever a thin part lies farther
    than ``1.5 s`` voxels from every node.  Natural-neighbour weights come from
    the bounded propagation of :mod:`voxflex.voronoi.natural_neighbour` (work
-   per node ~ one cell, so the total is ~ ``resolution³ V``, independent of n).
+   per node ~ one cell, so the total is ~ ``resolution³ V``, independent of n);
+   the same propagation gives the distance-ratio weights (``1 / h_i`` over the
+   frames i whose cells the node would steal from, ``h_i`` its distance to
+   frame i through their shared border).  Shepard weights read one full
+   propagation per frame at the nodes (cost ~ n V).
 3. Each node owns the material voxels nearest to it (a Voronoi partition of
    the nodes, through material only) and carries, for each frame seen by it
    or its neighbouring nodes, a quadratic polynomial that interpolates the
@@ -183,7 +187,7 @@ class ShapeFunction:
             self._cache["centres"] = sv
         return self._cache["centres"]
 
-    def _centre_weights(self, chunk=262144):
+    def _centre_weights(self, chunk=32768):
         """Frame indices and weights (V, parents) at the material voxel centres, as in
         :meth:`centre_values` but without gradients and Hessians (the smoothing reads w only:
         at 128³ the Hessians alone would take V x parents x 9 doubles, 600 MB)."""
