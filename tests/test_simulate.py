@@ -166,8 +166,9 @@ def test_occupancy_fractions_weight_the_mass():
 
 
 def test_midpoint_static_failure_names_the_hourglass_modes():
-    # one sample per voxel: trilinear voxels keep hourglass modes, the clamped beam's tangent is
-    # singular and Newton cannot converge; the error must point at the cause and the fix
+    # one sample per voxel without stabilisation (hourglass = "none"): trilinear voxels keep
+    # hourglass modes, the clamped beam's tangent is singular and Newton cannot converge; the
+    # error must point at the cause and the fix
     text = """
 [object]
 shape = "box"
@@ -180,6 +181,7 @@ poisson = 0.3
 density = 1.0
 [elasticity]
 quadrature = "midpoint"
+hourglass = "none"
 [[fixed]]
 min = [-1.0, -1.0, -1.0]
 max = [1e-6, 1.0, 1.0]

@@ -127,7 +127,9 @@ def _voxel_model(scene: Scene, image, materials):
             f'[nodes] shape_function = "{sf}" applies to frames; voxel nodes are trilinear '
             '(remove the key or use "trilinear")'
         )
-    return VoxelModel.from_image(image, materials, quadrature=quadrature, use_occupancy=bool(scene.object.occupancy))
+    el = scene.elasticity
+    return VoxelModel.from_image(image, materials, quadrature=quadrature, use_occupancy=bool(scene.object.occupancy),
+                                 volumetric=el.volumetric, hourglass=el.hourglass)
 
 
 def _frame_model(scene: Scene, image, materials):

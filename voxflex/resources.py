@@ -236,9 +236,14 @@ def _material_class(scene) -> str:
     from .deform.materials import material
     from .deform.voxel_model import nearly_incompressible, tangent_is_constant
 
+    from .errors import InputError
+
     worst = "constant"
     for spec in scene.materials:
-        mat = material(spec.model, **spec.material_kwargs(scene.elasticity.strain))
+        try:
+            mat = material(spec.model, **spec.material_kwargs(scene.elasticity.strain))
+        except InputError:
+            return "reduced"  # a bad material is reported by the model build; estimate the worst case
         if tangent_is_constant(mat):
             continue
         vol = scene.elasticity.volumetric

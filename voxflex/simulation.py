@@ -103,6 +103,9 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     from .deform.solvers import SolverOptions, solve
 
     if model is None:
+        from .resources import check as check_resources
+
+        check_resources(scene)  # refuse a scene that cannot fit in memory before building anything
         image = build_image(scene)
         _progress.announce(_progress.image_estimate(image, scene.nodes.kind), force=verbose, quiet=not progress)
         t0 = time.perf_counter()
