@@ -18,7 +18,7 @@ import pytest
 import voxflex as vf
 from voxflex.cli import main
 from voxflex.errors import InputError
-from voxflex.scene import OutputSpec, Scene
+from voxflex.scene import Scene
 from voxflex.tradeoff import COLUMNS, METRICS, Configuration, _merge, _split, _surface_error, tradeoff
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -62,6 +62,7 @@ def test_rows_reference_first_then_coarser_grid_then_sweep(table):
     reduced = {(r["count"], r["quadrature"]) for r in table.rows[2:]}
     assert reduced == {(5, "midpoint"), (8, "midpoint"), (5, "elaston"), (8, "elaston")}
     for r in table.rows:
+        assert "surfaces differ" not in r["note"]  # same image: the same boundary vertex for vertex
         assert r["total_seconds"] == pytest.approx(r["precompute_seconds"] + r["solve_seconds"])
         assert r["dofs"] == (12 * r["count"] if r["kind"] == "affine" else r["dofs"])
 
@@ -148,11 +149,11 @@ def test_surface_error_on_a_synthetic_field():
     extra[::2, 0] = 0.1
     run = {"surface_rest": V[::-1].copy(), "surface_positions": (X_ref[0] + extra)[None, ::-1], "voxel_size": 1.0}
     ref = {"surface_rest": V, "surface_positions": X_ref, "voxel_size": 1.0}
-    err, matched = _surface_error(run, ref)
-    assert matched == 1.0
+    err, of_ref, of_model = _surface_error(run, ref)
+    assert of_ref == of_model == 1.0
     assert err == pytest.approx(math.sqrt(0.5 * 0.01), rel=1e-14)  # round-off only
     half = {"surface_rest": V[:8], "surface_positions": X_ref[:, :8], "voxel_size": 1.0}
-    assert _surface_error(half, ref) == (0.0, 0.5)
+    assert _surface_error(half, ref) == (0.0, 0.5, 1.0)
 
 
 def test_split_keeps_the_geometry_and_merge_undoes_it():

@@ -613,12 +613,12 @@ def _measure(scene, image, config, *, repeat: bool) -> dict:
 # -- errors ---------------------------------------------------------------------
 def _row(config, run, ref, *, same_image: bool, scene) -> dict:
     probe = _probe_error(run["probes"], ref["probes"])
-    surface, matched = _surface_error(run, ref)
+    surface, of_ref, of_model = _surface_error(run, ref)
     notes = list(run["notes"])
-    if same_image and matched < 1.0:
-        notes.append(f"surfaces differ: only {matched:.1%} of the reference's vertices matched")
-    elif matched < 1.0:
-        notes.append(f"surface compared at the {matched:.1%} of reference vertices both grids share")
+    if same_image and (of_ref < 1.0 or of_model < 1.0):
+        notes.append(f"surfaces differ although the image is the reference's: {of_ref:.1%} of its vertices matched")
+    elif of_model < 1.0:
+        notes.append(f"surface compared at the {of_model:.1%} of this model's vertices on the reference's surface")
     energy = _energy_error(run["energy"], ref["energy"])
     u = np.full(3, math.nan)
     if run["probes"]:
@@ -664,9 +664,9 @@ def _probe_error(probes, ref_probes) -> float:
     return worst
 
 
-def _surface_error(run, ref) -> tuple[float, float]:
+def _surface_error(run, ref) -> tuple[float, float, float]:
     """RMS surface displacement error over the shared vertices / max reference surface displacement; and the
-    fraction of reference vertices compared."""
+    fractions of the reference's and of the model's vertices compared."""
     from scipy.spatial import cKDTree
 
     Vr, Xr = ref["surface_rest"], ref["surface_positions"]
@@ -679,12 +679,12 @@ def _surface_error(run, ref) -> tuple[float, float]:
         im = np.flatnonzero(np.isfinite(d))
         ir = idx[im]
     if len(ir) == 0:
-        return math.nan, 0.0
+        return math.nan, 0.0, 0.0
     ur = Xr - Vr[None]
     scale = float(np.max(np.linalg.norm(ur, axis=2)))
     diff = (Xm[:, im] - Vm[None, im]) - ur[:, ir]
     rms = np.sqrt(np.mean(np.sum(diff ** 2, axis=2), axis=1))
-    return (float(np.max(rms)) / scale if scale > 0 else math.nan), len(np.unique(ir)) / len(Vr)
+    return (float(np.max(rms)) / scale if scale > 0 else math.nan), len(np.unique(ir)) / len(Vr), len(im) / len(Vm)
 
 
 def _energy_error(energy, ref_energy) -> float:
