@@ -19,7 +19,7 @@ import voxflex as vf
 from voxflex.cli import main
 from voxflex.errors import InputError
 from voxflex.scene import Scene
-from voxflex.tradeoff import COLUMNS, METRICS, Configuration, _merge, _split, _surface_error, tradeoff
+from voxflex.tradeoff import COLUMNS, METRICS, Configuration, TradeoffTable, _merge, _split, _surface_error, tradeoff
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SPEC_COLUMNS = ("kind, count, shape_function, quadrature, samples, dofs, precompute_seconds, solve_seconds, "
@@ -195,6 +195,15 @@ def test_outputs(table, tmp_path):
     for got, want in zip(rows, table.rows):
         assert float(got["probe_error"]) == want["probe_error"]
         assert got["pareto"] == ("true" if want["pareto"] else "false")
+    back = TradeoffTable.read_csv(csv_path)  # the CSV carries the table (repr of floats: exact)
+    assert back.reference_error == table.reference_error and back.metric == table.metric
+    for got, want in zip(back.rows, table.rows):
+        assert all(got[k] == want[k] or (isinstance(want[k], float) and math.isnan(want[k]) and math.isnan(got[k]))
+                   for k in COLUMNS), want
+    other = tmp_path / "other.csv"
+    other.write_text("a,b\n1,2\n")
+    with pytest.raises(InputError, match="not a tradeoff.csv"):
+        TradeoffTable.read_csv(other)
     assert png_path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     from PIL import Image
 

@@ -175,6 +175,38 @@ class TradeoffTable:
         return [r for r in self.rows if r["pareto"]]
 
     # -- output --------------------------------------------------------------------
+    @classmethod
+    def read_csv(cls, path) -> "TradeoffTable":
+        """A table back from its ``tradeoff.csv`` (to replot or re-rank it); ``skipped`` and ``machine``
+        are not in the CSV and come back empty."""
+        path = Path(path)
+        try:
+            with open(path, newline="", encoding="utf-8") as fh:
+                raw = list(csv.DictReader(fh))
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"cannot read '{path}': {exc}") from None
+        if not raw or list(raw[0]) != list(COLUMNS) or raw[0]["role"] != "reference":
+            raise InputError(f"'{path}' is not a tradeoff.csv written by voxflex tradeoff (columns or first row)")
+        ints = {"count", "samples", "dofs", "steps", "newton_iterations"}
+        text = {"role", "kind", "shape_function", "quadrature", "below_reference", "note"}
+        rows = []
+        for r in raw:
+            row = {}
+            for k, v in r.items():
+                if k in text:
+                    row[k] = v
+                elif k == "pareto":
+                    row[k] = v == "true"
+                elif k in ints:
+                    row[k] = int(v)
+                else:
+                    row[k] = float(v) if v != "" else math.nan
+            rows.append(row)
+        refine = next((r for r in rows if r["role"] == "refinement"), None)
+        ref_err = {m: (refine[m] if refine is not None else math.nan) for m in METRICS}
+        metric = "probe_error" if math.isfinite(rows[0]["probe_ux"]) else "surface_error"
+        return cls(rows=rows, reference_error=ref_err, metric=metric)
+
     def to_csv(self, path) -> Path:
         """Write ``path`` (CSV, the :data:`COLUMNS`), atomically."""
         from ._atomic import atomic_path
@@ -715,6 +747,7 @@ def _plot(table: TradeoffTable, path: Path) -> Path:
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     from ._atomic import atomic_path
 
@@ -757,6 +790,9 @@ def _plot(table: TradeoffTable, path: Path) -> Path:
         ax.axhline(table.max_error, color="C2", ls="--", lw=1, label=f"budget {table.max_error:g}")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    times = [r["total_seconds"] for r in table.rows if r["total_seconds"] > 0]
+    if times and max(times) / min(times) > 10:  # labelled decades suffice; minor labels would overlap
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_ylim(bottom=lo)
     ax.set_xlabel("precompute + solve time (s, one thread)")
     ax.set_ylabel(metric.replace("_", " ") + " (relative to the reference)")
