@@ -263,3 +263,11 @@ def test_dask_sweep_equals_the_serial_one(scene, table):
                 assert a[key] == b[key] or (isinstance(a[key], float) and math.isnan(a[key]) and math.isnan(b[key])), key
     assert distributed.reference_error == table.reference_error
     assert distributed.skipped == table.skipped
+
+
+def test_missing_dask_is_a_one_line_error_naming_the_extra(scene, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # import of it raises ImportError
+    with pytest.raises(InputError, match=r'pip install "voxflex\[dask\]"'):
+        tradeoff(scene, workers=2, **SWEEP)
