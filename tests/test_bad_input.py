@@ -47,6 +47,9 @@ young = 1.0e4
 poisson = 0.3
 density = 1.0
 
+[nodes]
+kind = "voxel"
+
 [elasticity]
 strain = "linear"
 
@@ -106,7 +109,7 @@ SCENES = [
     ("negative-density", edit(("density = 1.0", "density = -1.0")), "density must be > 0"),
     ("material-label-absent", edit(("label = 1", "label = 7")), "label 7"),
     ("unknown-material-key", edit(("density = 1.0", "density = 1.0\ncolour = 2")), "'colour'"),
-    ("unknown-node-kind", edit(("[elasticity]", '[nodes]\nkind = "tetra"\n\n[elasticity]')), "'tetra'"),
+    ("unknown-node-kind", edit(('kind = "voxel"', 'kind = "tetra"')), "'tetra'"),
     ("unknown-quadrature", edit(('strain = "linear"', 'strain = "linear"\nquadrature = "simpson"')), "'simpson'"),
     ("unknown-strain", edit(('strain = "linear"', 'strain = "lin"')), "did you mean 'linear'"),
     ("fixed-holds-nothing", edit((_CLAMP, "min = [10.0, 10.0, 10.0]\nmax = [11.0, 11.0, 11.0]")), "fixed region"),

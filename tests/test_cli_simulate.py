@@ -37,12 +37,14 @@ def test_default_scene_runs_and_writes_a_result(tmp_path, capsys, monkeypatch):
     stdout = capsys.readouterr().out
     result = Result.load(tmp_path / "result.h5")
     assert "default.toml" in stdout and "wrote: result.h5" in stdout
-    assert result.n_voxels == 50 * 5 * 5 and result.n_steps == 3
-    # the strip sags: large deflection, well beyond small-strain territory but not folded over.
-    # Euler-Bernoulli (linear) predicts q L^4 / (8 E I) = 0.0729 m; the neo-Hookean voxel model,
-    # 2x2x2 Gauss (stiff by shear locking at 5 voxels across), gives -0.0652
+    assert result.n_voxels == 3736 and result.n_steps == 3 and result.node_kind == "affine"
+    assert result.model["count"] == 40
+    # the capsule sags.  Euler-Bernoulli (linear, round section r = 5 mm, free length 48.5 mm)
+    # predicts rho g A L^4 / (8 E I) = 0.0119 m; the voxel model of the same image (2x2x2 Gauss,
+    # F-bar at nu = 0.45) gives 0.0136 m.  A reduced model is stiffer than that reference and the
+    # 40 frames give 0.0102 m: the band asserts "stiffer than the reference, not absurdly"
     uz = _tip_displacement(stdout)[2]
-    assert -0.0729 < uz < -0.04, uz
+    assert -0.0136 * 1.02 < uz < -0.5 * 0.0136, uz
     assert result.probe_displacements()["tip"][2] == pytest.approx(uz, abs=1e-6)
 
 

@@ -336,10 +336,12 @@ def test_affine_frames_rest_on_a_plane_with_their_weight():
 # scene wiring
 # ---------------------------------------------------------------------------
 def _scene(obstacles=(), **solver):
-    from voxflex.scene import ContactSpec, FixedSpec, LoadSpec, MaterialSpec, ObjectSpec, ObstacleSpec, Scene, SolverSpec
+    from voxflex.scene import (ContactSpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ObstacleSpec,
+                               Scene, SolverSpec)
 
     return Scene(
         object=ObjectSpec(shape="box", size=(0.4, 0.1, 0.1), voxel_size=0.05, origin=(0.0, 0.0, 0.01)),
+        nodes=NodesSpec(kind="voxel"),
         materials=(MaterialSpec(model="neo-hookean", young=2e4, poisson=0.3, density=1000.0),),
         fixed=(FixedSpec(max=(1e-9, 1.0, 1.0)),),
         loads=(LoadSpec(kind="gravity"),),

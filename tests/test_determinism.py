@@ -69,6 +69,8 @@ shape = "box"
 size = [3.0, 0.75, 0.75]
 voxel_size = 0.25
 
+[nodes]
+kind = "voxel"
 [[material]]
 label = 1
 model = "neo-hookean"

@@ -22,6 +22,7 @@ from voxflex.scene import (ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, No
 
 def _bar(h=0.1, **kw):
     kw.setdefault("elasticity", ElasticitySpec(strain="linear"))
+    kw.setdefault("nodes", NodesSpec(kind="voxel"))  # the reference; frame scenes say kind = "affine"
     return Scene(object=ObjectSpec(shape="box", size=(0.4, 0.4, 2.0), voxel_size=h),
                  materials=(MaterialSpec(model="hooke", young=1e5, poisson=0.3, strain="linear", density=1000.0),),
                  probes=(ProbeSpec("tip", (0.2, 0.2, 2.0)), ProbeSpec("inner", (0.13, 0.31, 0.77))), **kw)

@@ -23,6 +23,8 @@ shape = "box"
 size = [2.0, 0.5, 0.5]
 voxel_size = 0.25
 origin = [0.0, 0.0, 0.0]
+[nodes]
+kind = "voxel"
 [[material]]
 model = "neo-hookean"
 young = 1e4

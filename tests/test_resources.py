@@ -26,6 +26,7 @@ GiB = 1 << 30
 
 
 def _box(size=(4.0, 1.0, 1.0), h=0.25, model="hooke", **kw):
+    kw.setdefault("nodes", NodesSpec(kind="voxel"))
     return Scene(object=ObjectSpec(shape="box", size=size, voxel_size=h),
                  materials=(MaterialSpec(model=model, young=1e4, poisson=0.3),), **kw)
 
@@ -75,7 +76,7 @@ def test_box_counts_are_exact_against_the_built_model():
 def test_curved_shapes_within_a_few_percent(shape, size, h):
     import voxflex as vf
 
-    scene = Scene(object=ObjectSpec(shape=shape, size=size, voxel_size=h),
+    scene = Scene(object=ObjectSpec(shape=shape, size=size, voxel_size=h), nodes=NodesSpec(kind="voxel"),
                   materials=(MaterialSpec(model="neo-hookean", young=1e4, poisson=0.3),))
     est = res.estimate(scene)
     model = vf.model(scene)

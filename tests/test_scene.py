@@ -12,6 +12,7 @@ from voxflex.scene import (
     FixedSpec,
     LoadSpec,
     MaterialSpec,
+    NodesSpec,
     ObjectSpec,
     ProbeSpec,
     Scene,
@@ -108,8 +109,12 @@ def test_every_spec_key_parses(tmp_path):
 
 def test_defaults_and_programmatic_construction():
     scene = Scene(ObjectSpec(shape="sphere", size=(0.5,), voxel_size=0.1), (MaterialSpec(),))
-    # honest defaults: voxel nodes (affine frames are not implemented), Gauss-Legendre quadrature
-    assert scene.nodes.kind == "voxel" and scene.elasticity.quadrature == "gauss-legendre"
+    # defaults: affine frames with the node kind's own quadrature (mid-point for frames,
+    # Gauss-Legendre for voxel nodes), 6 parents, the frame count chosen at build time
+    assert scene.nodes.kind == "affine" and scene.elasticity.quadrature == "midpoint"
+    assert scene.nodes.parents == 6 and scene.nodes.count is None
+    voxel = Scene(ObjectSpec(shape="sphere", size=(0.5,), voxel_size=0.1), (MaterialSpec(),), nodes=NodesSpec(kind="voxel"))
+    assert voxel.elasticity.quadrature == "gauss-legendre"
     assert scene.solver == SolverSpec() and scene.solver.kind == "static" and scene.solver.steps == 1
     assert scene.materials[0].model == "neo-hookean" and scene.materials[0].label == 1
     assert scene.fixed == () and scene.loads == () and scene.probes == () and scene.gravity is None
@@ -228,6 +233,6 @@ def test_describe_scene_and_the_bundled_default():
     path = default_scene_path()
     assert path.is_file()
     scene = Scene.from_toml(path)
-    assert scene.nodes.kind == "voxel" and scene.probes and scene.gravity is not None
+    assert scene.nodes.kind == "affine" and scene.probes and scene.gravity is not None
     text = describe_scene(path)
-    assert "object: box" in text and "material label 1: neo-hookean" in text and "probe tip" in text
+    assert "object: mesh" in text and "material label 1: neo-hookean" in text and "probe tip" in text

@@ -55,6 +55,8 @@ shape = "box"
 size = [2.0, 1.0, 1.0]
 voxel_size = 1.0
 
+[nodes]
+kind = "voxel"
 [[material]]
 model = "{model}"
 {rows}

@@ -44,6 +44,7 @@ def test_two_materials_in_series_from_an_image_file(tmp_path):
     E1, E2, F = 1e4, 3e4, 100.0
     scene = Scene(
         object=ObjectSpec(image=str(tmp_path / "bar.npz")),
+        nodes=NodesSpec(kind="voxel"),
         materials=(
             MaterialSpec(label=1, model="hooke", young=E1, poisson=0.0),
             MaterialSpec(label=2, model="hooke", young=E2, poisson=0.0),
@@ -86,7 +87,7 @@ def test_not_implemented_parts_say_so():
     with pytest.raises(InputError, match="elaston quadrature needs regions"):
         vf.simulate(replace(scene, elasticity=ElasticitySpec(quadrature="elaston")), progress=False)
     with pytest.raises(InputError, match='shape_function = "shepard" does not apply to kind = "voxel"'):
-        NodesSpec(shape_function="shepard")
+        NodesSpec(kind="voxel", shape_function="shepard")
 
 
 def test_bad_scenes_are_input_errors(tmp_path):
@@ -107,6 +108,7 @@ def test_midpoint_quadrature_and_dynamics_layers():
     rho, h, n, g = 2.0, 0.01, 3, -9.81
     scene = Scene(
         object=ObjectSpec(shape="box", size=(2.0, 1.0, 1.0), voxel_size=0.5),
+        nodes=NodesSpec(kind="voxel"),
         materials=(MaterialSpec(model="hooke", young=1e4, poisson=0.3, density=rho),),
         elasticity=ElasticitySpec(quadrature="midpoint", strain="linear"),
         loads=(LoadSpec(kind="gravity", vector=(0.0, 0.0, g)),),
@@ -137,6 +139,8 @@ shape = "sphere"
 size = [0.5]
 voxel_size = 0.125
 occupancy = {str(occupancy).lower()}
+[nodes]
+kind = "voxel"
 [[material]]
 model = "neo-hookean"
 young = 1e4
@@ -174,6 +178,8 @@ def test_midpoint_static_failure_names_the_hourglass_modes():
 shape = "box"
 size = [2.0, 0.5, 0.5]
 voxel_size = 0.25
+[nodes]
+kind = "voxel"
 [[material]]
 model = "neo-hookean"
 young = 1e4

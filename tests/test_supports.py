@@ -19,7 +19,7 @@ from voxflex.build import ComponentsDroppedWarning
 from voxflex.deform.supports import unsupported_components
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
-from voxflex.scene import FixedSpec, LoadSpec, MaterialSpec, ObjectSpec, ProbeSpec, Scene, SolverSpec
+from voxflex.scene import FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene, SolverSpec
 
 BIG = 1e9
 CLAMP = FixedSpec(min=(-BIG, -BIG, -BIG), max=(1e-6, BIG, BIG))
@@ -31,6 +31,7 @@ def _image_scene(tmp_path, labels, fixed=(CLAMP,), **kw) -> Scene:
     return Scene(
         object=ObjectSpec(image=str(path), **kw),
         materials=(MaterialSpec(model="hooke", young=1e3, poisson=0.3, density=1.0),),
+        nodes=NodesSpec(kind="voxel"),
         fixed=fixed,
         loads=(LoadSpec(kind="gravity", vector=(0.0, 0.0, -9.81)),),
     )

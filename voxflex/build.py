@@ -132,6 +132,10 @@ def _voxel_model(scene: Scene, image, materials):
                                  volumetric=el.volumetric, hourglass=el.hourglass)
 
 
+DEFAULT_FRAMES = 20
+"""Frames placed when a scene does not say ``[nodes] count`` (fewer when the object has fewer voxels)."""
+
+
 def _frame_model(scene: Scene, image, materials):
     """Affine frames: placement, shape functions and samples from the image, then the frame model.
 
@@ -157,7 +161,8 @@ def _frame_model(scene: Scene, image, materials):
     kind = nodes.shape_function or "natural-neighbour"
     fixed = [(np.asarray(f.min, dtype=float), np.asarray(f.max, dtype=float)) for f in scene.fixed]
     positions = None if nodes.positions is None else np.asarray(nodes.positions, dtype=float)
-    frames = place_frames(image, nodes.count, positions=positions, fixed=fixed, seed=nodes.seed,
+    count = nodes.count if nodes.count is not None else min(DEFAULT_FRAMES, int((image.labels > 0).sum()))
+    frames = place_frames(image, count, positions=positions, fixed=fixed, seed=nodes.seed,
                           distance=nodes.distance, compliance=compliance)
     sf = shape_function(image, frames, kind=kind, parents=nodes.parents, distance=nodes.distance,
                         compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed))

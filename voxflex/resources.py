@@ -292,7 +292,7 @@ def _estimate(scene, size=None) -> Estimate:
         model = BYTES_PER_DOF[cls] * dofs + chunk
         seconds = steps * ITERATIONS_PER_STEP[cls] * SECONDS_PER_DOF_ITERATION[cls] * dofs
     else:
-        nodes = int(scene.nodes.count) + len(scene.nodes.positions or ()) + len(scene.fixed)
+        nodes = int(scene.nodes.count or 20) + len(scene.nodes.positions or ()) + len(scene.fixed)
         dofs = (12 if kind == "affine" else 6) * nodes
         model = (FRAME_BYTES_PER_VOXEL_PARENT * scene.nodes.parents + 64.0) * voxels \
             + FRAME_DENSE_COPIES * 8.0 * dofs**2

@@ -112,7 +112,10 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
     if not 0 < tol < 1:
         raise InputError(f"tol must be in (0, 1), got {tol}")
     K = free_body_stiffness(frames, samples, gradient=gradient)
-    ev = np.linalg.eigvalsh(K)
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):  # threaded BLAS stalls on small dense work here
+        ev = np.linalg.eigvalsh(K)
     top = float(ev.max()) if ev.size else 0.0
     if top <= 0:
         return int(ev.size)
