@@ -271,3 +271,11 @@ def test_missing_dask_is_a_one_line_error_naming_the_extra(scene, monkeypatch):
     monkeypatch.setitem(sys.modules, "dask.distributed", None)  # import of it raises ImportError
     with pytest.raises(InputError, match=r'pip install "voxflex\[dask\]"'):
         tradeoff(scene, workers=2, **SWEEP)
+
+
+def test_requests_the_sampler_caps_to_the_same_model_are_shown_once(scene):
+    # 8x2x2 = 32 voxels: mid-point requests of 40 and 100 samples both give one sample per voxel
+    t = tradeoff(scene, frames=(5,), samples=(40, 100), quadratures=("midpoint",), progress=False)
+    reduced = [r for r in t.rows if r["role"] == "reduced"]
+    assert len(reduced) == 1 and reduced[0]["samples"] == 32
+    assert len(t.skipped) == 1 and "100 samples" in t.skipped[0][0] and "as for 40 requested" in t.skipped[0][1]

@@ -451,11 +451,18 @@ def _tradeoff_impl(scene, frames, samples, shape_functions, quadratures, referen
     if "error" in ref_run:
         raise VoxflexError(f"the voxel reference did not run: {ref_run['error']}")
     metric = "probe_error" if scene.probes else "surface_error"
-    rows, skipped = [], []
+    rows, skipped, seen = [], [], {}
     for c, run in zip(configs, runs):
         if "error" in run:
             skipped.append((c.label(), run["error"]))
             continue
+        if c.kind != "voxel":  # a sampler makes at most one mid-point sample per voxel: requests may coincide
+            key = (c.count, c.shape_function, c.quadrature, run["samples"])
+            if key in seen:
+                skipped.append((c.label(), f"the sampler made {run['samples']} samples, as for {seen[key]} "
+                                           "(the same model; shown once)"))
+                continue
+            seen[key] = f"{c.samples} requested"
         same_image = ref_level == 0 and (c.kind == "affine" or c.level == 0)
         rows.append(_row(c, run, ref_run, same_image=same_image, scene=scene))
     refine = next((r for r in rows if r["role"] == "refinement" and r["voxel_size"] == _level_size(base, ref_level - 1)),
