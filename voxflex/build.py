@@ -136,18 +136,18 @@ DEFAULT_FRAMES = 20
 """Frames placed when a scene does not say ``[nodes] count`` (fewer when the object has fewer voxels)."""
 
 
-def _frame_model(scene: Scene, image, materials):
+def _frame_model(scene: Scene, image, materials, *, cache: bool = True):
     """Affine frames: placement, shape functions and samples from the image, then the frame model.
 
-    Every precomputed stage is timed (``precompute_seconds`` in the result's ``/model``).
+    The precompute (frames, blended weights, samples) is loaded from the on-disk
+    cache (:mod:`voxflex.cache`) when a run with the same image and settings made
+    it before; ``precompute_seconds`` in the result's ``/model`` is what this run
+    spent (``precompute_cached`` says whether it was loaded).
     """
     import time
 
-    import dataclasses
-
-    from .deform.frame_model import FrameModel, voxel_samples
-    from .voronoi import place_frames, shape_function
-    from .voronoi.shape_functions import keep_largest
+    from . import cache as disk
+    from .deform.frame_model import FrameModel
 
     t0 = time.perf_counter()
     nodes = scene.nodes
@@ -160,24 +160,29 @@ def _frame_model(scene: Scene, image, materials):
                              'give young (or use distance = "geodesic")')
     kind = nodes.shape_function or "natural-neighbour"
     fixed = [(np.asarray(f.min, dtype=float), np.asarray(f.max, dtype=float)) for f in scene.fixed]
-    positions = None if nodes.positions is None else np.asarray(nodes.positions, dtype=float)
     count = nodes.count if nodes.count is not None else min(DEFAULT_FRAMES, int((image.labels > 0).sum()))
-    frames = place_frames(image, count, positions=positions, fixed=fixed, seed=nodes.seed,
-                          distance=nodes.distance, compliance=compliance)
-    sf = shape_function(image, frames, kind=kind, parents=nodes.parents, distance=nodes.distance,
-                        compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed))
     quadrature = scene.elasticity.quadrature
     occupancy = bool(scene.object.occupancy)
-    if quadrature == "gauss-legendre":
-        samples = voxel_samples(image, sf, rule="gauss-legendre", use_occupancy=occupancy)
+    settings = {"count": count, "positions": nodes.positions, "kind": kind, "parents": nodes.parents,
+                "distance": nodes.distance, "seed": nodes.seed, "compliance": compliance,
+                "fixed": [(lo.tolist(), hi.tolist()) for lo, hi in fixed], "quadrature": quadrature,
+                "samples": scene.elasticity.samples, "occupancy": occupancy}
+    use_cache = cache and disk.enabled()
+    key = None
+    if use_cache:
+        occ = np.zeros(0) if image.occupancy is None else np.asarray(image.occupancy)
+        key = disk.key_of(disk.code_fingerprint(), image.labels, np.asarray(image.spacing),
+                          np.asarray(image.origin), np.asarray(image.direction), occ, settings)
+    stored = disk.load("frames", key) if use_cache else None
+    if stored is not None:
+        frames, sf, samples = _from_store(image, stored, kind, nodes.parents)
     else:
-        from .sampling import sample
-
-        samples = sample(image, sf, kind=quadrature, count=scene.elasticity.samples, seed=nodes.seed)
-    # at most `parents` frames per sample: the blended weights of a sample (and the union over a
-    # region) have more, and the stiffness costs ~432 P^2 flops per sample
-    samples = dataclasses.replace(samples, values=keep_largest(samples.values, nodes.parents))
-    info = {"shape_function": kind, "parents": int(nodes.parents), "distance": nodes.distance}
+        frames, sf, samples = _precompute(image, count, kind, fixed, nodes, compliance, quadrature,
+                                          scene.elasticity.samples, occupancy)
+        if use_cache:
+            disk.save("frames", key, _to_store(frames, sf, samples))
+    info = {"shape_function": kind, "parents": int(nodes.parents), "distance": nodes.distance,
+            "precompute_cached": stored is not None}
     model = FrameModel.from_image(image, frames, sf, materials, samples=samples, use_occupancy=occupancy, info=info)
     if quadrature != "gauss-legendre":
         from .deform.modes import check_modes
@@ -185,6 +190,72 @@ def _frame_model(scene: Scene, image, materials):
         check_modes(frames, samples)  # warns (SpuriousModesWarning), naming how many samples to add
     model.info["precompute_seconds"] = time.perf_counter() - t0
     return model
+
+
+def _precompute(image, count, kind, fixed, nodes, compliance, quadrature, n_samples, occupancy):
+    """Frames, blended shape functions and samples (pruned to ``parents``) of an image."""
+    import dataclasses
+
+    from .deform.frame_model import voxel_samples
+    from .voronoi import place_frames, shape_function
+    from .voronoi.shape_functions import keep_largest
+
+    positions = None if nodes.positions is None else np.asarray(nodes.positions, dtype=float)
+    frames = place_frames(image, count, positions=positions, fixed=fixed, seed=nodes.seed,
+                          distance=nodes.distance, compliance=compliance)
+    sf = shape_function(image, frames, kind=kind, parents=nodes.parents, distance=nodes.distance,
+                        compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed))
+    if quadrature == "gauss-legendre":
+        samples = voxel_samples(image, sf, rule="gauss-legendre", use_occupancy=occupancy)
+    else:
+        from .sampling import sample
+
+        samples = sample(image, sf, kind=quadrature, count=n_samples, seed=nodes.seed)
+    # at most `parents` frames per sample: the blended weights of a sample (and the union over a
+    # region) have more, and the stiffness costs ~432 P^2 flops per sample
+    samples = dataclasses.replace(samples, values=keep_largest(samples.values, nodes.parents))
+    return frames, sf, samples
+
+
+def _to_store(frames, sf, samples) -> dict:
+    W = sf._smoothed()._W
+    v = samples.values
+    out = {"frames": frames, "W_indptr": W.indptr, "W_indices": W.indices, "W_data": W.data,
+           "kind": np.array(samples.kind), "points": samples.points, "volume": samples.volume,
+           "label": samples.label, "index": v.index, "w": v.w, "dw": v.dw,
+           "ddw": v.ddw if v.ddw is not None else np.zeros((0,))}
+    if hasattr(samples, "moments"):
+        out["moments"] = samples.moments
+        out["region"] = samples.region
+    return out
+
+
+def _from_store(image, d, kind, parents):
+    """Rebuild (frames, shape function, samples) from a cache entry."""
+    import scipy.sparse as sp
+
+    from .deform.frame_model import VoxelSamples
+    from .voronoi.shape_function import ShapeFunction
+    from .voronoi.shape_functions import ShapeValues
+    from .voronoi.smoothing import SmoothWeights
+
+    frames = d["frames"]
+    n = len(frames)
+    W = sp.csr_matrix((d["W_data"], d["W_indices"], d["W_indptr"]), shape=(int((image.labels > 0).sum()), n))
+    smooth = SmoothWeights.from_csr(image, W)
+    sf = ShapeFunction(frames=frames, kind="sibson" if kind == "natural-neighbour" else kind, parents=parents,
+                       image=image, smooth=True, _cache={"smooth": smooth})
+    ddw = d["ddw"] if d["ddw"].size else None
+    values = ShapeValues(index=d["index"], w=d["w"], dw=d["dw"], ddw=ddw, rest=d["points"], n_nodes=n)
+    skind = str(d["kind"])
+    if "moments" in d:
+        from .sampling.samples import Samples
+
+        samples = Samples(kind=skind, points=d["points"], volume=d["volume"], moments=d["moments"],
+                          label=d["label"], region=d["region"], values=values)
+    else:
+        samples = VoxelSamples(skind, d["points"], d["volume"], d["label"], values)
+    return frames, sf, samples
 
 
 def _clamp_owners(image, frames, boxes):
@@ -234,7 +305,7 @@ MODEL_BUILDERS: dict[str, Callable] = {
 """Registry: ``[nodes] kind`` -> builder ``(scene, image, materials) -> Model``."""
 
 
-def model(scene, *, image=None):
+def model(scene, *, image=None, cache: bool = True):
     """The model ``scene`` asks for (``[nodes] kind``), built on its image.
 
     Parameters
@@ -242,6 +313,9 @@ def model(scene, *, image=None):
     scene : Scene or path to a scene file
     image : LabelImage, optional
         The scene's image when already built (default: :func:`build_image`).
+    cache : bool
+        Frame models: load / store their precompute in the on-disk cache
+        (:mod:`voxflex.cache`; ``False`` recomputes).
 
     Returns
     -------
@@ -265,4 +339,6 @@ def model(scene, *, image=None):
     from .deform.contact import with_contact
 
     # the collision layer is built only when the scene has obstacles
-    return with_contact(MODEL_BUILDERS[scene.nodes.kind](scene, image, materials), scene)
+    builder = MODEL_BUILDERS[scene.nodes.kind]
+    built = builder(scene, image, materials, cache=cache) if builder is _frame_model else builder(scene, image, materials)
+    return with_contact(built, scene)

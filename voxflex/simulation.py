@@ -53,7 +53,8 @@ def _cannot_recover(material) -> bool:
     return name == "stvk" or (name in ("hooke", "hooke-orthotropic") and strain == "corotational")
 
 
-def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: bool = False) -> Result:
+def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: bool = False,
+             cache: bool = True) -> Result:
     """Run a scene and return its :class:`~voxflex.result.Result`.
 
     Parameters
@@ -67,6 +68,9 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     model : Model, optional
         A model built beforehand (any implementation of the model protocol);
         default: ``voxflex.build.model(scene)``, the model the scene asks for.
+    cache : bool
+        Frame models load / store their precompute in the on-disk cache
+        (:mod:`voxflex.cache`); ``False`` recomputes it.
     verbose : bool
         Log the model's size and memory estimate and one line per Newton iteration
         (residual, step length, linear solver and its iterations, seconds) on stderr.
@@ -109,7 +113,7 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
         image = build_image(scene)
         _progress.announce(_progress.image_estimate(image, scene.nodes.kind), force=verbose, quiet=not progress)
         t0 = time.perf_counter()
-        model = build_model(scene, image=image)
+        model = build_model(scene, image=image, cache=cache)
         if verbose:
             _progress.log(f"model built in {time.perf_counter() - t0:.2f} s")
     else:

@@ -48,6 +48,12 @@ def register(sub) -> None:
     parser.add_argument("--vtk", metavar="FOLDER", help="also export a ParaView time series (.vtp + .pvd)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
     parser.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="recompute a frame model's precompute (frames, weights, samples) instead of loading it from the "
+        "on-disk cache (~/.cache/voxflex or $VOXFLEX_CACHE_DIR)",
+    )
+    parser.add_argument(
         "--verbose",
         action="store_true",
         help="log the model size and memory estimate and one line per Newton iteration (residual, step length, "
@@ -71,7 +77,8 @@ def run(args) -> int:
     check_outputs(args, scene, path if args.scene else None, output)
     t0 = time.perf_counter()
     try:
-        result = simulate(scene, progress=not args.quiet, output=output, verbose=args.verbose)
+        result = simulate(scene, progress=not args.quiet, output=output, verbose=args.verbose,
+                          cache=not args.no_cache)
     except NotImplementedError as exc:
         from ..errors import VoxflexError
 

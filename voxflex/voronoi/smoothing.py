@@ -233,6 +233,21 @@ class SmoothWeights:
         self._step = np.asarray(image.spacing, dtype=float)
         self._dir = np.asarray(image.direction, dtype=float)
 
+    @classmethod
+    def from_csr(cls, image, W, *, backend: str = "numba") -> "SmoothWeights":
+        """From the (V, n) CSR matrix of the voxel-centre weights (as stored by the precompute cache)."""
+        self = cls.__new__(cls)
+        self.backend = backend
+        self.image = image
+        self.n_frames = int(W.shape[1])
+        self._W = sp.csr_matrix(W)
+        mask = image.labels > 0
+        self._vid = -np.ones(image.shape, dtype=np.int64)
+        self._vid[mask] = np.arange(int(mask.sum()))
+        self._step = np.asarray(image.spacing, dtype=float)
+        self._dir = np.asarray(image.direction, dtype=float)
+        return self
+
     def __call__(self, points, *, prune: float = 0.0, chunk: int = 20000) -> ShapeValues:
         """Values, gradients and Hessians at world points (m, 3) inside (or on) the material.
 
