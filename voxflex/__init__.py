@@ -27,6 +27,7 @@ _LAZY = {
     "Scene": "voxflex.scene",
     "simulate": "voxflex.simulation",
     "model": "voxflex.build",
+    "tradeoff": "voxflex.tradeoff",
     "Result": "voxflex.result",
     "render": "voxflex.rendering",
     "sample": "voxflex.sampling",
