@@ -25,7 +25,7 @@ Example
 -------
 >>> import numpy as np
 >>> x = np.array([[0.0, 0, 0], [2.0, 0, 0]])
->>> ext = ExtensionMapping(np.array([[0, 1]]), rest_lengths=[1.0])
+>>> ext = ExtensionMapping(np.array([[0, 1]]), rest_lengths=[1.0], n_points=2)
 >>> ext.apply(x)
 array([1.])
 >>> DistanceMapping.to_targets([1], [[2.0, 0, 1]], n_points=2).apply(x)

@@ -1,0 +1,147 @@
+"""Plasticity by a rest-strain mapping (voxflex.deform.plasticity).
+
+Oracle: a bar of 4 x 1 x 1 unit voxels (Hooke, linear strain, E = 1 Pa,
+nu = 0.3, 2x2x2 Gauss) on symmetry planes x = 0 (x held), y = 0 (y held),
+z = 0 (z held), stretched along x by its end face x = 4 (x prescribed).  The
+stress is exactly uniaxial and uniform, so the von Mises model with linear
+hardening has a closed form: yield at sigma_y = 3 mu eps_y, then
+sigma = 3 mu (eps_y + H eps) / (1 + 3 mu H / E) in loading (eps the axial
+strain), elastic unloading with slope E, and a permanent set eps_p = eps - sigma / E
+when the end is released.
+
+Each load level is solved by voxflex.deform.solvers.solve (one static step from
+the previous state), then the plastic state is return-mapped and the level
+re-solved until e_p stops changing (the staggered scheme of the module); the
+fixed point is the exact incremental solution, so the forces match the closed
+form to the solver's tolerance: 1e-7 relative (Newton stops at 1e-8 of the
+force scale; the staggered loop at a change of e_p below 1e-13).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from voxflex.deform.boundary import FixedRegion
+from voxflex.deform.materials import material
+from voxflex.deform.plasticity import PlasticMaterial, von_mises_strain
+from voxflex.deform.solvers import SolverOptions, solve
+from voxflex.deform.voxel_model import VoxelModel
+from voxflex.errors import InputError
+from voxflex.image.label_image import LabelImage
+
+E, NU, EPS_Y, H, L = 1.0, 0.3, 1e-3, 0.5, 4.0
+MU = E / (2 * (1 + NU))
+INF = np.inf
+
+
+def _bar():
+    base = material("hooke", young=E, poisson=NU, strain="linear")
+    image = LabelImage(np.ones((4, 1, 1), dtype=np.uint8))
+    mat = PlasticMaterial(base, 4 * 8, yield_strain=EPS_Y, hardening=H)
+    model = VoxelModel.from_image(image, {1: mat})
+    return model, mat
+
+
+def _supports():
+    tiny = 1e-9
+    return [FixedRegion([-INF, -INF, -INF], [tiny, INF, INF], "x"),
+            FixedRegion([-INF, -INF, -INF], [INF, tiny, INF], "y"),
+            FixedRegion([-INF, -INF, -INF], [INF, INF, tiny], "z")]
+
+
+def _end(eps):
+    T = np.zeros((3, 4))
+    T[:, :3] = np.diag([1.0 + eps, 1.0, 1.0])
+    return FixedRegion([L - 1e-9, -INF, -INF], [INF, INF, INF], "x", T)
+
+
+def _level(model, mat, q, fixed):
+    """Solve with the plastic state fixed, return-map, repeat until e_p is stationary; commit."""
+    for _ in range(200):
+        q = solve(model, fixed=fixed, options=SolverOptions(steps=1, tolerance=1e-10), q0=q)[-1].q
+        before = mat.plastic_strain.copy()
+        mat.update(model.deformation_gradients(q))
+        if np.max(np.abs(mat.plastic_strain - before)) < 1e-13:
+            break
+    else:  # pragma: no cover
+        raise AssertionError("staggered plasticity did not converge")
+    mat.commit()
+    return q
+
+
+def _force(model, q):
+    end = model.rest[:, 0] > L - 1e-9
+    return float(model.gradient(q)[end, 0].sum())  # reaction on the end face = sigma * area (area 1)
+
+
+def _sigma_loading(eps):
+    sig_e = E * eps
+    if sig_e <= 3 * MU * EPS_Y:
+        return sig_e
+    return 3 * MU * (EPS_Y + H * eps) / (1 + 3 * MU * H / E)
+
+
+def test_bar_loading_unloading_and_permanent_set():
+    model, mat = _bar()
+    eps_yield = 3 * MU * EPS_Y / E  # axial strain at first yield
+    q = model.rest.copy()
+    loading = np.array([0.5, 1.0, 1.5, 2.0, 3.0]) * eps_yield
+    for eps in loading:
+        q = _level(model, mat, q, _supports() + [_end(eps)])
+        f = _force(model, q)
+        assert f == pytest.approx(_sigma_loading(eps), rel=1e-7), eps
+    eps_max = loading[-1]
+    sig_max = _sigma_loading(eps_max)
+    assert sig_max < 0.9 * E * eps_max  # past yield: well below the elastic line
+    # unloading by a strain decrement smaller than the elastic range: elastic, slope E (the initial stiffness)
+    d = 0.5 * eps_yield
+    alpha_before = mat.alpha.copy()
+    q = _level(model, mat, q, _supports() + [_end(eps_max - d)])
+    f_un = _force(model, q)
+    assert (sig_max - f_un) / d == pytest.approx(E, rel=1e-6)
+    np.testing.assert_array_equal(mat.alpha, alpha_before)  # no further yield
+    # release the end: the bar keeps a permanent set eps_p = eps_max - sigma_max / E
+    q = _level(model, mat, q, _supports())
+    end = model.rest[:, 0] > L - 1e-9
+    set_ = float(np.mean(q[end, 0] - model.rest[end, 0])) / L
+    expected = eps_max - sig_max / E
+    assert expected > 0.5 * eps_yield
+    assert set_ == pytest.approx(expected, rel=1e-7)
+    assert abs(_force(model, q)) < 1e-9 * sig_max
+
+
+def test_elastic_below_yield_equals_base_material():
+    base = material("hooke", young=E, poisson=NU, strain="linear")
+    mat = PlasticMaterial(base, 3, yield_strain=0.1)
+    rng = np.random.default_rng(0)
+    F = np.eye(3) + 1e-3 * rng.standard_normal((3, 3, 3))
+    assert mat.update(F) == 0
+    for a, b in zip(mat.evaluate(F), base.evaluate(F)):
+        np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-18)
+
+
+def test_return_mapping_lands_on_the_hardened_yield_surface():
+    base = material("hooke", young=E, poisson=NU, strain="green")
+    mat = PlasticMaterial(base, 5, yield_strain=1e-2, hardening=0.3)
+    rng = np.random.default_rng(1)
+    F = np.eye(3) + 0.1 * rng.standard_normal((5, 3, 3))
+    assert mat.update(F) == 5
+    e_el = base.strain.apply(F) - mat.plastic_strain
+    # consistency: eps_eq(elastic) = eps_y + H alpha (to round-off), plastic flow is deviatoric (trace 0)
+    np.testing.assert_allclose(von_mises_strain(e_el), 1e-2 + 0.3 * mat.alpha, rtol=1e-12)
+    np.testing.assert_allclose(mat.plastic_strain[:, :3].sum(axis=1), 0.0, atol=1e-15)
+    # samples= picks rows: evaluating a permutation gives the permuted results
+    perm = rng.permutation(5)
+    np.testing.assert_allclose(mat.energy(F[perm], samples=perm), mat.energy(F)[perm], rtol=1e-14)
+
+
+def test_bad_input():
+    base = material("hooke", young=E, poisson=NU, strain="linear")
+    mat = PlasticMaterial(base, 4, yield_strain=1e-3)
+    with pytest.raises(InputError, match="samples="):
+        mat.evaluate(np.tile(np.eye(3), (3, 1, 1)))
+    with pytest.raises(InputError, match="tensor strain"):
+        PlasticMaterial(material("neo-hookean", young=1.0, poisson=0.3), 4, yield_strain=1e-3)
+    with pytest.raises(InputError, match="yield_strain"):
+        PlasticMaterial(base, 4, yield_strain=0.0)
