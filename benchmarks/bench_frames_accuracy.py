@@ -41,7 +41,7 @@ def _run(scene):
 
 
 def sofa(kinds, samplers):
-    scene = Scene(object=ObjectSpec(shape="box", size=(0.4, 0.4, 2.0), voxel_size=0.02),
+    scene = Scene(object=ObjectSpec(shape="box", size=(0.4, 0.4, 2.0), voxel_size=0.02), nodes=NodesSpec(kind="voxel"),
                   materials=(MaterialSpec(model="hooke", young=1e5, poisson=0.3, strain="linear"),),
                   elasticity=ElasticitySpec(strain="linear"), fixed=(FixedSpec(max=(1e9, 1e9, 1e-6)),),
                   loads=(LoadSpec(kind="force", vector=(1.0, 0.0, 0.0), min=(-1e9, -1e9, 2.0 - 1e-6)),),
@@ -67,7 +67,7 @@ def sofa(kinds, samplers):
 
 def cantilever(counts):
     scene = Scene.from_toml(os.path.join(os.path.dirname(__file__), "..", "examples", "cantilever.toml"))
-    scene = replace(scene, object=replace(scene.object, voxel_size=0.125),
+    scene = replace(scene, object=replace(scene.object, voxel_size=0.125), nodes=NodesSpec(kind="voxel"),
                     materials=(MaterialSpec(model="neo-hookean", young=1e3, poisson=0.3, density=1.0),),
                     elasticity=ElasticitySpec(), solver=SolverSpec(steps=5))
     ref, _, tp, ts = _run(scene)
