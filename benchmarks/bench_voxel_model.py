@@ -34,8 +34,13 @@ measures time and peak resident memory (``resource.getrusage``) of building,
 assembling and solving a linear beam of that many voxels in this fresh
 process (Jacobi-CG through ``voxflex.deform.solvers.solve``); ``--big`` does
 the same with multigrid-CG for a 256x90x90 beam (2.07 million voxels, 6.4
-million DOF) and prints the peak bytes per DOF (needs ~16 GB); ``--solver``
-picks the solver of ``--memory``.
+million DOF) and prints the peak bytes per DOF (~2.1 kB/DOF measured at
+128x32x32, i.e. ~13 GB; refused when /proc/meminfo shows under 1.3x that
+available); ``--solver`` picks the solver of ``--memory``.  Solvers other
+than ``cg`` take the lean path: ``VoxelModel.constant_stiffness_block``
+(the free-DOF block assembled and compacted in place, no full matrix kept)
+then ``solve_linear``; the run ends with a check that the reactions carry the
+load (matrix-free gradient).
 """
 
 from __future__ import annotations
@@ -248,30 +253,46 @@ def memory_run(shape, linear_solver="cg"):
     image = LabelImage(np.ones((nx, ny, nz), dtype=np.uint8), spacing=(4 / nx, 1 / ny, 1 / nz))
     model = VoxelModel.from_image(image, {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
     rows.append(("image + model", time.perf_counter() - t, peak()))
-    t = time.perf_counter()
-    model._ensure_pattern()
-    rows.append(("sparsity pattern", time.perf_counter() - t, peak()))
-    t = time.perf_counter()
-    H = model.hessian(model.rest)
-    rows.append(("stiffness (cached)", time.perf_counter() - t, peak()))
     ndof = 3 * model.n_nodes
     if linear_solver == "cg":
+        t = time.perf_counter()
+        model._ensure_pattern()
+        rows.append(("sparsity pattern", time.perf_counter() - t, peak()))
+    if linear_solver == "cg":
+        t = time.perf_counter()
+        H = model.hessian(model.rest)
+        rows.append(("stiffness (cached)", time.perf_counter() - t, peak()))
         del H
         t = time.perf_counter()
         rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81],
                     densities={1: 1.0}, options=SolverOptions(linear_solver="cg"))
         rows.append((f"static solve (cg, {rec[-1].linear_iterations} iterations)", time.perf_counter() - t, peak()))
+        u = rec[-1].q - model.rest
     else:
+        # the lean path: the free-DOF block assembled and compacted in place (the model keeps no full matrix)
         t = time.perf_counter()
         free = np.flatnonzero(np.repeat(model.rest[:, 0] > 1e-9, 3))
-        f = model.gravity_force({1: 1.0}, [0, 0, -9.81]).ravel()[free]
-        A = _free_block(H, free)
-        del H
-        rows.append(("free-DOF block", time.perf_counter() - t, peak()))
+        A = model.constant_stiffness_block(free)
+        rows.append(("sparsity pattern + free-DOF stiffness block (in place)", time.perf_counter() - t, peak()))
+        f = model.gravity_force({1: 1.0}, [0, 0, -9.81]).ravel()
         t = time.perf_counter()
-        x, info = solve_linear(A, f, method=linear_solver, rtol=1e-8, grid=model.grid, free=free)
+        x, info = solve_linear(A, f[free], method=linear_solver, rtol=1e-8, grid=model.grid, free=free)
         rows.append((f"static solve ({info.method}, {info.iterations} iterations, residual {info.residual:.1e})",
                      time.perf_counter() - t, peak()))
+        del A
+        u = np.zeros(ndof)
+        u[free] = x
+        u = u.reshape(-1, 3)
+    # check: the reactions (matrix-free gradient K u at the fixed DOFs) carry the weight of the free nodes
+    # (K annihilates translations: sum_fixed (K u)_z = -sum_free (K u)_z = -sum_free f_z)
+    t = time.perf_counter()
+    g = model.gradient(model.rest + u).ravel()
+    fixed = np.repeat(model.rest[:, 0] <= 1e-9, 3)
+    weight = -float(model.gravity_force({1: 1.0}, [0, 0, -9.81])[~fixed[::3], 2].sum())
+    reaction_z = float(g[fixed].reshape(-1, 3)[:, 2].sum())
+    uz = float(model.point_mapping([TIP]).apply(model.rest + u)[0, 2] - TIP[2])
+    rows.append((f"check: reaction z {reaction_z:.6f} N (load on the free nodes {weight:.6f} N), tip u_z {uz:.6f} m",
+                 time.perf_counter() - t, peak()))
     total = time.perf_counter() - t_all
     print(f"\n| linear beam {nx}x{ny}x{nz}: {model.n_elements} voxels, {ndof} DOF | seconds | peak RSS MB |")
     print("|---|---|---|")
@@ -280,24 +301,20 @@ def memory_run(shape, linear_solver="cg"):
     print(f"| total | {total:.2f} | {rows[-1][2]:.0f} ({rows[-1][2] * 2**20 / ndof:.0f} bytes/DOF at peak) |")
 
 
-def _free_block(H, free):
-    """``H[free][:, free]`` of a CSR matrix with ~2 bytes per stored entry of scratch (scipy's two-step
-    fancy indexing peaks at ~2x the matrix: 3.2 kB/DOF at 0.8 M DOF, too much for the --big run)."""
-    import scipy.sparse as sp
+BIG_BYTES_PER_DOF = 2100
+"""Peak bytes per DOF of the lean multigrid path, measured at 128x32x32 (421k DOF): the --big estimate."""
 
-    N = H.shape[0]
-    keep = np.zeros(N, dtype=bool)
-    keep[free] = True
-    new_index = np.cumsum(keep, dtype=np.int64) - 1
-    counts = np.diff(H.indptr)
-    mask = np.repeat(keep, counts)
-    mask &= keep[H.indices]
-    per_row = np.add.reduceat(mask.astype(np.int32), H.indptr[:-1]) if H.nnz else np.zeros(N, dtype=np.int32)
-    per_row[counts == 0] = 0  # reduceat repeats the next entry for empty rows
-    indptr = np.concatenate([[0], np.cumsum(per_row[keep], dtype=np.int64)])
-    indices = new_index[H.indices[mask]].astype(H.indices.dtype)
-    data = H.data[mask]
-    return sp.csr_matrix((data, indices, indptr), shape=(len(free), len(free)))
+
+def _available_bytes():
+    """MemAvailable of /proc/meminfo in bytes (None where there is none)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        return None
+    return None
 
 
 def scaling_series(sizes, repeat):
@@ -363,6 +380,11 @@ def main():
         memory_run(tuple(int(v) for v in args.memory.lower().split("x")), args.solver)
         return
     if args.big:
+        need = BIG_BYTES_PER_DOF * 3 * 257 * 91 * 91
+        avail = _available_bytes()
+        if avail is not None and avail < 1.3 * need:
+            print(f"--big refused: {avail / 2**30:.1f} GiB available, under 1.3 x the {need / 2**30:.1f} GiB estimate")
+            return
         memory_run((256, 90, 90), "multigrid")
         return
     from voxflex.deform.materials import material

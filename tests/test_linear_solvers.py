@@ -99,3 +99,31 @@ def test_cg_on_free_dofs_equals_cg_on_the_submatrix():
     # not reaching the tolerance returns None (the caller solves the submatrix directly)
     x, info = cg_on_free_dofs(K, b, free, rtol=1e-12, maxiter=3)
     assert x is None and info.iterations == 3
+
+
+def test_free_block_equals_fancy_indexing_in_blocks_and_in_place(monkeypatch):
+    """The gathered block holds exactly scipy's ``A[free][:, free]`` (a gather: bitwise equal), with row
+    blocks smaller than the matrix; in place it reuses A's buffers."""
+    import scipy.sparse as sp
+
+    import voxflex.deform.linear_solvers as ls
+
+    model, K, free, A, b = _system()
+    ref = K[free][:, free].tocsr()
+    ref.sort_indices()
+    monkeypatch.setattr(ls, "FREE_BLOCK_ROWS", 37)  # several blocks, boundaries inside the rows' structure
+    B = ls.free_block(K, free)
+    assert B.has_sorted_indices and np.array_equal(B.indptr, ref.indptr) and np.array_equal(B.indices, ref.indices)
+    assert np.array_equal(B.data, ref.data)
+    K2 = K.copy()
+    C = ls.free_block(K2, free, overwrite=True)
+    assert np.array_equal(C.toarray(), ref.toarray())
+    assert np.shares_memory(C.data, K2.data) and np.shares_memory(C.indices, K2.indices)
+    with pytest.raises(InputError, match="sorted unique"):
+        ls.free_block(K, free[::-1])
+    ro = K.copy()
+    ro.data.setflags(write=False)
+    with pytest.raises(InputError, match="writable"):
+        ls.free_block(ro, free, overwrite=True)
+    with pytest.raises(InputError, match="square CSR"):
+        ls.free_block(sp.csc_matrix(K), free)

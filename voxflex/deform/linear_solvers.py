@@ -278,6 +278,94 @@ class _Masked:
         return y
 
 
+FREE_BLOCK_ROWS = 1 << 16
+"""Rows per pass of :func:`free_block` (its scratch: ~13 bytes per stored entry of that many rows)."""
+
+
+def free_block(A, free, *, overwrite: bool = False) -> sp.csr_matrix:
+    """``A[free][:, free]`` of a CSR matrix, by row blocks, optionally in A's own arrays.
+
+    scipy's two-step fancy indexing peaks at about twice the matrix (3.2 kB
+    per DOF at 0.8 million voxel DOFs); here the scratch is one row block
+    (:data:`FREE_BLOCK_ROWS` rows).  With ``overwrite=True`` the kept entries
+    are moved to the front of ``A.data`` and ``A.indices`` (a stable
+    compaction: an entry only moves towards the start), so the block costs no
+    second matrix; A is then invalid and the block's arrays are views of A's
+    buffers (the dropped entries stay allocated behind them; scipy copies the
+    arrays instead when the block keeps less than half of A's entries).
+
+    Parameters
+    ----------
+    A : (N, N) csr_matrix with sorted indices
+    free : (F,) int, sorted unique indices in [0, N)
+    overwrite : bool
+        Compact A's arrays in place (A must own writable arrays and not be needed again).
+
+    Returns
+    -------
+    (F, F) csr_matrix, sorted indices, the index dtype of A.
+
+    Raises
+    ------
+    InputError
+        A not square CSR, ``free`` not sorted unique indices, or overwrite of read-only arrays.
+    """
+    if not sp.isspmatrix_csr(A) or A.shape[0] != A.shape[1]:
+        raise InputError("free_block needs a square CSR matrix (scipy.sparse.csr_matrix)")
+    N = A.shape[0]
+    free = np.asarray(free)
+    if free.ndim != 1 or free.dtype.kind not in "iu" or (len(free) and (free[0] < 0 or free[-1] >= N)) or \
+            np.any(np.diff(free) <= 0):
+        raise InputError(f"free must be sorted unique indices in [0, {N})")
+    if overwrite and not (A.data.flags.writeable and A.indices.flags.writeable):
+        raise InputError("free_block(overwrite=True) needs writable arrays; pass overwrite=False to copy")
+    if not A.has_sorted_indices:
+        A = A.copy() if not overwrite else A
+        A.sort_indices()
+    return _free_block_impl(A.indptr, A.indices, A.data, free.astype(np.int64), N, overwrite)
+
+
+def _free_block_impl(indptr, indices, data, free, N, overwrite):
+    keep = np.zeros(N, dtype=bool)
+    keep[free] = True
+    F = len(free)
+    newcol = np.full(N, -1, dtype=indices.dtype)
+    newcol[free] = np.arange(F, dtype=indices.dtype)
+
+    def kept(r0, r1):
+        """Positions (relative to the block start) of the kept entries of rows r0..r1-1."""
+        a, b = int(indptr[r0]), int(indptr[r1])
+        m = keep[indices[a:b]]
+        m &= np.repeat(keep[r0:r1], np.diff(indptr[r0 : r1 + 1]))
+        return a, m
+
+    # pass 1: entries kept per free row
+    counts = np.zeros(N, dtype=np.int64)
+    for r0 in range(0, N, FREE_BLOCK_ROWS):
+        r1 = min(N, r0 + FREE_BLOCK_ROWS)
+        a, m = kept(r0, r1)
+        cm = np.concatenate([[0], np.cumsum(m, dtype=np.int64)])
+        counts[r0:r1] = cm[indptr[r0 + 1 : r1 + 1] - a] - cm[indptr[r0:r1] - a]
+    nnz = int(counts[free].sum())
+    idx = indices.dtype if max(nnz, F) < np.iinfo(np.int32).max or indices.dtype == np.int64 else np.int64
+    new_indptr = np.zeros(F + 1, dtype=idx)
+    np.cumsum(counts[free], out=new_indptr[1:])
+    del counts
+    out_data = data if overwrite else np.empty(nnz, dtype=data.dtype)
+    out_idx = indices if overwrite and indices.dtype == idx else np.empty(nnz, dtype=idx)
+    # pass 2: gather (the gathered block is a copy taken before it is written, at or before its source)
+    w = 0
+    for r0 in range(0, N, FREE_BLOCK_ROWS):
+        r1 = min(N, r0 + FREE_BLOCK_ROWS)
+        a, m = kept(r0, r1)
+        sel = np.flatnonzero(m) + a
+        c = len(sel)
+        out_data[w : w + c] = data[sel]
+        out_idx[w : w + c] = newcol[indices[sel]]
+        w += c
+    return sp.csr_matrix((out_data[:nnz], out_idx[:nnz], new_indptr), shape=(F, F))
+
+
 def cg_on_free_dofs(A, b, free, *, rtol: float = 1e-10, maxiter: int | None = None):
     """Jacobi-CG for ``A[free][:, free] x = b`` run on the whole matrix A.
 

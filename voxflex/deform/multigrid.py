@@ -268,15 +268,26 @@ level's product is done by row blocks (scratch ~2 % of A at 6 million DOF instea
 
 
 def _galerkin_impl(A, P, R):
-    """``P^T A P`` (CSR), by row blocks of A when A is large."""
+    """``P^T A P`` (CSR), by row blocks of A when A is large.
+
+    The block products are summed pairwise (a binary-counter merge), so the
+    work is O(nnz log blocks) instead of one running sum that touches the
+    whole coarse matrix per block (O(nnz blocks): ~100 blocks at 6 million DOF).
+    """
     n = A.shape[0]
     if n <= GALERKIN_CHUNK:
         return sp.csr_matrix(R @ (A @ P))
-    out = None
+    stack = []  # (blocks summed, partial sum); sizes strictly decrease down the stack
     for s in range(0, n, GALERKIN_CHUNK):
         blk = slice(s, min(n, s + GALERKIN_CHUNK))
-        part = sp.csr_matrix(P[blk].T @ (A[blk] @ P))
-        out = part if out is None else out + part
+        part, count = sp.csr_matrix(P[blk].T @ (A[blk] @ P)), 1
+        while stack and stack[-1][0] == count:
+            count += stack[-1][0]
+            part = stack.pop()[1] + part
+        stack.append((count, part))
+    out = stack.pop()[1]
+    while stack:
+        out = stack.pop()[1] + out
     return sp.csr_matrix(out)
 
 

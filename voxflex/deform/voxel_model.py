@@ -362,6 +362,7 @@ class VoxelModel:
         self._pattern = None
         self._node_type = None
         self._constant = None  # (data, E0, g0, units) of the quadratic terms, built on first use
+        self._quadratic = None  # (E0, g0, units) of the quadratic terms: what gradients need without the matrix
         self.volumetric_option = volumetric
         self.volumetric = {}
         for label, _, _ in self._groups:
@@ -550,16 +551,20 @@ class VoxelModel:
         grad = np.zeros((n, 3)) if gradient else None
         data = None
         has_constant = any(const for _, _, const in self._groups) or bool(self._stabilised)
-        if hessian or has_constant:
+        if hessian:
             self._ensure_pattern()
         if has_constant:
-            data_c, E0, g0, units = self._constant_part()
+            E0, g0, units = self._quadratic_terms()
             u = q - self.rest
             energy += E0 + vdot(g0.ravel(), u.ravel()) + self._constant_quadratic_energy(u, units)
-            if gradient:
-                Hc = sp.csr_matrix((data_c, self._pattern[1], self._pattern[0]), shape=(3 * n, 3 * n))
+            if gradient and (hessian or self._constant is not None):
+                Hc = sp.csr_matrix((self._constant_part()[0], self._pattern[1], self._pattern[0]), shape=(3 * n, 3 * n))
                 grad += g0 + (Hc @ u.ravel()).reshape(n, 3)
+            elif gradient:
+                # no assembled stiffness cached: apply it voxel by voxel instead of building it (memory)
+                grad += g0 + self._constant_apply(u, units)
             if hessian:
+                data_c = self._constant_part()[0]
                 # an all-constant model returns the cached (read-only) data itself: no copy per call
                 all_constant = all(const for _, _, const in self._groups)
                 data = data_c if all_constant else data_c.copy()
@@ -686,19 +691,16 @@ class VoxelModel:
         K = np.einsum("q,qia,ij,qjb->ab", weights, Bg, C, Bg) - Bc.T @ C @ Bc
         return 0.5 * (K + K.T)
 
-    def _constant_part(self):
-        """Stiffness data, energy and gradient at rest, unit stiffness per label of the quadratic terms (cached).
+    def _quadratic_terms(self):
+        """Energy (J) and gradient (n, 3) (N) at rest and unit stiffness per label of the quadratic terms (cached).
 
         The constant-tangent groups have a quadratic energy
         ``E(q) = E0 + g0 . u + u^T K u / 2`` exactly, with ``E0``, ``g0`` the
         energy and gradient at rest (zero for a stress-free rest state); the
         hourglass stabilisation of nonlinear mid-point groups adds its own
-        ``u^T K_hg u / 2``.
+        ``u^T K_hg u / 2``.  ``K`` itself is ``element_volume * unit`` per voxel.
         """
-        if self._constant is None:
-            self._ensure_pattern()
-            _, indices, indptr_b, blockmap = self._pattern
-            data = np.zeros(len(indices))
+        if self._quadratic is None:
             conn = self.grid.element_nodes
             n = self.n_nodes
             E0 = 0.0
@@ -715,14 +717,114 @@ class VoxelModel:
                 for start in range(0, len(ids), 4 * CHUNK_ELEMENTS):
                     el = _as_slice(ids[start : start + 4 * CHUNK_ELEMENTS])
                     vol = self.element_volume[el]
-                    kern.scatter_blocks(Ku[None], conn[el], blockmap[el], indptr_b, data, scale=vol)
                     E0 += w0 * float(vol.sum())
                     if np.any(f0 != 0.0):
                         dof = (3 * conn[el])[:, :, None] + np.arange(3)
                         g0 += np.bincount(dof.ravel(), weights=(vol[:, None, None] * f0).ravel(), minlength=3 * n)
+            self._quadratic = (E0, g0.reshape(n, 3), units)
+        return self._quadratic
+
+    def _constant_data(self, pattern) -> np.ndarray:
+        """CSR data (nnz,) of the quadratic terms' stiffness on ``pattern`` (a fresh array, N/m)."""
+        _, indices, indptr_b, blockmap = pattern
+        data = np.zeros(len(indices))
+        conn = self.grid.element_nodes
+        units = self._quadratic_terms()[2]
+        for label, ids, _ in self._groups:
+            if label not in units:
+                continue
+            for start in range(0, len(ids), 4 * CHUNK_ELEMENTS):
+                el = _as_slice(ids[start : start + 4 * CHUNK_ELEMENTS])
+                kern.scatter_blocks(units[label][None], conn[el], blockmap[el], indptr_b, data,
+                                    scale=self.element_volume[el])
+        return data
+
+    def _constant_part(self):
+        """Stiffness data, energy and gradient at rest, unit stiffness per label of the quadratic terms (cached).
+
+        See :meth:`_quadratic_terms`; the stiffness data (on the model's
+        pattern) is assembled once and shared, read-only, by every Hessian.
+        """
+        if self._constant is None:
+            self._ensure_pattern()
+            E0, g0, units = self._quadratic_terms()
+            data = self._constant_data(self._pattern)
             data.setflags(write=False)  # shared by every Hessian of an all-constant model
-            self._constant = (data, E0, g0.reshape(n, 3), units)
+            self._constant = (data, E0, g0, units)
         return self._constant
+
+    def _constant_apply(self, u, units) -> np.ndarray:
+        """``K u`` (n, 3) of the quadratic terms, voxel by voxel, without an assembled matrix (N).
+
+        Matrix-free: per voxel ``element_volume * unit @ u_e``; used for
+        gradients while no stiffness is cached (e.g. after
+        :meth:`constant_stiffness_block`), so that they never assemble one.
+        """
+        n = self.n_nodes
+        out = np.zeros(3 * n)
+        conn = self.grid.element_nodes
+        for label, ids, _ in self._groups:
+            if label not in units:
+                continue
+            for start in range(0, len(ids), 4 * CHUNK_ELEMENTS):
+                el = _as_slice(ids[start : start + 4 * CHUNK_ELEMENTS])
+                ce = conn[el]
+                ue = u[ce].reshape(len(ce), 1, 24)
+                fe = np.matmul(ue, units[label])[:, 0, :]  # a batch of small products (single-threaded)
+                fe *= self.element_volume[el][:, None]
+                dof = (3 * ce)[:, :, None] + np.arange(3)
+                out += np.bincount(dof.ravel(), weights=fe.ravel(), minlength=3 * n)
+        return out.reshape(n, 3)
+
+    def constant_stiffness_block(self, free) -> sp.csr_matrix:
+        """The free-DOF block ``K[free][:, free]`` (F, F) of a constant-tangent model's stiffness (N/m), lean.
+
+        For large linear static solves: when the model has no stiffness cached
+        yet, the block is assembled on a fresh sparsity pattern and compacted
+        in place (:func:`voxflex.deform.linear_solvers.free_block` with
+        ``overwrite=True``), so the peak holds one matrix and the pattern's
+        voxel block map instead of the full stiffness and its block (the
+        model caches neither; its gradients stay matrix-free).  When a
+        stiffness is cached (a Hessian was asked for before), the block is a
+        copy taken from it.  Equal to ``hessian(q)[free][:, free]`` entry by entry.
+
+        Parameters
+        ----------
+        free : (F,) int
+            Sorted unique DOFs ``3 * node + component``.
+
+        Returns
+        -------
+        (F, F) csr_matrix, sorted indices (its arrays may be views of larger buffers).
+
+        Raises
+        ------
+        InputError
+            A material without a constant tangent, or ``free`` not sorted unique DOFs.
+        """
+        from .linear_solvers import free_block
+
+        if not self.constant_tangent:
+            raise InputError("constant_stiffness_block needs constant-tangent materials (linear Hooke); "
+                             "use hessian(q) for nonlinear ones")
+        N = 3 * self.n_nodes
+        free = np.asarray(free)
+        if free.ndim != 1 or free.dtype.kind not in "iu" or (len(free) and (free[0] < 0 or free[-1] >= N)) or \
+                np.any(np.diff(free) <= 0):
+            raise InputError(f"free must be sorted unique DOF indices in [0, {N}) (3 * node + component)")
+        if self._constant is not None:
+            data, _, _, _ = self._constant
+            H = sp.csr_matrix((data, self._pattern[1], self._pattern[0]), shape=(N, N))
+            return free_block(H, free)
+        pattern = self._pattern if self._pattern is not None else kern.grid_block_pattern(
+            self.grid.element_nodes, self.n_nodes)
+        data = self._constant_data(pattern)
+        indptr, indices = pattern[:2]
+        if pattern is self._pattern:
+            indptr, indices = indptr.copy(), indices.copy()  # the cached pattern stays intact
+        del pattern  # the block map goes before the compaction
+        H = sp.csr_matrix((data, indices, indptr), shape=(N, N))
+        return free_block(H, free, overwrite=True)
 
     # -- points, mass, loads ---------------------------------------------------
     def point_mapping(self, points) -> PointMapping:
