@@ -40,7 +40,11 @@ available); ``--solver`` picks the solver of ``--memory``.  Solvers other
 than ``cg`` take the lean path: ``VoxelModel.constant_stiffness_block``
 (the free-DOF block assembled and compacted in place, no full matrix kept)
 then ``solve_linear``; the run ends with a check that the reactions carry the
-load (matrix-free gradient).
+load (matrix-free gradient).  Measured with --big on this 2-core machine
+(shared, 38 % of the CPU for the run): 6,384,651 DOF, multigrid-CG 16
+iterations to 4.4e-9, solve 260 s wall, total 393 s, peak RSS 8.67 GB =
+1423 bytes/DOF (the 128x32x32 path before: 3041), reactions equal to the
+load on the free nodes to 7 digits.
 """
 
 from __future__ import annotations
