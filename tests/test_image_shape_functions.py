@@ -281,3 +281,42 @@ def _dense_all(sv, n):
         ok = sv.index[:, j] >= 0
         H[np.flatnonzero(ok), sv.index[ok, j]] += sv.ddw[ok, j]
     return W, G, H
+
+
+def test_voxels_of_points_outside_match_a_brute_force_search():
+    """Oracle: for points just outside the material (surface vertices at voxel corners, points
+    up to half a voxel out), the voxel used is the material voxel of the 27 around the point
+    with the smallest gap to it (first in offset order on ties), found here by a plain loop."""
+    labels = np.zeros((8, 7, 6), np.uint8)
+    labels[2:6, 2:5, 1:5] = 1
+    labels[3, 5, 2] = 1
+    img = LabelImage(labels, spacing=(0.5, 0.7, 0.9))
+    sf = shape_function(img, img.index_to_world([[3.5, 3.5, 2.5], [4.5, 2.5, 3.5]]), kind="sibson", smooth=False)
+    rng = np.random.default_rng(2)
+    corners = np.argwhere(labels > 0)[:, None, :] + np.array([[0, 0, 0], [1, 1, 1], [1, 0, 1], [0, 1, 0]])[None]
+    c = np.concatenate([corners.reshape(-1, 3).astype(float), 1.0 + rng.random((300, 3)) * 6.0])
+    c = c[np.linalg.norm(c[:, None, :] - (np.argwhere(labels > 0) + 0.5)[None], axis=2).min(1) < 2.2]
+    X = img.index_to_world(c)
+    half = 0.5 * 0.9 * (1 + 1e-9)
+
+    def brute(ci):
+        ijk = np.floor(ci).astype(int)
+        if np.all((ijk >= 0) & (ijk < labels.shape)) and labels[tuple(ijk)]:
+            return ijk, 0.0
+        best, bestd = None, np.inf
+        for o in np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij")).reshape(3, -1).T:
+            v = ijk + o
+            if np.any(v < 0) or np.any(v >= labels.shape) or not labels[tuple(v)]:
+                continue
+            dd = np.linalg.norm(np.maximum(np.maximum(v - ci, ci - (v + 1)), 0.0) * img.spacing)
+            if dd < bestd:
+                best, bestd = v, dd
+        return best, bestd
+
+    ref = [brute(ci) for ci in img.world_to_index(X)]  # the same rounding as the code under test
+    ok = np.array([r[0] is not None and r[1] <= half for r in ref])
+    assert ok.sum() > 50 and (~ok).sum() > 5  # both cases are exercised
+    np.testing.assert_array_equal(sf._voxels_of(X[ok]), np.array([r[0] for r in ref if r[0] is not None and r[1] <= half]))
+    first_bad = int(np.flatnonzero(~ok)[0])
+    with pytest.raises(InputError, match=f"point {first_bad} "):
+        sf._voxels_of(X)

@@ -194,29 +194,29 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     def seeds_of(pos):
         return image.world_to_index(np.asarray(pos).reshape(-1, 3)) + M.PAD
 
-    # farthest-point sampling, re-propagating only where a new frame is nearer
-    dist, owner = M.march(mask, cost, pshape, spacing, seeds_of(frames), np.arange(len(frames)), fmm=2)
+    # farthest-point sampling in the Dijkstra metric, re-propagating only where a new frame is nearer
+    dist, owner = M.march(mask, cost, pshape, spacing, seeds_of(frames), np.arange(len(frames)), fmm=0)
     while len(frames) < count:
         dm = dist[mflat]
         dm = np.where(np.isfinite(dm), dm, -1.0)
         v = int(np.argmax(dm))
         frames.append(centres[v])
         frame_vox.append(v)
-        M.march(mask, cost, pshape, spacing, seeds_of(centres[v]), [len(frames) - 1], fmm=2, dist=dist, owner=owner)
+        M.march(mask, cost, pshape, spacing, seeds_of(centres[v]), [len(frames) - 1], fmm=0, dist=dist, owner=owner)
 
     # Lloyd relaxation of the automatic frames (user and fixed-box frames stay), on continuous
     # positions: a frame moves to its cell's centroid (or, when the centroid is not in a voxel
     # of the cell, to the cell's voxel centre nearest it, lowest index on ties) and snaps to the
     # centre of its voxel at the end.  Moving voxel by voxel instead stalls wherever the
     # centroid is within half a voxel of the frame, or exactly half-way between two centres.
+    # The cells are those of the frames' voxel centres, so only the frames whose voxel changed
+    # are re-propagated (:func:`_repropagate`), and an iteration where none changed is a fixed point.
     frame_vox = np.asarray(frame_vox, dtype=np.int64)
     movable = np.flatnonzero(np.arange(len(frames)) >= n_pinned)
     pos = np.array(frames, dtype=np.float64).reshape(-1, 3)
     n = len(pos)
-    tol = 1e-3 * float(np.min(image.spacing))
+    cur_vox = frame_vox.copy()
     for it in range(iterations if len(movable) else 0):
-        if it:
-            dist, owner = M.march(mask, cost, pshape, spacing, seeds_of(pos), np.arange(n), fmm=2)
         own = owner[mflat]
         cnt = np.bincount(own, minlength=n).astype(np.float64)
         cen = np.stack([np.bincount(own, weights=centres[:, a], minlength=n) for a in range(3)], axis=1)
@@ -227,22 +227,58 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
         cvox[inside] = vox_id[tuple(cijk[inside].T)]
         ok = (cvox >= 0) & (cnt > 0)
         ok[ok] = own[cvox[ok]] == np.flatnonzero(ok)
-        d2 = ((centres - cen[own]) ** 2).sum(1)
-        order = np.lexsort((np.arange(nmat), d2, own))
-        first = np.r_[0, np.flatnonzero(np.diff(own[order])) + 1]
         best = np.full(n, -1, dtype=np.int64)
-        best[own[order[first]]] = order[first]
-        new = pos.copy()
+        lost = movable[~ok[movable] & (cnt[movable] > 0)]
+        if len(lost):  # the cell's voxel nearest its centroid (lowest index on ties)
+            sel = np.flatnonzero(np.isin(own, lost))
+            d2 = ((centres[sel] - cen[own[sel]]) ** 2).sum(1)
+            order = np.lexsort((sel, d2, own[sel]))
+            first = np.r_[0, np.flatnonzero(np.diff(own[sel][order])) + 1]
+            best[own[sel][order[first]]] = sel[order[first]]
+        new_vox = cur_vox.copy()
         for i in movable:
             if ok[i]:
-                new[i] = cen[i]
+                pos[i] = cen[i]
+                new_vox[i] = cvox[i]
             elif best[i] >= 0:
-                new[i] = centres[best[i]]
-        moved = float(np.max(np.linalg.norm(new - pos, axis=1)))
-        pos = new
-        if moved < tol:
-            break
+                pos[i] = centres[best[i]]
+                new_vox[i] = best[i]
+        changed = np.flatnonzero(new_vox != cur_vox)
+        cur_vox = new_vox
+        if len(changed) == 0 or it == iterations - 1:
+            break  # same voxels, same cells: the positions are the fixed point
+        _repropagate(mask, cost, pshape, spacing, dist, owner, changed, mflat[cur_vox[changed]])
     for i in movable:
         ijk = np.floor(image.world_to_index(pos[i][None])[0]).astype(np.int64)
         frames[i] = image.index_to_world((ijk + 0.5)[None])[0]
     return np.array(frames, dtype=np.float64).reshape(-1, 3)
+
+
+def _repropagate(mask, cost, pshape, spacing, dist, owner, changed, seed_flat):
+    """Move the frames ``changed`` to the voxels ``seed_flat`` (flat padded) in a Dijkstra field.
+
+    Their cells are cleared and re-marched from the new voxels and from the material voxels
+    bordering the cleared region (with their current distances): the result equals a fresh
+    Dijkstra from every frame (up to which frame wins an exact tie), at the cost of the cleared
+    cells and of what the moved frames take from their neighbours.
+    """
+    reset = np.flatnonzero(np.isin(owner, changed))
+    dist[reset] = np.inf
+    owner[reset] = -1
+    off = (np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij")).reshape(3, -1).T
+           @ np.array([pshape[1] * pshape[2], pshape[2], 1])).astype(np.int64)
+    near = np.zeros(mask.shape[0], dtype=bool)
+    for o in off:
+        near[reset + o] = True
+    ring = np.flatnonzero(near & (mask != 0) & np.isfinite(dist))
+    si = np.concatenate([seed_flat, ring]).astype(np.int64)
+    sd = np.concatenate([np.zeros(len(seed_flat)), dist[ring]])
+    so = np.concatenate([np.asarray(changed, dtype=np.int64), owner[ring]])
+    dist[ring] = np.inf  # re-entered as seeds with the same values
+    state = M.state_of(mask)
+    N = mask.shape[0]
+    touched = np.empty(N, dtype=np.int32)
+    nxt = np.empty(N, dtype=np.int32)
+    prv = np.empty(N, dtype=np.int32)
+    M._march(cost, pshape, spacing, dist, owner, state, nxt, prv, dist, False, si, sd, so, 0, touched, 0,
+             float(cost.min()), float(cost.max()))

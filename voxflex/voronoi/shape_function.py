@@ -132,25 +132,25 @@ class ShapeFunction:
         ok = inside.copy()
         ok[inside] = img.labels[tuple(ijk[inside].T)] > 0
         bad = np.flatnonzero(~ok)
-        if len(bad):
+        if len(bad):  # points just outside (surface vertices at voxel corners): nearest material neighbour voxel
             half = 0.5 * float(np.max(img.spacing)) * (1 + 1e-9)
             offs = np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij")).reshape(3, -1).T
-            for b in bad:
-                best, bestd = None, np.inf
-                for o in offs:
-                    v = ijk[b] + o
-                    if np.any(v < 0) or np.any(v >= shape) or img.labels[tuple(v)] == 0:
-                        continue
-                    gap = np.maximum(np.maximum(v - c[b], c[b] - (v + 1)), 0.0) * img.spacing
-                    dd = float(np.linalg.norm(gap))
-                    if dd < bestd:
-                        best, bestd = v, dd
-                if best is None or bestd > half:
-                    raise InputError(
-                        f"point {int(b)} at {np.asarray(points[b]).tolist()} lies outside the material "
-                        "(more than half a voxel from it); evaluate shape functions inside the object"
-                    )
-                ijk[b] = best
+            cand = ijk[bad][:, None, :] + offs[None]  # (b, 27, 3)
+            valid = np.all((cand >= 0) & (cand < shape), axis=2)
+            cc = np.clip(cand, 0, shape - 1)
+            valid &= img.labels[cc[..., 0], cc[..., 1], cc[..., 2]] > 0
+            cb = c[bad][:, None, :]
+            gap = np.maximum(np.maximum(cand - cb, cb - (cand + 1)), 0.0) * np.asarray(img.spacing)
+            dd = np.where(valid, np.linalg.norm(gap, axis=2), np.inf)
+            j = np.argmin(dd, axis=1)  # the first of equal gaps in offset order
+            far = dd[np.arange(len(bad)), j] > half
+            if np.any(far):
+                b = int(bad[np.flatnonzero(far)[0]])
+                raise InputError(
+                    f"point {b} at {np.asarray(points[b]).tolist()} lies outside the material "
+                    "(more than half a voxel from it); evaluate shape functions inside the object"
+                )
+            ijk[bad] = cand[np.arange(len(bad)), j]
         return ijk
 
     def __call__(self, points) -> ShapeValues:
