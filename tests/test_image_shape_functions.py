@@ -320,3 +320,14 @@ def test_voxels_of_points_outside_match_a_brute_force_search():
     first_bad = int(np.flatnonzero(~ok)[0])
     with pytest.raises(InputError, match=f"point {first_bad} "):
         sf._voxels_of(X)
+
+
+def test_centre_weights_node_by_node_equal_the_pointwise_evaluation(cube):
+    """The smoothing's input, evaluated node by node, equals the per-point evaluation of the same
+    polynomials (centre_values; same parents, weights to round-off: 1e-12)."""
+    img, frames = cube
+    sf = shape_function(img, frames, kind="sibson", parents=3)
+    index, w = sf._centre_weights()
+    ref = sf.centre_values()
+    np.testing.assert_array_equal(index, ref.index)
+    np.testing.assert_allclose(w, ref.w, rtol=0, atol=1e-12)

@@ -187,20 +187,24 @@ class ShapeFunction:
             self._cache["centres"] = sv
         return self._cache["centres"]
 
-    def _centre_weights(self, chunk=32768):
+    def _centre_weights(self):
         """Frame indices and weights (V, parents) at the material voxel centres, as in
         :meth:`centre_values` but without gradients and Hessians (the smoothing reads w only:
-        at 128³ the Hessians alone would take V x parents x 9 doubles, 600 MB)."""
+        at 128³ the Hessians alone would take V x parents x 9 doubles, 600 MB).  Evaluated node
+        by node: a node's coefficients serve all its voxels without being copied to each."""
         mask = self.image.labels > 0
         X = self.image.voxel_centers(mask)
         nodes = self._node_of_voxel[mask]
         m, P = len(X), self.parents
         index = np.full((m, P), -1, dtype=np.int64)
         w = np.zeros((m, P))
-        for a in range(0, m, chunk):
-            b = min(m, a + chunk)
-            index[a:b], w[a:b] = _weights_impl(X[a:b], self._node_pos[nodes[a:b]], self._node_frames[nodes[a:b]],
-                                               self._node_coef[nodes[a:b]], self._scale, P)
+        order = np.argsort(nodes, kind="stable")
+        bounds = np.searchsorted(nodes[order], np.arange(len(self._node_pos) + 1))
+        for q in range(len(self._node_pos)):
+            sel = order[bounds[q]:bounds[q + 1]]
+            if len(sel):
+                index[sel], w[sel] = _weights_impl(X[sel], self._node_pos[q], self._node_frames[q],
+                                                   self._node_coef[q], self._scale, P)
         if self._anchor is not None:
             own = self._anchor[mask]
             a = own >= 0
@@ -256,10 +260,18 @@ class ShapeFunction:
 
 
 def _weights_impl(X, npos, nfr, ncoef, h, P):
-    """Values only: the polynomial values at points, w <= 0 dropped, the P largest kept and renormalised."""
+    """Values only: the polynomial values at points, w <= 0 dropped, the P largest kept and renormalised.
+
+    Per point (npos (m, 3), nfr (m, K), ncoef (m, K, 10)) or, for points of one node, the node's
+    own (npos (3,), nfr (K,), ncoef (K, 10)).
+    """
     x = (X - npos) / h
     phi, _, _ = _basis(x)
-    w = ncoef[..., 0] + np.einsum("mkb,mb->mk", ncoef[..., 1:], phi)
+    if ncoef.ndim == 2:
+        w = ncoef[:, 0] + phi @ ncoef[:, 1:].T
+        nfr = np.broadcast_to(nfr, w.shape)
+    else:
+        w = ncoef[..., 0] + np.einsum("mkb,mb->mk", ncoef[..., 1:], phi)
     valid = (nfr >= 0) & (w > 0)
     ws = np.where(valid, w, -np.inf)
     K = w.shape[1]
