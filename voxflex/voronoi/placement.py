@@ -10,13 +10,25 @@ where it is:
 3. one frame in every connected component (26-connectivity, the connectivity
    of the distances) that holds none yet: a voxel drawn with the seed;
 4. farthest-point sampling up to ``count``: each new frame is the material
-   voxel farthest (geodesically) from all frames so far (the first in C order
-   on ties); adding one only re-propagates where the new frame is nearer;
+   voxel farthest from all frames so far (the first in C order on ties);
+   adding one only re-propagates where the new frame is nearer;
 5. Lloyd relaxation of the frames of steps 3-4 on continuous positions: each
-   moves to the centroid of its geodesic Voronoi cell (to the cell's voxel
-   nearest the centroid when the centroid lies outside the cell), until no
-   frame moves by more than 1e-3 voxel or ``iterations`` is reached; each then
-   snaps to the centre of the voxel it lies in.
+   moves to the centroid of its Voronoi cell (to the cell's voxel nearest the
+   centroid when the centroid lies outside the cell), until no frame changes
+   voxel (the cells, hence the centroids, are then those of the last
+   iteration: a fixed point) or ``iterations`` is reached; each then snaps to
+   the centre of the voxel it lies in.
+
+Placement measures distances with the 26-neighbour Dijkstra from the frames'
+voxels (:func:`geodesic_distance` with ``method="dijkstra"``), not with fast
+marching: it is ~4x cheaper per voxel, a cell depends only on the voxels of
+the frames, and a Lloyd iteration re-marches only the cells of the frames that
+changed voxel (exactly, :func:`_repropagate`).  Its bias (up to 12.8 % longer
+than the straight line off the lattice directions, none along them) moves the
+cell borders by a fraction of that where cells are elongated; the frames stay
+evenly spread (tests), and the shape functions are computed with fast
+marching.  On the SOFA frames beam (40 frames) the frame model's tip
+deflection was +0.04 % from the voxel model's with this placement.
 
 Example
 -------
