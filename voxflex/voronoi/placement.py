@@ -259,7 +259,12 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
         cur_vox = new_vox
         if len(changed) == 0 or it == iterations - 1:
             break  # same voxels, same cells: the positions are the fixed point
-        _repropagate(mask, cost, pshape, spacing, dist, owner, changed, mflat[cur_vox[changed]])
+        if cnt[changed].sum() > 0.5 * nmat:  # most cells change: a fresh march is cheaper than clearing them
+            seeds = seeds_of(pos)
+            seeds[movable] = M.PAD + np.floor(seeds[movable] - M.PAD) + 0.5  # the voxel centres
+            dist, owner = M.march(mask, cost, pshape, spacing, seeds, np.arange(n), fmm=0)
+        else:
+            _repropagate(mask, cost, pshape, spacing, dist, owner, changed, mflat[cur_vox[changed]])
     for i in movable:
         ijk = np.floor(image.world_to_index(pos[i][None])[0]).astype(np.int64)
         frames[i] = image.index_to_world((ijk + 0.5)[None])[0]
