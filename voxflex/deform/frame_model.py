@@ -254,11 +254,15 @@ class FrameModel:
     def gradient(self, q) -> np.ndarray:
         return self.energy_gradient_hessian(q, hessian=False)[1]
 
-    def hessian(self, q) -> sp.csr_matrix:
+    def hessian(self, q):
+        """d2E/dq2 (12n, 12n): dense ndarray (point samples) or CSR (elastons)."""
         return self.energy_gradient_hessian(q)[2]
 
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
-        """Energy (J), gradient (n, 12) and Hessian (12n, 12n) CSR in one pass over the samples."""
+        """Energy (J), gradient (n, 12) and Hessian (12n, 12n) in one pass over the samples.
+
+        The Hessian is a dense ndarray for point samples (frames sharing material couple,
+        so it is nearly full) and CSR for elastons."""
         q = self._check_q(q)
         if self.elaston:
             return self._elaston_pass(q, gradient, hessian)

@@ -103,10 +103,13 @@ class Model(Protocol):
         """Elastic energy (J); inf or NaN where the material is undefined (inverted)."""
 
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
-        """(energy J, gradient (n, d) or None, Hessian CSR (nd, nd) or None)."""
+        """(energy J, gradient (n, d) or None, Hessian (nd, nd) or None).
+
+        The Hessian is a scipy sparse matrix (voxel models) or a dense ndarray (frame
+        models, whose stiffness is nearly full); the solvers take either."""
 
     def hessian(self, q):
-        """d²E/dq² as a CSR matrix (nd, nd)."""
+        """d²E/dq² (nd, nd): sparse, or a dense ndarray (see :meth:`energy_gradient_hessian`)."""
 
     def mass_matrix(self, densities: Mapping[int, float], *, lumped: bool = True):
         """Mass matrix (nd, nd) in the DOFs from mapped mass points (kg, kg m, kg m²)."""
