@@ -286,9 +286,8 @@ class FrameModel:
             K.frame_forces(self._index, self._G, VP, grad)
         H = None
         if hessian:
-            N = 12 * self.n_nodes
-            H = np.zeros((N, N))  # a dense Hessian: frames sharing material couple (the solver takes it as is)
-            K.frame_stiffness(self._index, self._G, VA, H)
+            # a dense Hessian: frames sharing material couple (the solver takes it as is)
+            H = K.frame_stiffness_dense(self._index, self._G, VA, self.n_nodes)
         return float(energy), grad, H
 
     def _elaston_pass(self, q, gradient, hessian):
