@@ -49,7 +49,7 @@ def sofa(kinds, samplers):
     ref, _, tp, ts = _run(scene)
     uv = ref.probe_displacements()["tip"][0]
     print(f"\n### SOFA frames beam: voxel model {uv:.6e} m ({tp + ts:.1f} s, 40,000 voxels)\n")
-    print("| shape function | sampler | samples | tip (m) | error | precompute s | solve s |")
+    print("| shape function | sampler | samples | tip (m) | error | precompute s (one run) | solve s (one run) |")
     print("|---|---|---|---|---|---|---|")
     for kind in kinds:
         for q in samplers:
@@ -75,7 +75,7 @@ def cantilever(counts):
     it = int(ref.newton_iterations.sum())
     print(f"\n### Neo-Hooke cantilever 32x8x8: voxel model u_z = {uv:.6f} m, {it} Newton iterations, "
           f"{tp + ts:.1f} s\n")
-    print("| frames | samples | u_z (m) | error | Newton it. | s / iteration | precompute s | total s |")
+    print("| frames | samples | u_z (m) | error | Newton it. | s / iteration (one run) | precompute s (one run) | total s (one run) |")
     print("|---|---|---|---|---|---|---|---|")
     for n in counts:
         s = replace(scene, nodes=NodesSpec(kind="affine", count=n),

@@ -452,21 +452,17 @@ class Result:
         if not folder.is_dir():
             raise InputError(f"output folder '{folder}' does not exist; create it or choose another path")
         faces = np.hstack([np.full((self.surface_faces.shape[0], 1), 3), self.surface_faces]).ravel()
-        entries = []
-        for t in range(self.n_states):
-            name = f"{stem}_{t:04d}.vtp"
+
+        def surface(t):
             mesh = pv.PolyData(np.array(self.surface_positions[t]), faces=faces)
             u = self.surface_positions[t] - self.surface_rest
             mesh.point_data["displacement"] = u
             mesh.point_data["displacement_magnitude"] = np.linalg.norm(u, axis=1)
             for key, values in self.fields.items():
                 mesh.cell_data[key] = _vtk_components(values[t])
-            with atomic_path(folder / name) as tmp:
-                mesh.save(str(tmp), binary=True)
-            entries.append((float(self.time[t]), name))
-        pvd = folder / f"{stem}.pvd"
-        with atomic_path(pvd) as tmp:
-            tmp.write_text(_pvd_xml(entries), encoding="utf-8")
+            return mesh
+
+        pvd = self._write_series(folder, stem, "vtp", surface)
         if self.cell_fields and self.cell_location == "voxels":
             self._export_hexahedra(folder, f"{stem}_cells")
         return pvd
@@ -490,14 +486,22 @@ class Result:
         conn = grid.element_nodes[:, corner]
         cells = np.hstack([np.full((C, 1), 8), conn]).ravel()
         types = np.full(C, pv.CellType.HEXAHEDRON, dtype=np.uint8)
-        entries = []
-        for t in range(self.n_states):
-            name = f"{stem}_{t:04d}.vtu"
+
+        def hexahedra(t):
             mesh = pv.UnstructuredGrid(cells, types, np.array(self.nodes_state[t]))
             for key, values in self.cell_fields.items():
                 mesh.cell_data[key] = _vtk_components(values[t])
+            return mesh
+
+        return self._write_series(folder, stem, "vtu", hexahedra)
+
+    def _write_series(self, folder: Path, stem: str, ext: str, mesh_of) -> Path:
+        """One ``STEM_TTTT.EXT`` per state (``mesh_of(t)``) and the ``STEM.pvd`` collection, atomically."""
+        entries = []
+        for t in range(self.n_states):
+            name = f"{stem}_{t:04d}.{ext}"
             with atomic_path(folder / name) as tmp:
-                mesh.save(str(tmp), binary=True)
+                mesh_of(t).save(str(tmp), binary=True)
             entries.append((float(self.time[t]), name))
         pvd = folder / f"{stem}.pvd"
         with atomic_path(pvd) as tmp:

@@ -301,8 +301,7 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None):
         nf = len(free)
         # a reduced model's stiffness is small and nearly dense (frames couple through shared
         # material): a dense Cholesky beats sparse LU there (measured in benchmarks/bench_frames.py)
-        nnz = np.count_nonzero(H) if isinstance(H, np.ndarray) else H.nnz
-        dense = nf <= DENSE_AUTO_MAX and nnz >= DENSE_FILL * H.shape[0] ** 2
+        dense = nf <= DENSE_AUTO_MAX and H.nnz >= DENSE_FILL * H.shape[0] ** 2  # H is sparse here
         method = "cholesky" if dense else choose_method(nf, grid=grid)
     if method == "cg":
         d, info = cg_on_free_dofs(H, rhs, free, rtol=eta)
