@@ -179,8 +179,12 @@ class RigidPointMap:
     """Material points mapped by rigid frames: the affine frames' map of ``q12(q6)``.
 
     ``apply`` is exact at any state; ``vjp(q, f)`` is ``J(q)^T`` of the affine
-    point forces, exact at the state given (it depends on the rotation).
+    point forces, exact at the state given (it depends on the rotation).  Not linear in the
+    state (``constant_jacobian = False``): layers that need a linear point mapping (cables,
+    contact) refuse it.
     """
+
+    constant_jacobian = False
 
     def __init__(self, inner, model: "RigidFrameModel"):
         self.inner = inner
