@@ -371,9 +371,10 @@ def model(scene, *, image=None, cache: bool = True):
         image = build_image(scene)
     labels_present = np.unique(image.labels[image.labels > 0])
     materials = build_materials(scene, labels_present)
+    from .deform.cables import with_cables
     from .deform.contact import with_contact
 
-    # the collision layer is built only when the scene has obstacles
+    # the collision layer is built only when the scene has obstacles, the cable layer when it has cables
     builder = MODEL_BUILDERS[scene.nodes.kind]
     built = builder(scene, image, materials, cache=cache) if builder in (_frame_model, _rigid_model) else builder(scene, image, materials)
-    return with_contact(built, scene)
+    return with_cables(with_contact(built, scene), scene)

@@ -26,6 +26,8 @@ the group ``/model`` whose attributes describe the model (``node_kind``, ``count
 ``dofs``, ``quadrature``, ``samples``, ``shape_function``, ``precompute_seconds`` ...).
 With obstacles, ``/contact/force`` (T, obstacles, 3): the total force (N) each
 obstacle exerts on the body at every state (absent without obstacles).
+With cables, ``/cable/tension`` (T, cables): the tension (N) of each ``[[cable]]``
+at every state, in the order of the scene's tables (absent without cables).
 Fields asked for by ``[output] fields``: ``/fields/NAME`` (T, C, ...) per cell
 (attr ``location``: ``"voxels"`` or ``"samples"``), ``/surface/fields/NAME``
 (T, F, ...) per surface triangle, ``/reactions/force`` (T, R, 3) per fixed region.
@@ -100,6 +102,8 @@ class Result:
     contact_force : (T, k, 3) float or None
         Total force (N) each of the k obstacles exerts on the body at every state
         (``/contact/force``); None without obstacles.
+    cable_tension : (T, c) float or None
+        Tension (N) of each of the c cables at every state (``/cable/tension``); None without cables.
     fields : dict name -> (T, F, ...) float
         Result fields on the surface triangles (``/surface/fields/NAME``): what renders colour by
         (names of :data:`voxflex.deform.fields.FIELD_NAMES`).
@@ -137,6 +141,7 @@ class Result:
     node_kind: str = "voxel"
     model: dict = field(default_factory=dict)
     contact_force: np.ndarray | None = None
+    cable_tension: np.ndarray | None = None
     fields: dict = field(default_factory=dict)
     cell_fields: dict = field(default_factory=dict)
     cell_location: str = ""
@@ -213,6 +218,11 @@ class Result:
             if cf.shape[0] != T:
                 raise InputError(f"Result.contact_force must be ({T}, obstacles, 3), got {cf.shape}")
             s(self, "contact_force", cf)
+        if self.cable_tension is not None:
+            ct = _arr("cable_tension", self.cable_tension, 2)
+            if ct.shape[0] != T:
+                raise InputError(f"Result.cable_tension must be ({T}, cables), got {ct.shape}")
+            s(self, "cable_tension", ct)
         F = self.surface_faces.shape[0]
         out = {}
         for name, values in dict(self.fields).items():
@@ -352,6 +362,8 @@ class Result:
                 g.attrs["direction"] = self.image_direction
                 if self.contact_force is not None:
                     put(f.create_group("contact"), "force", self.contact_force)
+                if self.cable_tension is not None:
+                    put(f.create_group("cable"), "tension", self.cable_tension)
         return path
 
     @classmethod
@@ -410,6 +422,7 @@ class Result:
                 model={k: (_text(v) if isinstance(v, (bytes, str)) else np.asarray(v).item())
                        for k, v in (f["model"].attrs.items() if "model" in f else ())},
                 contact_force=get("contact/force"),
+                cable_tension=get("cable/tension"),
                 fields={k: v[()] for k, v in f["surface/fields"].items()} if "surface/fields" in f else {},
                 cell_fields={k: v[()] for k, v in f["fields"].items()} if "fields" in f else {},
                 cell_location=_text(next(iter(f["fields"].values())).attrs.get("location", ""))

@@ -40,6 +40,7 @@ from .deform.materials import MATERIALS, MODEL_CONSTANTS, POISSON_RANGE, check_c
 from .deform.model import NODE_KINDS as _NODE_KINDS
 from .deform.obstacles import OBSTACLE_KINDS
 from .deform.contact import POINT_RULES as CONTACT_POINT_RULES
+from .deform.cables import Cable
 from .deform.fields import check_field_names
 from .deform.solvers import KINDS as SOLVER_KINDS, MASS_KINDS
 from .deform.strains import STRAINS
@@ -62,6 +63,7 @@ __all__ = [
     "OutputSpec",
     "ObstacleSpec",
     "ContactSpec",
+    "CableSpec",
     "describe_scene",
     "default_scene_path",
 ]
@@ -627,6 +629,52 @@ class ContactSpec:
             object.__setattr__(self, "points", k)
 
 
+@dataclass(frozen=True)
+class CableSpec:
+    """``[[cable]]``: a tension-only cable through material points (:mod:`voxflex.deform.cables`).
+
+    ``points`` the rest positions (m) of the material points it runs through, in
+    order (it slides through them without friction: one tension along the whole
+    cable); ``anchor`` an optional fixed world point, the cable's first end;
+    ``stiffness`` the whole cable's axial stiffness EA / L (N/m); ``rest_length``
+    (m, default the rest polyline length); ``shorten`` the length reduction (m)
+    reached at the end of the run; or ``pull`` a tension (N) reached at the end of
+    the run instead of stiffness / rest_length / shorten; ``tension_only = false``
+    makes it a two-sided spring.
+    """
+
+    points: tuple[tuple[float, float, float], ...] = ()
+    anchor: tuple[float, float, float] | None = None
+    stiffness: float | None = None
+    rest_length: float | None = None
+    shorten: float = 0.0
+    pull: float | None = None
+    tension_only: bool = True
+
+    def __post_init__(self):
+        t = "cable"
+        pts = self.points
+        if isinstance(pts, (str, bytes)) or not hasattr(pts, "__len__") or len(pts) == 0:
+            raise InputError("[cable] needs points, a list of [x, y, z] rest positions (m), "
+                             "e.g. points = [[0.1, 0.5, 1.0], [3.9, 0.5, 1.0]]")
+        object.__setattr__(self, "points", tuple(_vector(t, "points", p) for p in pts))
+        if self.anchor is not None:
+            object.__setattr__(self, "anchor", _vector(t, "anchor", self.anchor))
+        for key in ("stiffness", "rest_length", "pull"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, _number(t, key, getattr(self, key), positive=True))
+        shorten = _number(t, "shorten", self.shorten)
+        if math.isinf(shorten):
+            raise InputError(f"[cable] shorten must be finite, got {self.shorten!r}")
+        object.__setattr__(self, "shorten", shorten)
+        _boolean(t, "tension_only", self.tension_only)
+        try:  # the checks across keys (zero-length segments, pull against stiffness, shortening)
+            Cable(points=self.points, anchor=self.anchor, stiffness=self.stiffness, rest_length=self.rest_length,
+                  shorten=self.shorten, pull=self.pull, tension_only=self.tension_only)
+        except InputError as exc:
+            raise InputError(f"[cable] {exc}") from None
+
+
 _SINGLE = {
     "object": ObjectSpec,
     "nodes": NodesSpec,
@@ -636,10 +684,11 @@ _SINGLE = {
     "contact": ContactSpec,
 }
 _ARRAYS = {"material": MaterialSpec, "fixed": FixedSpec, "load": LoadSpec, "probe": ProbeSpec,
-           "obstacle": ObstacleSpec}
+           "obstacle": ObstacleSpec, "cable": CableSpec}
 _TOP_KEYS = ("title", "object", "material", "nodes", "elasticity", "fixed", "load", "solver", "probe", "output",
-             "obstacle", "contact")
-_FIELD = {"material": "materials", "fixed": "fixed", "load": "loads", "probe": "probes", "obstacle": "obstacles"}
+             "obstacle", "contact", "cable")
+_FIELD = {"material": "materials", "fixed": "fixed", "load": "loads", "probe": "probes", "obstacle": "obstacles",
+          "cable": "cables"}
 
 
 @dataclass(frozen=True)
@@ -662,6 +711,7 @@ class Scene:
     output: OutputSpec = field(default_factory=OutputSpec)
     obstacles: tuple[ObstacleSpec, ...] = ()
     contact: ContactSpec = field(default_factory=ContactSpec)
+    cables: tuple[CableSpec, ...] = ()
     title: str | None = None
     base_dir: str | None = field(default=None, compare=False)
 
@@ -669,7 +719,7 @@ class Scene:
         if not isinstance(self.object, ObjectSpec):
             raise InputError("Scene.object must be an ObjectSpec (the [object] table)")
         for name, cls in (("materials", MaterialSpec), ("fixed", FixedSpec), ("loads", LoadSpec), ("probes", ProbeSpec),
-                          ("obstacles", ObstacleSpec)):
+                          ("obstacles", ObstacleSpec), ("cables", CableSpec)):
             items = getattr(self, name)
             if isinstance(items, cls):
                 items = (items,)
@@ -783,6 +833,8 @@ class Scene:
             lines += _table("obstacle", o, array=True)
         if self.contact != ContactSpec():
             lines += _table("contact", self.contact)
+        for c in self.cables:
+            lines += _table("cable", c, array=True)
         return "\n".join(lines).rstrip("\n") + "\n"
 
     # -- conveniences -----------------------------------------------------
@@ -926,6 +978,10 @@ def describe_scene(path) -> str:
     lines.append(f"  solver: {s.kind}, {timing}, tolerance {s.tolerance:g}")
     for p in scene.probes:
         lines.append(f"  probe {p.name}: {list(p.point)}")
+    for c in scene.cables:
+        how = f"pull {c.pull:g} N" if c.pull is not None else f"stiffness {c.stiffness:g} N/m, shorten {c.shorten:g} m"
+        start = f" from anchor {list(c.anchor)}" if c.anchor is not None else ""
+        lines.append(f"  cable: {len(c.points)} points{start}, {how}")
     if scene.output.file:
         lines.append(f"  output: {scene.output.file}")
     return "\n".join(lines)

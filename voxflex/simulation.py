@@ -256,6 +256,7 @@ def _make_result(scene, image, model, records, probe_map, *, fixed=(), forces=()
         node_kind=model.node_kind,
         model=model.describe(),
         contact_force=_contact_forces(model, states, [r.time for r in records], scene),
+        cable_tension=_cable_tensions(model, states, [r.time for r in records], scene),
         fields={k: np.stack([f[k] for f in surface]) for k in (surface[0] if surface else {})},
         cell_fields={k: np.stack([c[k] for c in cells]) for k in (cells[0] if cells else {})},
         cell_location=location,
@@ -314,13 +315,37 @@ def _reactions(model, records, scene, fixed, forces, densities, options):
     return out
 
 
+def _layer(model, cls):
+    """The layer of type ``cls`` in a stack of wrapped models (``.inner`` after ``.inner``), or None."""
+    while model is not None:
+        if isinstance(model, cls):
+            return model
+        model = model.__dict__.get("inner")
+    return None
+
+
+def _fractions(times, scene):
+    """Run fraction of each recorded state: the load factor (statics) or t / t_end (implicit Euler)."""
+    dynamic = scene.solver.kind == "implicit-euler"
+    t_end = scene.solver.steps * scene.solver.dt
+    return [t / t_end if dynamic else t for t in times]
+
+
 def _contact_forces(model, states, times, scene):
     """(T, obstacles, 3) forces of the obstacles on the body at every state, or None without contact."""
     from .deform.contact import ContactModel
 
-    if not isinstance(model, ContactModel):
+    layer = _layer(model, ContactModel)
+    if layer is None:
         return None
-    dynamic = scene.solver.kind == "implicit-euler"
-    t_end = scene.solver.steps * scene.solver.dt
-    fractions = [t / t_end if dynamic else t for t in times]
-    return np.stack([model.contact_forces(q, fraction=f) for q, f in zip(states, fractions)])
+    return np.stack([layer.contact_forces(q, fraction=f) for q, f in zip(states, _fractions(times, scene))])
+
+
+def _cable_tensions(model, states, times, scene):
+    """(T, cables) tension (N) of every cable at every state, or None without cables."""
+    from .deform.cables import CableModel
+
+    layer = _layer(model, CableModel)
+    if layer is None:
+        return None
+    return np.stack([layer.tensions(q, fraction=f) for q, f in zip(states, _fractions(times, scene))])
