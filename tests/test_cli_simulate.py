@@ -55,7 +55,7 @@ def test_default_scene_runs_and_writes_a_result(tmp_path, capsys, monkeypatch):
         ('[object]\nshape = "box"\nsize = [1, 1, 1]\nvoxel_size = 0.5\n[[material]]\nyoung = 1e4\n[solver]\nstepz = 2\n',
          "did you mean 'steps'"),
         ('[object]\nshape = "box"\nsize = [1, 1, 1]\nvoxel_size = 0.5\n[[material]]\nyoung = 1e3\npoisson = 0.3\n'
-         '[nodes]\nkind = "rigid"\n', "not implemented"),
+         '[nodes]\nkind = "rigid"\ncount = 2\n[solver]\nkind = "implicit-euler"\n', "rigid frames run static scenes only"),
     ],
 )
 def test_bad_scene_files_give_one_line_errors(tmp_path, capsys, text, message):

@@ -214,11 +214,18 @@ def _gravity(result):
     return g
 
 
-def _frame_positions(result, step: int):
-    """Affine frame origins (n, 3) at ``step`` (``/nodes/state`` columns 9:12), or None for other models."""
-    if result.node_kind != "affine" or result.nodes_state.shape[-1] != 12:
+_FRAME_ORIGIN_COLUMNS = {"affine": (12, slice(9, 12)), "rigid": (6, slice(0, 3))}
+"""Per node kind: the width of ``/nodes/state`` and the columns holding each frame's drawn point
+(affine: the origin t; rigid: the frame's mass centre p)."""
+
+
+def _frame_positions(result, step=None):
+    """Frame points ``(n, 3)`` at ``step`` (all steps ``(s, n, 3)`` when None), or None for models without frames."""
+    width, cols = _FRAME_ORIGIN_COLUMNS.get(result.node_kind, (None, None))
+    if width is None or result.nodes_state.shape[-1] != width:
         return None
-    return np.asarray(result.nodes_state[step][:, 9:12])
+    states = result.nodes_state if step is None else result.nodes_state[step]
+    return np.asarray(states[..., cols])
 
 
 def _field_names(result) -> list[str]:
@@ -351,7 +358,7 @@ def render_frames(
     cam = style.camera
     pts = [result.surface_rest, result.surface_positions.reshape(-1, 3)]
     if style.show_frames and _frame_positions(result, 0) is not None:
-        pts.append(result.nodes_state[:, :, 9:12].reshape(-1, 3))
+        pts.append(_frame_positions(result).reshape(-1, 3))
     pts = np.concatenate(pts)
     layout = _Layout.make(style, result, (lo, hi), bar_title, g is not None)
     faces = np.hstack([np.full((result.surface_faces.shape[0], 1), 3), result.surface_faces]).ravel()
@@ -715,7 +722,8 @@ def render(
     gravity : bool
         Draw the gravity arrow when the result's scene has gravity.
     frames : bool
-        Draw the frames of an affine model as dots (``/nodes/state`` columns 9:12).
+        Draw the frames of a frame model as dots (affine: the origins t, ``/nodes/state`` columns 9:12;
+        rigid: the frames' mass centres, columns 0:3).
 
     Returns
     -------

@@ -36,7 +36,7 @@ __all__ = ["Model", "PointMap", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "moved_r
 NODE_KINDS = ("affine", "rigid", "voxel")
 """``[nodes] kind`` values: affine frames (12 DOF), rigid frames (6 DOF), voxel-corner points (3 DOF)."""
 
-IMPLEMENTED_NODE_KINDS = ("affine", "voxel")
+IMPLEMENTED_NODE_KINDS = ("affine", "rigid", "voxel")
 """The node kinds a scene can be simulated with today (rigid frames need a non-additive state update)."""
 
 
