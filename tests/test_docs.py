@@ -129,7 +129,7 @@ def test_readme_links_every_page_and_nothing_outside_the_repository():
 
 def test_pictures_in_the_docs_are_small_pngs():
     pictures = sorted(DOCS.glob("*.png"))
-    assert 2 <= len(pictures) <= 4
+    assert 2 <= len(pictures) <= 6  # a few small pictures, not a gallery: keep the repository light
     for p in pictures:
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert p.stat().st_size < 200_000, f"{p.name} is {p.stat().st_size} bytes"
