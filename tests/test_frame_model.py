@@ -140,7 +140,8 @@ def test_implicit_euler_with_frames_never_gains_energy():
 
 def test_structured_kernels_equal_their_numpy_twins_and_the_generic_chain():
     """F, forces and stiffness of the I3 (x) G kernels equal the numpy twins and the generic
-    DeformationGradientMapping chain (J^T P, J^T A J) to 1e-12 relative."""
+    DeformationGradientMapping chain (J^T w P, J^T w A J) to 1e-12 relative (round-off of sums of
+    a few hundred terms is ~1e-15; a wrong index gives O(1) errors)."""
     from voxflex.deform import _frame_kernels as K
     from voxflex.deform.mappings import DeformationGradientMapping
 
@@ -152,19 +153,45 @@ def test_structured_kernels_equal_their_numpy_twins_and_the_generic_chain():
     fmap = DeformationGradientMapping(model.nodes, model.samples.values)
     assert np.allclose(F, fmap.apply(q), rtol=0, atol=1e-12) and np.allclose(F, K.frame_F_numpy(idx, G, q), atol=1e-12)
     rng = np.random.default_rng(4)
-    VP = rng.standard_normal(F.shape)
+    P = rng.standard_normal(F.shape)
+    w = rng.uniform(0.5, 2.0, len(F))
     g = np.zeros((model.n_nodes, 12))
-    K.frame_forces(idx, G, VP, g)
-    assert np.allclose(g, fmap.vjp(q, VP), atol=1e-12 * np.abs(g).max())
-    assert np.allclose(g, K.frame_forces_numpy(idx, G, VP, model.n_nodes), atol=1e-12 * np.abs(g).max())
+    K.frame_forces(idx, G, P, w, g)
+    assert np.allclose(g, fmap.vjp(q, w[:, None, None] * P), atol=1e-12 * np.abs(g).max())
+    assert np.allclose(g, K.frame_forces_numpy(idx, G, P, w, model.n_nodes), atol=1e-12 * np.abs(g).max())
     A = rng.standard_normal((len(F), 9, 9))
     A = (A + A.transpose(0, 2, 1)).reshape(-1, 3, 3, 3, 3)
-    Kd = np.zeros((12 * model.n_nodes,) * 2)
-    K.frame_stiffness(idx, G, A, Kd)
+    Kd = K.frame_stiffness_dense(idx, G, A, model.n_nodes, w)
     J = fmap.jacobian(q).toarray()
     D = np.zeros((9 * len(F), 9 * len(F)))
     for s in range(len(F)):
-        D[9 * s:9 * s + 9, 9 * s:9 * s + 9] = A[s].reshape(9, 9)
+        D[9 * s:9 * s + 9, 9 * s:9 * s + 9] = w[s] * A[s].reshape(9, 9)
     ref = J.T @ D @ J
     assert np.allclose(Kd, ref, atol=1e-12 * np.abs(ref).max())
-    assert np.allclose(Kd, K.frame_stiffness_numpy(idx, G, A, model.n_nodes), atol=1e-12 * np.abs(ref).max())
+    assert np.allclose(Kd, K.frame_stiffness_numpy(idx, G, A, w, model.n_nodes), atol=1e-12 * np.abs(ref).max())
+    assert np.array_equal(Kd, Kd.T)  # both triangles written from the same pair block
+
+
+def test_pair_tables_sort_parents_and_list_each_coupled_pair_once():
+    """frame_pairs against a brute-force set of the frame pairs sharing a sample; parents given in
+    any order (and padded) give the same stiffness as sorted ones (to round-off)."""
+    from voxflex.deform import _frame_kernels as K
+
+    rng = np.random.default_rng(7)
+    n, m, P = 9, 40, 4
+    index = np.array([rng.choice(n, size=P, replace=False) for _ in range(m)])
+    index[::5, -1] = -1  # padding
+    index[1::7, 0] = -1  # padding first: sorted last
+    G = rng.standard_normal((m, P, 4, 3)) * (index >= 0)[..., None, None]
+    idx2, G2, pairs, pair_id = K.frame_pairs(index, G, n)
+    brute = {(min(a, b), max(a, b)) for row in index for a in row for b in row if a >= 0 and b >= 0}
+    assert {tuple(p) for p in pairs} == brute and len(pairs) == len(brute)
+    assert np.all(pair_id[pairs[:, 0], pairs[:, 1]] == np.arange(len(pairs)))
+    ok = idx2 >= 0
+    assert np.all(np.diff(ok.astype(int), axis=1) <= 0)  # padding last
+    assert np.all((np.diff(idx2, axis=1) > 0) | ~ok[:, 1:])  # frames increasing
+    A = rng.standard_normal((m, 9, 9))
+    A = (A + A.transpose(0, 2, 1)).reshape(-1, 3, 3, 3, 3)
+    w = np.ones(m)
+    ref = K.frame_stiffness_numpy(index, G, A, w, n)
+    assert np.allclose(K.frame_stiffness_dense(index, G, A, n), ref, rtol=0, atol=1e-12 * np.abs(ref).max())

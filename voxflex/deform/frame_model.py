@@ -142,11 +142,13 @@ class FrameModel:
                     )
         else:
             self._fmap = DeformationGradientMapping(self.nodes, samples.values)
-            # the structured kernels: F = (I3 (x) G) d, forces and stiffness per sample (_frame_kernels)
-            self._index = np.ascontiguousarray(samples.values.index)
-            self._G = frame_tables(samples.values, self.frames)
+            # the structured kernels: F = (I3 (x) G) d, forces and stiffness per sample (_frame_kernels);
+            # parents sorted by frame and the coupled frame pairs, once
+            self._index, self._G, self._pairs, self._pair_id = K.frame_pairs(
+                samples.values.index, frame_tables(samples.values, self.frames), len(self.frames))
         self._J = None
         self._groups = [(int(lab), np.flatnonzero(samples.label == lab)) for lab in np.unique(samples.label)]
+        self._volume = np.ascontiguousarray(samples.volume, dtype=float)
         self._surface = None
         self._mass_map_cache = None
         self._mass_points_cache = None
@@ -266,28 +268,32 @@ class FrameModel:
         q = self._check_q(q)
         if self.elaston:
             return self._elaston_pass(q, gradient, hessian)
-        vol = self.samples.volume
+        vol = self._volume
         m = len(vol)
         F = np.empty((m, 3, 3))
         K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
-        energy = 0.0
-        VP = np.empty((m, 3, 3)) if gradient else None
-        VA = np.empty((m, 3, 3, 3, 3)) if hessian else None
-        for label, ids in self._groups:
-            W, P, A = self.materials[label].evaluate(F[ids], tangent=hessian)
-            energy += vdot(vol[ids], W)
-            if gradient:
-                VP[ids] = vol[ids, None, None] * P
-            if hessian:
-                VA[ids] = vol[ids, None, None, None, None] * A
+        if len(self._groups) == 1:  # one material: its arrays as they come, no gather or scatter
+            label = self._groups[0][0]
+            W, P, A = self.materials[label].evaluate(F, tangent=hessian)
+            energy = vdot(vol, W)
+        else:
+            energy = 0.0
+            P = np.empty((m, 3, 3))
+            A = np.empty((m, 3, 3, 3, 3)) if hessian else None
+            for label, ids in self._groups:
+                Wg, P[ids], Ag = self.materials[label].evaluate(F[ids], tangent=hessian)
+                energy += vdot(vol[ids], Wg)
+                if hessian:
+                    A[ids] = Ag
         grad = None
         if gradient:
             grad = np.zeros((self.n_nodes, 12))
-            K.frame_forces(self._index, self._G, VP, grad)
+            K.frame_forces(self._index, self._G, P, vol, grad)
         H = None
         if hessian:
             # a dense Hessian: frames sharing material couple (the solver takes it as is)
-            H = K.frame_stiffness_dense(self._index, self._G, VA, self.n_nodes)
+            H = K.frame_stiffness_dense(self._index, self._G, A, self.n_nodes, vol,
+                                        (self._index, self._G, self._pairs, self._pair_id))
         return float(energy), grad, H
 
     def _elaston_pass(self, q, gradient, hessian):
