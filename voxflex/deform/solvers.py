@@ -142,7 +142,7 @@ class _Problem:
     that swamp the physics.
     """
 
-    def __init__(self, model, f, base, M=None, h=None, xhat=None, xn=None, D=None):
+    def __init__(self, model, f, base, M=None, h=None, xhat=None, xn=None, D=None, *, block=None, adder=None):
         self.model = model
         self.f = f
         self.M = M
@@ -158,16 +158,35 @@ class _Problem:
         self.elastic_diagonal = None
         self.negative_curvature = False  # set by Newton when a direction of negative curvature was met
         self.on_iteration = None  # optional callable(dict) told about every Newton iterate (progress, logs)
+        # the lean static path of constant-tangent models: the free-DOF block (F, F) assembled once by the
+        # model, no full Hessian ever built (gradients then matrix-free); Newton solves with it
+        self.block = block
+        if block is not None:
+            self.elastic_diagonal = block.diagonal()  # of the free DOFs only (what the round-off floor reads)
+        # the inertia (and damping) matrix of the step, M / h^2 + D / h, built once, added to each Hessian
+        self.inertia = None
+        if M is not None:
+            self.inertia = sp.csr_matrix(M / h**2 if D is None else M / h**2 + D / h)
+        self._adder = adder if adder is not None else _PatternAdd()
+        # waste counters (benchmarks, tests): model evaluations, Hessians assembled, Hessians solved (Newton
+        # counts them) and the iterates whose Hessian the line search skipped but which needed one after all
+        self.evaluations = 0
+        self.hessians = 0
+        self.solves = 0
+        self.hessian_misses = 0
 
     def __call__(self, delta, hessian=True, gradient=True):
         q = (self.base + delta).reshape(self.shape)
+        hessian = hessian and self.block is None
+        self.evaluations += 1
+        self.hessians += bool(hessian and gradient)
         E, g, H = self.model.energy_gradient_hessian(q, hessian=hessian) if gradient else (
             self.model.energy(q), None, None)
         work = self.work0 + vdot(self.f, delta)
         pot = E - work
         mag = abs(E) + abs(work)
-        if H is not None:
-            self.elastic_diagonal = H.diagonal()
+        if H is not None and self.elastic_diagonal is None:
+            self.elastic_diagonal = H.diagonal()  # read once, at the step's start (the round-off floor)
         if g is not None:
             g = g.ravel() - self.f
         if self.M is not None:
@@ -178,8 +197,6 @@ class _Problem:
             mag += kin
             if g is not None:
                 g = g + Mdx / self.h**2
-            if H is not None:
-                H = _add(H, self.M / self.h**2)
             if self.D is not None:
                 dn = delta + self.off_n
                 Ddn = self.D @ dn
@@ -188,18 +205,86 @@ class _Problem:
                 mag += damp
                 if g is not None:
                     g = g + Ddn / self.h
-                if H is not None:
-                    H = _add(H, self.D / self.h)
+            if H is not None:
+                H = self._adder(H, self.inertia)
         if H is not None and not isinstance(H, np.ndarray):
             H = sp.csr_matrix(H)
         return pot, E, g, H, mag
 
 
-def _add(H, S):
-    """H + S for a sparse or dense (ndarray) Hessian H and a sparse S; dense stays dense."""
-    if isinstance(H, np.ndarray):
-        return H + S.toarray()
-    return H + S
+class _PatternAdd:
+    """``H + S`` for Hessians H that share one sparsity pattern and a fixed sparse S inside it.
+
+    scipy's sparse sum merges the two patterns on every call (a new CSR per
+    Newton iteration of implicit Euler); here the positions of S's entries in
+    H's pattern are found once per (pattern, S) and each call is a copy of
+    H's values plus a scatter-add.  Dense Hessians (frame models) get S's dense
+    form, made once.  Falls back to the plain sum when S has an entry outside H's pattern.
+    """
+
+    def __init__(self):
+        self._key = None
+        self._pos = None
+        self._dense = None
+
+    def __call__(self, H, S):
+        if isinstance(H, np.ndarray):
+            if self._dense is None or self._dense[0] is not S:
+                self._dense = (S, S.toarray())
+            return H + self._dense[1]
+        H = sp.csr_matrix(H)
+        if not H.has_canonical_format:
+            return H + S
+        if not self._same(H, S):
+            self._pos = _positions_in(H, S)
+            self._key = (H.indptr, H.indices, S.indptr.copy(), S.indices.copy())
+        if self._pos is None:
+            return H + S
+        data = H.data.copy()  # never write into the model's arrays (a constant model shares its cached data)
+        np.add.at(data, self._pos, S.data)
+        return sp.csr_matrix((data, H.indices, H.indptr), shape=H.shape)
+
+
+    def _same(self, H, S) -> bool:
+        """Whether H and S have the patterns the cached positions were found for (S's may be a new matrix)."""
+        if self._key is None:
+            return False
+        hp, hi, sp_, si = self._key
+        if len(hi) != len(H.indices) or len(hp) != len(H.indptr) or len(si) != len(S.indices) or \
+                len(sp_) != len(S.indptr):
+            return False
+        same_h = (hp is H.indptr and hi is H.indices) or (np.array_equal(hp, H.indptr) and np.array_equal(hi, H.indices))
+        return same_h and np.array_equal(sp_, S.indptr) and np.array_equal(si, S.indices)
+
+
+def _positions_in(H, S):
+    """Index (S.nnz,) of each stored entry of the CSR S in the canonical CSR H's data, or None when one is missing."""
+    S = sp.csr_matrix(S)
+    rows = np.repeat(np.arange(S.shape[0]), np.diff(S.indptr))
+    cols = S.indices
+    starts, ends = H.indptr[rows], H.indptr[rows + 1]
+    # binary search of each column inside its row of H (indices sorted per row): global offsets into H.indices
+    keys = rows.astype(np.int64) * H.shape[1] + cols
+    hrows = np.repeat(np.arange(H.shape[0], dtype=np.int64), np.diff(H.indptr))
+    hkeys = hrows * H.shape[1] + H.indices
+    pos = np.searchsorted(hkeys, keys)
+    ok = (pos < len(hkeys)) & (pos >= starts) & (pos < ends)
+    ok[ok] = hkeys[pos[ok]] == keys[ok]
+    return pos if bool(np.all(ok)) else None
+
+
+def _predict_converged(rn, rn_last, target, floor) -> bool:
+    """Whether a full Newton step from an iterate of residual ``rn`` (after ``rn_last``) should converge.
+
+    The linear-rate estimate ``rn * (rn / rn_last)`` (Newton's rate is at
+    least that good once it contracts) against the stopping threshold.  The
+    line search then evaluates that trial without its Hessian, which would
+    never be solved; a wrong guess costs one extra gradient pass (the Hessian
+    is then assembled at the next iteration).
+    """
+    if rn_last is None or not rn < 0.5 * rn_last:
+        return False
+    return rn * (rn / rn_last) <= max(target, floor)
 
 
 def _forcing(rn, rn_prev, eta_prev, scale):
@@ -232,6 +317,7 @@ class _FreeBlock:
         if np.any(np.diff(self.free) <= 0):
             raise ValueError("free DOFs must be sorted and unique")  # internal: solve() passes setdiff1d
         self.size = int(size)
+        self.fixed = np.setdiff1d(np.arange(self.size), self.free)  # once, not per Jacobi-CG solve
         self._indptr = None
         self._indices = None
 
@@ -280,7 +366,7 @@ class _FreeBlock:
         return sp.csr_matrix((H.data[self.sel], self.indices_ff, self.indptr_ff), shape=(nf, nf))
 
 
-def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None):
+def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=None):
     """Solve ``H[free][:, free] d = rhs``; returns d, info and the submatrix when it was built.
 
     Jacobi-CG (``"cg"``, and ``"auto"`` on large systems without a voxel grid)
@@ -288,8 +374,19 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None):
     direct fallback) take the submatrix from ``reduce``.  ``grid`` is the
     model's :attr:`dof_grid` (voxel models): with it ``auto`` picks sparse LU or
     geometric-multigrid CG (see :func:`voxflex.deform.linear_solvers.choose_method`).
+    ``block``: the submatrix itself (the lean path; H is then None), solved as given.
     """
     method = options.linear_solver
+    if block is not None:
+        if method == "auto":
+            nf = len(free)
+            dense = nf <= DENSE_AUTO_MAX and block.nnz >= DENSE_FILL * nf**2
+            method = "cholesky" if dense else choose_method(nf, grid=grid)
+        nn = near_null if method == "amg" else None
+        d, info = solve_linear(block, rhs, method=method, rtol=eta, near_null=nn,
+                               grid=grid if method == "multigrid" else None,
+                               free=free if method == "multigrid" else None)
+        return d, info, block
     if isinstance(H, np.ndarray):
         # a dense Hessian (frame models): dense Cholesky unless a sparse method was asked for
         if method in ("auto", "cholesky"):
@@ -304,7 +401,7 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None):
         dense = nf <= DENSE_AUTO_MAX and H.nnz >= DENSE_FILL * H.shape[0] ** 2  # H is sparse here
         method = "cholesky" if dense else choose_method(nf, grid=grid)
     if method == "cg":
-        d, info = cg_on_free_dofs(H, rhs, free, rtol=eta)
+        d, info = cg_on_free_dofs(H, rhs, free, rtol=eta, fixed=reduce.fixed)
         if d is not None:
             return d, info, None
         Hff = reduce(H)
@@ -343,7 +440,10 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
     rn_prev, eta_prev = None, None
     cached = None  # (x, problem(x)) of an accepted full step, evaluated by the line search
     step_length, last_lin, t_last = 0.0, 0, time.perf_counter()
+    lean = problem.block is not None
+    rn, rn_last = None, None  # the residual of this iterate and of the one before (the convergence rate)
     for it in range(options.max_iterations + 1):
+        rn_last = rn
         if cached is not None and cached[0] is x:
             pot, E, g, H, mag = cached[1]
         else:
@@ -357,7 +457,8 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             scale = max(scale, rn)
             # round-off floor: the elastic forces come from absolute positions, known to eps |x|, so
             # the residual cannot drop below ~eps |diag(K)| |x|; taken at the step's start and frozen
-            floor = 16.0 * np.finfo(float).eps * vnorm(problem.elastic_diagonal[free] * np.abs(problem.base[free]))
+            diag = problem.elastic_diagonal if lean else problem.elastic_diagonal[free]
+            floor = 16.0 * np.finfo(float).eps * vnorm(diag * np.abs(problem.base[free]))
         if it <= 1:
             scale = max(scale, vnorm(g[fixed]) if len(fixed) else 0.0)
         rel = rn / scale if scale > 0 else 0.0
@@ -371,11 +472,21 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             return x, it, rel, lin_its, solver_used, halvings_total
         if it == options.max_iterations:
             break
+        if H is None and not lean:
+            # the line search skipped the Hessian of this iterate (Newton predicted convergence there)
+            pot, E, g, H, mag = problem(x, hessian=True)
+            problem.hessian_misses += 1
         rhs = -r
         if moving:
-            dc = np.zeros(len(x))
-            dc[fixed] = delta_c
-            rhs = rhs - (H @ dc)[free]  # = H[free][:, fixed] @ delta_c
+            if lean:
+                # constant tangent: K_fc delta_c = r(x with the fixed DOFs moved) - r(x), matrix-free
+                x_moved = x.copy()
+                x_moved[fixed] = x_fixed
+                rhs = -problem(x_moved, hessian=False)[2][free]
+            else:
+                dc = np.zeros(len(x))
+                dc[fixed] = delta_c
+                rhs = rhs - (H @ dc)[free]  # = H[free][:, fixed] @ delta_c
         rhs_n = vnorm(rhs)
         floor_eta = 0.5 * tol * scale / max(rhs_n, 1e-300)  # no need to solve beyond the Newton tolerance
         if problem.constant:
@@ -384,9 +495,11 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             eta = max(_forcing(rn, rn_prev, eta_prev, scale), floor_eta)
         eta = float(np.clip(eta, 1e-14, 0.5))
         rn_prev, eta_prev = rn, eta
-        d, info, Hff = _solve_free(H, rhs, free, reduce, options, eta, near_null, problem.model.dof_grid)
+        d, info, Hff = _solve_free(H, rhs, free, reduce, options, eta, near_null, problem.model.dof_grid,
+                                   block=problem.block)
         lin_its += info.iterations
         last_lin = info.iterations
+        problem.solves += 1
         solver_used = info.method + (f" ({info.note})" if info.note else "")
         if moving:
             # predictor: move the fixed DOFs to their targets, carry the interior along
@@ -445,8 +558,10 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             x_try = x.copy()
             x_try[free] += alpha * d
             # the full step is usually accepted: evaluate it with gradient and Hessian at once, and
-            # reuse them at the next iteration (saves one energy pass per Newton iteration)
-            trial = problem(x_try, hessian=True) if alpha == 1.0 else None
+            # reuse them at the next iteration (saves one energy pass per Newton iteration); skip the
+            # Hessian where Newton's rate predicts convergence at the trial (it would never be solved)
+            trial = problem(x_try, hessian=not _predict_converged(rn, rn_last, tol * scale, floor)) \
+                if alpha == 1.0 else None
             pot_try = trial[0] if trial is not None else problem(x_try, hessian=False, gradient=False)[0]
             if np.isfinite(pot_try) and pot_try <= pot + ARMIJO * alpha * slope + ROUNDOFF * mag:
                 accepted = True
@@ -481,7 +596,7 @@ MAX_CUTS = 8
 
 
 def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, options, near_null, reduce, label,
-                      on_iteration=None):
+                      on_iteration=None, block=None):
     """Equilibrium at load factor ``s1`` from the converged state ``x`` at ``s0``, cutting the increment.
 
     A failed Newton solve (no convergence, a failed line search, a non-finite
@@ -498,7 +613,7 @@ def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, option
         s_next = s1 if s + h >= s1 - 1e-12 * (s1 - s0) else s + h
         x_start = model.begin_step(s_next, x, x.copy())
         x_fixed = prescribed_positions(model, fixed, dofs, owner, s_next) if len(dofs) else np.zeros(0)
-        problem = _Problem(model, s_next * f_full, x_start)
+        problem = _Problem(model, s_next * f_full, x_start, block=block)
         problem.on_iteration = on_iteration
         sub = label if s_next == s1 and s == s0 else f"{label}, sub-step to load factor {s_next:.4g}"
         try:
@@ -534,8 +649,11 @@ def _check_stable(problem, delta, free, reduce, label):
     """
     import scipy.sparse.linalg as spla
 
-    _, _, _, H, _ = problem(delta, hessian=True)
-    Hff = reduce(H)
+    if problem.block is not None:
+        Hff = problem.block  # the lean path: the constant free block
+    else:
+        _, _, _, H, _ = problem(delta, hessian=True)
+        Hff = reduce(H)
     n = Hff.shape[0]
     if n == 0:
         return
@@ -554,6 +672,13 @@ def _check_stable(problem, delta, free, reduce, label):
             f"eigenvalue {lam:.3g} at the converged state; perturb the load or the geometry, use smaller load "
             "steps with a small lateral load, or simulate dynamics"
         )
+
+
+def _lean(model, options) -> bool:
+    """Whether :func:`solve` takes the lean path: a static problem of a model whose tangent is constant
+    and which assembles its free-DOF block on its own (``constant_stiffness_block``: voxel models)."""
+    return (options.kind == "static" and bool(model.constant_tangent)
+            and callable(getattr(model, "constant_stiffness_block", None)))
 
 
 def solve(
@@ -633,6 +758,11 @@ def solve(
         f_full = f_full + model.gravity_force(densities, gravity).ravel()
     near_null = model.rigid_modes()[free] if options.linear_solver == "amg" else None
     reduce = _FreeBlock(free, N)
+    block = None
+    if _lean(model, options):
+        # a constant-tangent static problem: the free-DOF block is all Newton solves with; assembled once
+        # on its own and compacted in place, the full stiffness is never built nor cached (peak memory)
+        block = model.constant_stiffness_block(free)
 
     M = None
     if dynamic:
@@ -654,7 +784,7 @@ def solve(
                           float(model.energy(x.reshape(shape))), kin0, 0.0)]
     try:
         _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
-               callback, newton_callback)
+               callback, newton_callback, block)
     except ConvergenceError as exc:
         exc.records = records  # the converged steps survive a later failure (partial results)
         raise
@@ -662,9 +792,10 @@ def solve(
 
 
 def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
-           callback, newton_callback):
+           callback, newton_callback, block=None):
     """The loop over the steps of :func:`solve`, appending a StepRecord per converged step."""
     dynamic = options.kind == "implicit-euler"
+    adder = _PatternAdd()  # H + M/h^2 + D/h positions found once for all steps
     N = x.size
     t_end = options.steps * options.dt
     for k in range(1, options.steps + 1):
@@ -685,7 +816,7 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
             label = f"static step {k}/{options.steps} (load factor {t:.4g})"
             x_new, its, rel, lin_its, solver_used, halvings, cuts = _static_increment(
                 model, f_full, x, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
-                reduce, label, newton_callback)
+                reduce, label, newton_callback, block)
         if dynamic:
             x_fixed = prescribed_positions(model, fixed, dofs, owner, factor) if len(dofs) else np.zeros(0)
             x_start[dofs] = x[dofs]  # fixed DOFs start from their previous values so the predictor sees their motion
@@ -693,7 +824,7 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
             if moved is not x_start:
                 v = (moved - x) / options.dt  # so that the new velocity stays (x_new - x) / h
                 x_start = moved
-            problem = _Problem(model, f_full, x_start, M=M, h=options.dt, xhat=xhat, xn=x, D=D)
+            problem = _Problem(model, f_full, x_start, M=M, h=options.dt, xhat=xhat, xn=x, D=D, adder=adder)
             problem.on_iteration = newton_callback
             delta, its, rel, lin_its, solver_used, halvings = _newton(
                 problem, np.zeros(N), free, dofs, x_fixed - x_start[dofs], options, near_null, label, reduce

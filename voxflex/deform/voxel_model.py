@@ -265,13 +265,14 @@ def fbar_evaluate(material, F, vol, G, qweights, *, gradient=True, tangent=True)
     r = np.where(ok, np.cbrt(np.where(ok, ratio, 1.0)), 1.0)
     Fq_safe = np.where(ok[..., None, None], Fq, np.eye(3))
     Fbar = r[..., None, None] * Fq_safe
-    need_tangent = tangent
-    W, Pbar, Abar = material.evaluate(Fbar.reshape(-1, 3, 3), tangent=need_tangent)
     bad = ~ok.reshape(-1)
+    if not (gradient or tangent):
+        # energy only (line-search trials): no strain Jacobian, stress or tangent
+        W = _energy_density(material, Fbar.reshape(-1, 3, 3))
+        return (np.where(bad, np.inf, W) if np.any(bad) else W), None, None
+    W, Pbar, Abar = material.evaluate(Fbar.reshape(-1, 3, 3), tangent=tangent)
     if np.any(bad):
         W = np.where(bad, np.inf, W)
-    if not (gradient or tangent):
-        return W, None, None
     Pbar = Pbar.reshape(k, nq, 3, 3)
     vq = vol.reshape(k, nq)
     s = np.einsum("eqij,eqij->eq", Pbar, Fq_safe)
@@ -305,6 +306,12 @@ def fbar_evaluate(material, F, vol, G, qweights, *, gradient=True, tangent=True)
     if np.any(bad):
         K[np.any(bad.reshape(k, nq), axis=1)] = np.nan
     return W, P_eff, K
+
+
+def _energy_density(material, F) -> np.ndarray:
+    """W (n,) of F (n, 3, 3): the material's energy-only pass when it has one (no J, P or tangent)."""
+    energy = getattr(material, "energy", None)
+    return energy(F) if energy is not None else material.evaluate(F, tangent=False)[0]
 
 
 class VoxelModel:
@@ -593,6 +600,8 @@ class VoxelModel:
             if self._fbar(label):
                 W, P, Ke = fbar_evaluate(mat, F, vol, self._G, self._qweights,
                                          gradient=grad is not None, tangent=need_tangent)
+            elif grad is None and not need_tangent:
+                W = _energy_density(mat, F)  # energy only (line-search trials)
             else:
                 W, P, A = mat.evaluate(F, tangent=need_tangent)
             energy += vdot(vol, W)
