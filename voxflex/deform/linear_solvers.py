@@ -188,13 +188,21 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
     return x, LinearSolveInfo(method, int(its), res, time.perf_counter() - t0, note)
 
 
+_BLAS = []  # one threadpoolctl controller, made at the first dense solve
+
+
 def _dense(A, b):
     """Dense Cholesky (LDL^T when not positive definite) with BLAS pinned to one thread: on a busy
-    2-core machine threaded OpenBLAS stalled a 468x468 Cholesky for 0.31 s (a few ms on one thread)."""
-    from threadpoolctl import threadpool_limits
+    2-core machine threaded OpenBLAS stalled a 468x468 Cholesky for 0.31 s (a few ms on one thread);
+    at 552 unknowns, load average 3.8, factor + solve took min / median 3.4 / 7.6 ms on one thread and
+    3.0 / 11.9 ms on two (benchmarks/bench_frames.py prints both).  The pin goes through a controller
+    made once: ``threadpool_limits`` re-scans the loaded libraries on every call (0.6 ms)."""
+    from threadpoolctl import ThreadpoolController
 
+    if not _BLAS:
+        _BLAS.append(ThreadpoolController())
     Ad = A.toarray() if sp.issparse(A) else np.asarray(A, dtype=float)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _BLAS[0].limit(limits=1, user_api="blas"):
         try:
             c = sla.cho_factor(Ad, lower=True, check_finite=False)
             return sla.cho_solve(c, b, check_finite=False), ""
