@@ -94,6 +94,59 @@ def _cases():
     return cases
 
 
+def _friction_case(name, inner, obstacle, *, scale=0.02, slide=0.01, start=0.0, fraction=0.0, seed=5):
+    """The barrier plus the lagged friction potential: the lag taken (begin_step) at a perturbed state q_lag,
+    the contract run at q_lag plus a slide, with the slip distance eps set between the two middle slips so
+    that the smoothed (y < eps) and the Coulomb (y > eps) pieces are both exercised."""
+    model = ContactModel(inner, [obstacle], points=2, distance=DHAT, stiffness=50.0)
+    model.set_time(start)
+    rng = np.random.default_rng(seed)
+    q_lag = np.asarray(inner.rest, dtype=float) + scale * rng.standard_normal(inner.rest.shape)
+    assert model.begin_step(fraction, q_lag.ravel(), q_lag.ravel().copy()) is not None
+    pts, _, w, P, xbar = model._lag
+    assert len(pts) >= 2 and np.all(w > 0), (name, len(pts))
+    x0 = q_lag + slide * rng.standard_normal(q_lag.shape)
+    y = np.linalg.norm(np.einsum("pij,pj->pi", P, model.mapping.apply(x0)[pts] - xbar), axis=1)
+    ys = np.sort(y)
+    model.slip = float(0.5 * (ys[len(ys) // 2 - 1] + ys[len(ys) // 2]))  # between the two middle slips
+    # f0 is C1 only at y = eps (its curvature jumps): keep the contract's steps (~1e-6) well away from it
+    assert np.min(np.abs(y - model.slip)) > 1e-4 * model.slip, name
+    d = model._distances(model.mapping.apply(x0))[0]
+    assert d.min() > 0.2 * DHAT, (name, d.min())
+
+    def parts(x, hessian):
+        E, g, H = model.energy_gradient_hessian(x, hessian=hessian, exact=True)
+        E0, g0, H0 = inner.energy_gradient_hessian(x, hessian=hessian)
+        return E - E0, (g - g0).ravel(), (H - H0) if hessian else None
+
+    # the friction forces weigh in the total (a wrong friction term would show at the contract's rtol)
+    g_friction = model.mapping.vjp(x0, model._friction_terms(model.mapping.apply(x0), hessian=False)[1])
+    assert np.linalg.norm(g_friction) > 0.1 * np.linalg.norm(parts(x0, False)[1]), name
+    return MappingCase(
+        name=f"contact-friction-{name}",
+        x0=x0,
+        apply=lambda x: np.array([parts(x, False)[0]]),
+        jvp=lambda x, v: np.array([parts(x, False)[1] @ v.ravel()]),
+        vjp=lambda x, u: (u[0] * parts(x, False)[1]).reshape(x.shape),
+        geometric=lambda x, u, v: (u[0] * (parts(x, True)[2] @ v.ravel())).reshape(x.shape),
+        jacobian=lambda x: parts(x, False)[1][None, :],
+    )
+
+
+def _friction_cases():
+    vox = _voxel_model()
+    cases = [
+        _friction_case("plane", vox, Plane(point=(0.0, 0.0, -0.12), normal=(0.1, 0.05, 1.0), friction=0.4)),
+        _friction_case("sphere", vox, Sphere(center=(1.0, 1.0, -3.1), radius=3.0, friction=0.7)),
+        _friction_case("moving-plane", vox, Plane(point=(0.0, 0.0, -0.5), normal=(0.0, 0.0, 1.0), friction=0.5,
+                                                  motion=_rigid(0.1, (0.2, -0.1, 0.47))), start=0.58, fraction=0.6),
+    ]
+    cases.append(_friction_case("affine-frames-plane", _frame_model(),
+                                Plane(point=(0.0, 0.0, -0.1), normal=(0, 0, 1), friction=0.4),
+                                scale=0.005, slide=0.003))
+    return cases
+
+
 def _rigid(angle, t):
     from scipy.spatial.transform import Rotation
 
@@ -101,4 +154,4 @@ def _rigid(angle, t):
     return np.hstack([R, np.asarray(t, dtype=float)[:, None]])
 
 
-CASES = _cases()
+CASES = _cases() + _friction_cases()

@@ -191,8 +191,12 @@ def test_collision_points_cover_the_boundary(rule):
 
 def test_contact_model_refuses_what_it_cannot_do():
     model = _cube(z0=0.0)
-    with pytest.raises(InputError, match="friction"):
-        ContactModel(model, [Plane(point=(0, 0, -1e-3), normal=(0, 0, 1), friction=0.3)])
+    with pytest.raises(InputError, match="friction must be a number >= 0"):
+        Plane(point=(0, 0, -1e-3), normal=(0, 0, 1), friction=float("nan"))
+    with pytest.raises(InputError, match="friction must be a number >= 0"):
+        Plane(point=(0, 0, -1e-3), normal=(0, 0, 1), friction=-0.1)
+    with pytest.raises(InputError, match="slip"):
+        ContactModel(model, [Plane(point=(0, 0, -1e-3), normal=(0, 0, 1), friction=0.3)], slip=0.0)
     with pytest.raises(InputError, match="touches or enters"):
         ContactModel(model, [Plane(point=(0, 0, 0.05), normal=(0, 0, 1))])
     with pytest.raises(InputError, match="at least one obstacle"):

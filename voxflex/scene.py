@@ -548,7 +548,7 @@ class ObstacleSpec:
     ``"sphere"`` (``center``, ``radius``), ``"box"`` (``min``, ``max``) or ``"sdf"``
     (``file``: a label image, or an ``.npz`` signed-distance image with
     ``distance``, ``spacing``, ``origin``; resolved like mesh paths); metres.
-    ``friction`` is the Coulomb coefficient (only 0 is simulated today);
+    ``friction`` is the Coulomb coefficient (lagged, smoothed friction: :mod:`voxflex.deform.contact`);
     ``motion`` a rigid 3x4 map ``[R | t]`` the obstacle reaches at the end of the
     run (interpolated over the steps).
     """

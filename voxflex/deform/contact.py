@@ -26,7 +26,34 @@ wrapped model.  Obstacles may move (their ``motion``); the solver tells the
 wrapper where a step stands with :meth:`ContactModel.begin_step` (or
 :meth:`ContactModel.set_time`).
 
-Friction is not implemented: an obstacle with ``friction > 0`` is refused.
+Coulomb friction (obstacles with ``friction = mu > 0``) is the lagged,
+smoothed friction of IPC.  At the start of each step (:meth:`begin_step`, from
+the previous converged state ``x^n``) every collision point in the barrier's
+range freezes its normal force ``lambda = -a kappa b'(d^n)`` (N), the
+tangent projector ``P = I - n n^T`` of the obstacle's normal there, and the
+point ``xbar`` of the obstacle it touches (``x^n`` carried by the obstacle's
+rigid motion over the step).  During the step the friction potential
+
+    D(q) = sum_p mu lambda_p f0(|u_p|),   u_p = P_p (x_p(q) - xbar_p),
+
+with the C1 mollifier ``f0(y) = y^2 / eps - y^3 / (3 eps^2)`` for ``y < eps``
+and ``y - eps / 3`` beyond (:func:`friction_mollifier`), enters Newton like
+the barrier: ``D`` is convex in x, so its exact Hessian
+``mu lambda P (f0'' t t^T + f0'/y (I - t t^T)) P`` (``t = u / y``) is positive
+semi-definite and never projected.  A point sliding more than ``eps`` in a
+step feels the Coulomb force ``mu lambda`` against its slip; below ``eps`` the
+force grows smoothly from 0 (``mu lambda f0'(y)``, ``f0'(y) = 2y/eps - y^2/eps^2``):
+static friction is a stiff spring that lets a stuck point creep by at most
+``eps`` per step, exactly ``eps (1 - sqrt(1 - F_t / (mu lambda)))`` under a
+tangential load ``F_t < mu lambda``.  ``eps`` is the ``slip`` distance (m per step;
+default :data:`SLIP_FRACTION` of the barrier distance, i.e. 0.01 % of the
+voxel size).  Implicit Euler then creeps slower than ``eps / dt``: for a
+creep-velocity bound ``eps_v`` independent of the time step give
+``slip = eps_v dt`` (IPC's ``eps_v h``).  The
+lag makes each step a minimisation (the potential is fixed during the step),
+and friction only removes energy: its work over a step is
+``-sum mu lambda f0'(y) y <= 0``.  Before the first :meth:`begin_step` there is
+no lag and no friction.
 
 References
 ----------
@@ -58,7 +85,8 @@ import scipy.sparse as sp
 from ..errors import ConvergenceError, InputError
 from .obstacles import Obstacle, obstacle
 
-__all__ = ["ContactModel", "collision_points", "barrier", "with_contact", "POINT_RULES", "DISTANCE_FRACTION"]
+__all__ = ["ContactModel", "collision_points", "barrier", "friction_mollifier", "with_contact", "POINT_RULES",
+           "DISTANCE_FRACTION", "SLIP_FRACTION"]
 
 POINT_RULES = ("surface", "vertices")
 """Named collision-point rules: 2x2 Gauss points of every exposed voxel face, or the surface vertices
@@ -66,6 +94,10 @@ POINT_RULES = ("surface", "vertices")
 
 DISTANCE_FRACTION = 0.01
 """Default activation distance: this fraction of the smallest voxel spacing (so the gap at rest is below 1 %)."""
+
+SLIP_FRACTION = 0.01
+"""Default friction slip distance ``eps``: this fraction of the activation distance (a stuck point creeps
+by less than ``eps`` per step)."""
 
 
 # ---------------------------------------------------------------------------
@@ -97,6 +129,33 @@ def barrier(d, dhat: float):
     ddb[act] = -(2.0 * lg + 4.0 * (x - 1.0) / x - (x - 1.0) ** 2 / x**2) / dhat
     b[d <= 0] = np.inf
     return b, db, ddb
+
+
+def friction_mollifier(y, eps: float):
+    """The friction mollifier ``f0(y)`` of the slip ``y >= 0`` and its derivatives (see the module docstring).
+
+    Parameters
+    ----------
+    y : (m,) float, metres, >= 0
+        Length of the tangential slip over the step.
+    eps : float, metres (> 0)
+        Slip below which friction is a smooth spring instead of the constant Coulomb force.
+
+    Returns
+    -------
+    f0 : (m,) float (m): ``y^2/eps - y^3/(3 eps^2)`` below eps, ``y - eps/3`` beyond (C1 at eps)
+    f1 : (m,) float: ``f0'``, in [0, 1], 1 at and beyond eps
+    f1_over_y : (m,) float (1/m): ``f0'/y``, ``2/eps`` at y = 0
+    f2 : (m,) float (1/m): ``f0''``, 0 beyond eps
+    """
+    y = np.asarray(y, dtype=float)
+    below = y < eps
+    yb = np.where(below, y, 0.0)
+    f0 = np.where(below, yb**2 / eps - yb**3 / (3.0 * eps**2), y - eps / 3.0)
+    f1 = np.where(below, 2.0 * yb / eps - yb**2 / eps**2, 1.0)
+    f1_over_y = np.where(below, 2.0 / eps - yb / eps**2, 1.0 / np.where(below, 1.0, y))
+    f2 = np.where(below, 2.0 / eps - 2.0 * yb / eps**2, 0.0)
+    return f0, f1, f1_over_y, f2
 
 
 # ---------------------------------------------------------------------------
@@ -192,25 +251,28 @@ class ContactModel:
         Project each point's 3x3 barrier Hessian to positive semi-definite
         (default; exact for planes, where it is already so).  ``False`` gives the
         exact Hessian (the derivative contract tests that one).
+    slip : float, metres, optional
+        Friction slip distance ``eps`` per step (see the module docstring);
+        default :data:`SLIP_FRACTION` of ``distance``.  Used only by obstacles
+        with ``friction > 0``.
 
     Attributes
     ----------
     inner : Model
     obstacles : tuple of Obstacle
     points : (m, 3) float; area : (m,) float
-    distance, stiffness : float
+    distance, stiffness, slip : float
     fraction : float
         Where the run stands (0 at the start, 1 at the end): the obstacles' motion.
 
     Raises
     ------
     InputError
-        No obstacle, a non-zero friction (not implemented), bad distance or stiffness,
-        the rest state inside an obstacle.
+        No obstacle, bad distance, stiffness or slip, the rest state inside an obstacle.
     """
 
     def __init__(self, inner, obstacles: Sequence[Obstacle], *, points="surface", distance=None, stiffness=None,
-                 project: bool = True):
+                 project: bool = True, slip=None):
         obstacles = tuple(obstacles)
         if not obstacles:
             raise InputError("a contact model needs at least one obstacle; give [[obstacle]] tables")
@@ -218,9 +280,6 @@ class ContactModel:
             if not isinstance(ob, Obstacle):
                 raise InputError(f"obstacle {i} must be an Obstacle (Plane, Sphere, Box, DistanceField), "
                                  f"got {type(ob).__name__}")
-            if ob.friction != 0:
-                raise InputError(f"obstacle {i} ({ob.kind}) has friction = {ob.friction:g}: Coulomb friction is not "
-                                 "implemented yet; set friction = 0")
         if distance is None:
             image = getattr(inner, "image", None)
             if image is None:
@@ -234,8 +293,17 @@ class ContactModel:
                 raise InputError("give the contact stiffness (Pa): no Young's modulus found in the model's materials")
         if isinstance(stiffness, bool) or not np.isfinite(stiffness) or stiffness <= 0:
             raise InputError(f"contact stiffness must be a number > 0 (Pa), got {stiffness!r}")
+        if slip is None:
+            slip = SLIP_FRACTION * float(distance)
+        if isinstance(slip, bool) or not isinstance(slip, (int, float, np.floating)) or not np.isfinite(slip) \
+                or slip <= 0:
+            raise InputError(f"contact slip (friction slip distance per step) must be a number > 0 (m), got {slip!r}")
         self.inner = inner
         self.obstacles = obstacles
+        self.slip = float(slip)
+        self._mu = np.array([ob.friction for ob in obstacles])
+        self._lag = None  # the friction lag of the current step (see begin_step); None: no friction
+        self._step_start = None  # (q_prev, fraction) of the last begin_step: a retried step keeps its start
         self.distance = float(distance)
         self.stiffness = float(stiffness)
         self.project = bool(project)
@@ -282,6 +350,8 @@ class ContactModel:
         out = dict(self.inner.describe())
         out.update({"contact_obstacles": len(self.obstacles), "contact_points": len(self.points),
                     "contact_distance": self.distance, "contact_stiffness": self.stiffness})
+        if np.any(self._mu > 0):
+            out["contact_slip"] = self.slip
         return out
 
     # -- time ---------------------------------------------------------------------
@@ -309,6 +379,12 @@ class ContactModel:
         from there is Newton's; when the start is not ``q_start``, implicit
         Euler's velocity is ``(q_new - q_prev) / h``, not ``v + increment / h``.
 
+        It also refreshes the friction lag from ``q_prev`` (normal forces,
+        tangent projectors and touched obstacle points of the step; see the
+        module docstring).  A call with the same ``q_prev`` as the last one is
+        a retry of that step (a cut load increment): the step keeps its start
+        fraction.
+
         Raises
         ------
         ConvergenceError
@@ -317,7 +393,12 @@ class ContactModel:
         """
         shape = np.shape(self.inner.rest)
         prev_fraction = self.fraction
+        q_prev_arr = np.asarray(q_prev, dtype=float).reshape(shape)
+        if self._step_start is not None and np.array_equal(self._step_start[0], q_prev_arr):
+            prev_fraction = self._step_start[1]  # a retry of the same step from the same state
         self.set_time(fraction)
+        self._step_start = (q_prev_arr.copy(), prev_fraction)
+        self._lag = self._friction_lag(q_prev_arr, prev_fraction, self.fraction)
         if self.admissible(np.reshape(q_start, shape)):
             return q_start  # the very object: the solver keeps its velocity bookkeeping
         q_start = np.asarray(q_start, dtype=float)
@@ -337,6 +418,70 @@ class ContactModel:
             f"contact at fraction {fraction:.4g}: no admissible start state (the obstacles' step motion or the "
             "inertial prediction puts collision points inside an obstacle); use more steps or a smaller dt"
         )
+
+    # -- friction -------------------------------------------------------------------
+    def _friction_lag(self, q, s0, s1):
+        """The frozen quantities of a step from state q (n, d) at fraction s0 to fraction s1, or None.
+
+        Per active (point, obstacle) pair: point index, obstacle index, ``mu lambda`` (N),
+        the tangent projector P (3, 3) and the touched obstacle point ``xbar`` (3,) at s1.
+        """
+        if not np.any(self._mu > 0):
+            return None
+        x = self.mapping.apply(q)
+        d, n, _ = self._distances(x, s0)
+        _, db, _ = barrier(d, self.distance)
+        lam = -self.stiffness * self.area[:, None] * db  # (m, k) normal force magnitudes (N), >= 0
+        act = (lam > 0) & (self._mu[None, :] > 0)
+        if not np.any(act):
+            return None
+        pts, obs = np.nonzero(act)
+        xbar = x[pts].copy()
+        normal = n[pts, obs]
+        normal = normal / np.linalg.norm(normal, axis=1)[:, None]
+        for o in np.unique(obs):
+            ob = self.obstacles[o]
+            if ob.motion is None:
+                continue
+            R0, t0 = ob.pose(s0)
+            R1, t1 = ob.pose(s1)
+            R = R1 @ R0.T  # the obstacle's rigid increment over the step: y -> R y + t1 - R t0
+            sel = obs == o
+            xbar[sel] = (xbar[sel] - t0) @ R.T + t1
+            normal[sel] = normal[sel] @ R.T
+        P = np.eye(3)[None] - normal[:, :, None] * normal[:, None, :]
+        return pts, obs, self._mu[obs] * lam[pts, obs], P, xbar
+
+    def _friction_terms(self, x, *, hessian=True):
+        """Friction energy (J), point forces dD/dx (m, 3), Hessian blocks (m, 3, 3) or None, per-obstacle forces
+        dD/dx summed (k, 3), for mapped points x (m, 3) under the current lag."""
+        k = len(self.obstacles)
+        if self._lag is None:
+            return 0.0, None, None, np.zeros((k, 3))
+        pts, obs, w, P, xbar = self._lag
+        u = np.einsum("pij,pj->pi", P, x[pts] - xbar)  # tangential slip (in the tangent plane)
+        y = np.linalg.norm(u, axis=1)
+        f0, f1, f1y, f2 = friction_mollifier(y, self.slip)
+        energy = float(np.sum(w * f0))
+        g = (w * f1y)[:, None] * u  # dD/dx per pair: mu lambda f0'(y) u / y (u lies in the tangent plane)
+        m = len(x)
+        forces = np.zeros((m, 3))
+        np.add.at(forces, pts, g)
+        per_obstacle = np.zeros((k, 3))
+        np.add.at(per_obstacle, obs, g)
+        blocks = None
+        if hessian:
+            # P (f0'' t t^T + f0'/y (I - t t^T)) P = f0'/y P + (f0'' - f0'/y) u u^T / y^2 (P u = u)
+            safe = np.where(y > 0, y, 1.0)
+            uu = np.where(y[:, None, None] > 0, u[:, :, None] * u[:, None, :] / safe[:, None, None] ** 2, 0.0)
+            B = w[:, None, None] * (f1y[:, None, None] * P + (f2 - f1y)[:, None, None] * uu)
+            blocks = np.zeros((m, 3, 3))
+            np.add.at(blocks, pts, B)
+        return energy, forces, blocks, per_obstacle
+
+    def friction_energy(self, q) -> float:
+        """The friction potential D (J) of state q (n, d) under the current step's lag (0 without friction)."""
+        return self._friction_terms(self.mapping.apply(np.asarray(q, dtype=float)), hessian=False)[0]
 
     # -- energy ---------------------------------------------------------------------
     def _distances(self, x, fraction=None):
@@ -402,11 +547,19 @@ class ContactModel:
         Ec, fpts, blocks, _ = self._point_terms(q, hessian=hessian, exact=exact)
         if not np.isfinite(Ec):
             return np.inf, None, None
+        if self._lag is not None:  # friction: its blocks are PSD as they are (a convex potential)
+            Ef, ff, fb, _ = self._friction_terms(self.mapping.apply(q), hessian=hessian)
+            Ec = Ec + Ef
+            fpts = fpts + ff
+            if hessian:
+                blocks = blocks + fb
         E, g, H = self.inner.energy_gradient_hessian(q, gradient=gradient, hessian=hessian)
         E = E + Ec
         act = np.flatnonzero(np.any(fpts != 0, axis=1)) if fpts is not None else np.zeros(0, dtype=np.int64)
         if gradient and len(act):
             g = g + self.mapping.vjp(q, fpts)
+        if hessian and self._lag is not None:  # a stuck point has a zero force but a stiff Hessian
+            act = np.union1d(act, self._lag[0])
         if hessian and len(act):
             Hb = self._barrier_hessian(q, blocks, act)
             H = H + Hb.toarray() if isinstance(H, np.ndarray) else H + Hb  # frame models give dense Hessians
@@ -426,13 +579,20 @@ class ContactModel:
         """Total force (N) each obstacle exerts on the body at state q (n, d): (obstacles, 3).
 
         The sum of ``-a kappa b'(d) n`` over the collision points (pointing out of
-        the obstacle); ``fraction`` places moving obstacles (default: the current
-        :attr:`fraction`).  NaN where the state is not admissible.
+        the obstacle), plus the friction forces ``-dD/dx`` of the current step's
+        lag (tangent to the obstacle); ``fraction`` places moving obstacles for the
+        barrier (default: the current :attr:`fraction`; the friction lag is the
+        step's).  NaN where the state is not admissible.
         """
-        _, _, _, per = self._point_terms(np.asarray(q, dtype=float), fraction, hessian=False)
+        q = np.asarray(q, dtype=float)
+        _, _, _, per = self._point_terms(q, fraction, hessian=False)
         if per is None:
             return np.full((len(self.obstacles), 3), np.nan)
-        return -per.sum(axis=0)
+        return -per.sum(axis=0) - self._friction_terms(self.mapping.apply(q), hessian=False)[3]
+
+    def friction_forces(self, q) -> np.ndarray:
+        """The friction part (N) of :meth:`contact_forces` at state q (n, d): (obstacles, 3)."""
+        return -self._friction_terms(self.mapping.apply(np.asarray(q, dtype=float)), hessian=False)[3]
 
 
 def _moved(model, q, R, t):

@@ -74,8 +74,8 @@ class Obstacle:
     Parameters
     ----------
     friction : float
-        Coulomb coefficient (>= 0).  Only 0 is simulated today: the contact
-        layer refuses a non-zero value (friction is not implemented yet).
+        Coulomb coefficient (>= 0, finite) between the body and the obstacle;
+        the contact layer (:mod:`voxflex.deform.contact`) applies it.
     motion : (3, 4) float, optional
         Rigid map ``[R | t]`` reached at fraction 1 of the run.
     """
