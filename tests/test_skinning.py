@@ -1,8 +1,8 @@
 """Dual-quaternion skinning (voxflex.deform.skinning).
 
-Its geometric stiffness is not implemented, so it is not in the shared contract
-(which requires one); its apply / jvp / vjp / jacobian are checked here with the
-contract's own checks of J: central differences along the rigid-frame manifold
+The shared derivative contract (tests/contract_skinning.py) checks all its
+derivatives, the geometric stiffness included; here apply / jvp / vjp / jacobian
+are also checked with the contract's own checks of J: central differences along the rigid-frame manifold
 (x = a (v, ω) increment applied through RigidFrames.integrate, as in
 contract_mappings.py; step 1e-6, relative tolerance 1e-6: truncation and
 round-off both stay ~1e-9), the adjoint identity to 1e-10 and the assembled J
@@ -64,7 +64,20 @@ def test_rest_and_common_rigid_motion_and_single_parent():
                                PointMapping(frames, one).apply(s1), atol=1e-13)
 
 
-def test_geometric_stiffness_is_reported_missing():
-    _, frames, sv, s0 = _setup()
-    with pytest.raises(NotImplementedError, match="not implemented"):
-        DualQuaternionSkinning(frames, sv).geometric_vp(s0, np.zeros((6, 3)), np.zeros((4, 6)))
+def test_geometric_stiffness_is_the_second_derivative_of_a_potential():
+    """For a constant point load c (6, 3), phi(h) = c . x(integrate(s, h v)) has phi'(h) = <v, J(s(h))^T c>
+    (the increment path exp(h w) R is a one-parameter group), so phi''(0) = <v, K_geo v>: central second
+    differences as the oracle, at a rotated state.  (K_geo is not symmetric: rotation increments do not
+    commute.)"""
+    rng, frames, sv, s = _setup(2)
+    dqs = DualQuaternionSkinning(frames, sv)
+    c = rng.standard_normal((6, 3))
+    for _ in range(3):
+        v = rng.standard_normal((4, 6))
+
+        def phi(x):
+            return float(np.sum(c * dqs.apply(frames.integrate(s, x))))
+
+        h = 1e-4  # second differences: truncation ~h^2 = 1e-8, round-off ~1e-16 / h^2 = 1e-8 (relative)
+        second = (phi(h * v) - 2 * phi(np.zeros((4, 6))) + phi(-h * v)) / h**2
+        assert np.vdot(v, dqs.geometric_vp(s, c, v)) == pytest.approx(second, rel=1e-5)

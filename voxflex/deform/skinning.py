@@ -15,8 +15,9 @@ The Jacobian is exact: per point and parent a 3×6 block
 respect to the frame's velocity ``(v, ω)`` (``δr_a = ½ (0, ω) r_a``,
 ``δτ_a = v - ω × (R_a X_a)``, ``δd_a = ½ (0, δτ_a) r_a + ½ (0, τ_a) δr_a``), ``N`` that of the
 normalisation and ``M`` that of x in (r, d).  The geometric stiffness
-(the derivative of Jᵀ f) is not implemented: :meth:`DualQuaternionSkinning.geometric_vp`
-raises NotImplementedError.
+(the derivative of Jᵀ f along a frame increment, :meth:`DualQuaternionSkinning.geometric_vp`) is
+the product rule over ``B_a``, ``N`` and ``M`` (all polynomial in ``r_a``, ``τ_a``,
+``R_a X_a``, ``r``, ``d`` and ``1/|b_r|``); it is in the shared derivative contract.
 
 References
 ----------
@@ -131,23 +132,9 @@ class DualQuaternionSkinning:
     def _blocks(self, s):
         """(m, P, 3, 6) Jacobian blocks per point and parent slot (zero for padded slots)."""
         r, d, n, ii, ws, ra, tau, RX = self._blend(s)
-        X = self.shape.rest
-        rv, r0, dv, d0 = r[:, 1:], r[:, 0], d[:, 1:], d[:, 0]
-        M = np.zeros((self.m, 3, 8))
-        M[:, :, 0] = 2 * np.cross(rv, X) + 2 * dv
-        M[:, :, 1:4] = (-2 * skew(np.cross(rv, X) + r0[:, None] * X) - 2 * skew(rv) @ skew(X)
-                        - 2 * d0[:, None, None] * np.eye(3) - 2 * skew(dv))
-        M[:, :, 4] = -2 * rv
-        M[:, :, 5:8] = 2 * r0[:, None, None] * np.eye(3) + 2 * skew(rv)
-        N = np.zeros((self.m, 8, 8))
-        N[:, :4, :4] = (np.eye(4) - r[:, :, None] * r[:, None, :]) / n[:, None, None]
-        N[:, 4:, :4] = -d[:, :, None] * r[:, None, :] / n[:, None, None]
-        N[:, 4:, 4:] = np.eye(4) / n[:, None, None]
-        Q = _Q(ra)  # (n, 4, 3)
-        B = np.zeros((self.frames.n, 8, 6))
-        B[:, :4, 3:] = 0.5 * Q
-        B[:, 4:, :3] = 0.5 * Q
-        B[:, 4:, 3:] = 0.5 * Q @ skew(RX) + 0.25 * _L(tau) @ Q
+        M = self._M(r, d, self.shape.rest)
+        N = self._N(r, d, n)
+        B = self._frame_blocks(ra, tau, RX)
         MN = M @ N  # (m, 3, 8)
         return np.einsum("mij,mp,mpjk->mpik", MN, ws, B[ii]), ii
 
@@ -181,9 +168,88 @@ class DualQuaternionSkinning:
         J.sum_duplicates()
         return J
 
-    def geometric_vp(self, state, f, v):
-        """Not implemented: the derivative of Jᵀ f for dual-quaternion skinning."""
-        raise NotImplementedError(
-            "the geometric stiffness of dual-quaternion skinning is not implemented; use it for kinematic "
-            "(visual, collision) layers or with a Newton that omits the geometric term"
-        )
+    def geometric_vp(self, state, f, v) -> np.ndarray:
+        """``(d/dq [J(q)ᵀ f]) v`` ``(n, 6)``: the change of the frame forces ``Jᵀ f`` (point forces ``f`` (m, 3)
+        held) when the frames move by the increment ``v = (v, ω)`` ``(n, 6)`` (see the module docstring).
+
+        Per point and parent ``Jᵀ f = w σ B_aᵀ (M N)ᵀ f``; its derivative is the product rule over
+        ``B_a`` (through ``r_a``, ``τ_a`` and ``R_a X_a``), ``N`` (through ``r``, ``d`` and ``|b_r|``) and ``M``
+        (linear in ``(r, d)``), with ``δr_a = ½ Q(r_a) ω``, ``δ(R_a X_a) = ω × R_a X_a``,
+        ``δτ_a = v - ω × R_a X_a``; the blend's signs σ are locally constant.
+        """
+        st = self.frames.check_state(state)
+        vv = self.frames.check_velocity(v, "v")
+        f = np.asarray(f, dtype=np.float64)
+        if f.shape != (self.m, 3):
+            raise InputError(f"f must have shape ({self.m}, 3), got {f.shape}")
+        r, d, n, ii, ws, ra, tau, RX = self._blend(st)
+        X = self.shape.rest
+        B = self._frame_blocks(ra, tau, RX)  # (n, 8, 6)
+        # the frames' changes: of (r_a, d_a) (that is B v), of r_a, R_a X_a and τ_a themselves
+        dra = 0.5 * np.einsum("nij,nj->ni", _Q(ra), vv[:, 3:])
+        dRX = np.cross(vv[:, 3:], RX)
+        dtau = vv[:, :3] - dRX
+        dB = self._frame_blocks_change(ra, tau, RX, dra, dtau, dRX)
+        dbl = np.einsum("nij,nj->ni", B, vv)  # (δr_a, δd_a)
+        db = np.einsum("mp,mpk->mk", ws, dbl[ii])  # (δb_r, δb_d)
+        dn = np.einsum("mk,mk->m", r, db[:, :4])
+        dr = (db[:, :4] - r * dn[:, None]) / n[:, None]
+        dd = (db[:, 4:] - d * dn[:, None]) / n[:, None]
+        M = self._M(r, d, X)
+        dM = self._M(dr, dd, X)  # M is linear in (r, d)
+        N = self._N(r, d, n)
+        dN = np.zeros((self.m, 8, 8))
+        rr = r[:, :, None] * r[:, None, :]
+        dN[:, :4, :4] = (-(dr[:, :, None] * r[:, None, :] + r[:, :, None] * dr[:, None, :]) / n[:, None, None]
+                         - (np.eye(4) - rr) * (dn / n**2)[:, None, None])
+        dN[:, 4:, :4] = (-(dd[:, :, None] * r[:, None, :] + d[:, :, None] * dr[:, None, :]) / n[:, None, None]
+                         + d[:, :, None] * r[:, None, :] * (dn / n**2)[:, None, None])
+        dN[:, 4:, 4:] = -np.eye(4) * (dn / n**2)[:, None, None]
+        g = np.einsum("mij,mi->mj", M @ N, f)  # (M N)ᵀ f (m, 8)
+        dg = np.einsum("mij,mi->mj", dM @ N + M @ dN, f)
+        per = np.einsum("mp,mpjk,mj->mpk", ws, dB[ii], g) + np.einsum("mp,mpjk,mj->mpk", ws, B[ii], dg)
+        out = np.zeros((self.frames.n, 6))
+        np.add.at(out, ii.ravel(), per.reshape(-1, 6))
+        return out
+
+    @staticmethod
+    def _M(r, d, X):
+        """(m, 3, 8): dx/d(r, d) of the point formula (linear in (r, d))."""
+        rv, r0, dv, d0 = r[:, 1:], r[:, 0], d[:, 1:], d[:, 0]
+        M = np.zeros((len(r), 3, 8))
+        M[:, :, 0] = 2 * np.cross(rv, X) + 2 * dv
+        M[:, :, 1:4] = (-2 * skew(np.cross(rv, X) + r0[:, None] * X) - 2 * skew(rv) @ skew(X)
+                        - 2 * d0[:, None, None] * np.eye(3) - 2 * skew(dv))
+        M[:, :, 4] = -2 * rv
+        M[:, :, 5:8] = 2 * r0[:, None, None] * np.eye(3) + 2 * skew(rv)
+        return M
+
+    @staticmethod
+    def _N(r, d, n):
+        """(m, 8, 8): d(r, d)/d(b_r, b_d) of the normalisation."""
+        N = np.zeros((len(r), 8, 8))
+        N[:, :4, :4] = (np.eye(4) - r[:, :, None] * r[:, None, :]) / n[:, None, None]
+        N[:, 4:, :4] = -d[:, :, None] * r[:, None, :] / n[:, None, None]
+        N[:, 4:, 4:] = np.eye(4) / n[:, None, None]
+        return N
+
+    @staticmethod
+    def _frame_blocks(ra, tau, RX):
+        """(n, 8, 6): d(r_a, d_a)/d(v, ω) per frame."""
+        Q = _Q(ra)
+        B = np.zeros((len(ra), 8, 6))
+        B[:, :4, 3:] = 0.5 * Q
+        B[:, 4:, :3] = 0.5 * Q
+        B[:, 4:, 3:] = 0.5 * Q @ skew(RX) + 0.25 * _L(tau) @ Q
+        return B
+
+    @staticmethod
+    def _frame_blocks_change(ra, tau, RX, dra, dtau, dRX):
+        """(n, 8, 6): the change of :meth:`_frame_blocks` (Q and L are linear in their arguments)."""
+        Q, dQ = _Q(ra), _Q(dra)
+        dB = np.zeros((len(ra), 8, 6))
+        dB[:, :4, 3:] = 0.5 * dQ
+        dB[:, 4:, :3] = 0.5 * dQ
+        dB[:, 4:, 3:] = (0.5 * dQ @ skew(RX) + 0.5 * Q @ skew(dRX) + 0.25 * _L(dtau) @ Q
+                         + 0.25 * _L(tau) @ dQ)
+        return dB
