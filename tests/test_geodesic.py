@@ -48,6 +48,66 @@ def test_anisotropic_spacing_fast_marching():
     assert np.abs(rel).mean() < 0.012
 
 
+@pytest.mark.parametrize("spacing", [(1.0, 1.0, 1.0), (1.0, 0.5, 2.0)])
+def test_line_of_sight_is_exact_in_a_free_cube(spacing):
+    """Oracle: the Euclidean distance.  The seed sees every voxel of a box, so every distance is
+    the straight-line length, to round-off (1e-12 relative), at every voxel, not only d > 10."""
+    n = 40
+    img = LabelImage(np.ones((n, n, n), np.uint8), spacing=spacing)
+    seed = img.index_to_world([[n // 2 + 0.3, n // 3 + 0.5, 7.9]])
+    d, own = geodesic_distance(img, seed, method="line-of-sight")
+    ex = np.linalg.norm(img.voxel_centers().reshape(n, n, n, 3) - seed[0], axis=-1)
+    np.testing.assert_allclose(d, ex, rtol=1e-12, atol=1e-12)
+    assert np.all(own == 0)
+
+
+def test_line_of_sight_voronoi_partition_of_many_seeds():
+    """Oracle: brute-force nearest seed in a box (Euclidean).  A voxel takes the best source its
+    face neighbours offer where its neighbourhood is in sight (the other 20 neighbours are reached
+    through them), so on near-ties it can keep a seed a little farther than the nearest: measured
+    on 30 seeds in 24³: every voxel exact to 3e-15 (on 3 seeds in 12³, one voxel of 1728 was
+    0.03 voxel too far); allowed: 99.5 % exact to 1e-9 and 0.1 voxel."""
+    n = 24
+    img = LabelImage(np.ones((n, n, n), np.uint8))
+    rng = np.random.default_rng(1)
+    seeds = rng.random((30, 3)) * n
+    d, own = geodesic_distance(img, seeds, method="line-of-sight")
+    D = np.linalg.norm(img.voxel_centers()[:, None, :] - seeds[None], axis=2)
+    ex = D.min(1)
+    got = d.ravel()
+    assert np.all(got >= ex - 1e-9)  # a straight segment from a seed: never below the nearest one
+    exact = got <= ex + 1e-9
+    assert exact.mean() > 0.995 and (got - ex).max() < 0.1
+    np.testing.assert_allclose(D[np.arange(len(ex)), own.ravel()], got, rtol=1e-12)  # the owner's distance
+
+
+def test_line_of_sight_around_an_obstacle_is_a_polyline_in_the_material():
+    """Same wall as test_path_goes_around_an_obstacle.  Behind the wall the path bends at voxel
+    centres next to the wall's end, half a voxel off the true corner: never shorter than the
+    continuum geodesic, measured +1.1 %; allowed: the fast-marching bound (2.5 %)."""
+    n = 41
+    labels = np.ones((n, n, 3), np.uint8)
+    labels[20, :30, :] = 0
+    img = LabelImage(labels)
+    src = np.array([10.5, 10.5, 1.5])
+    d, _ = geodesic_distance(img, [src], method="line-of-sight")
+    c1, c2 = np.array([20.0, 30.0, 1.5]), np.array([21.0, 30.0, 1.5])
+    dst = np.array([30.5, 10.5, 1.5])
+    exact = np.linalg.norm(c1 - src) + 1.0 + np.linalg.norm(dst - c2)
+    got = d[30, 10, 1]
+    assert got >= exact - 1e-9 and (got - exact) / exact < 0.025
+    # on the seed's side of the wall everything is in sight: exact
+    ijk = np.argwhere(labels[:20] > 0)
+    np.testing.assert_allclose(d[:20][labels[:20] > 0], np.linalg.norm(ijk + 0.5 - src, axis=1), rtol=1e-12)
+
+
+def test_line_of_sight_refuses_a_compliance_distance():
+    labels = np.ones((6, 2, 2), np.uint8)
+    labels[3:] = 2
+    with pytest.raises(InputError, match="line-of-sight"):
+        geodesic_distance(LabelImage(labels), [[0.5, 0.5, 0.5]], method="line-of-sight", compliance={1: 1.0, 2: 2.0})
+
+
 def test_dijkstra_matches_brute_force_graph_shortest_paths():
     """Oracle: scipy's Dijkstra on the explicit 26-neighbour graph with world step lengths."""
     from scipy.sparse import coo_matrix
@@ -104,7 +164,7 @@ def test_no_path_through_empty_voxels():
     labels[:4] = 1
     labels[5:] = 2  # touches nothing: one empty layer between the two parts
     img = LabelImage(labels)
-    for method in ("fast-marching", "dijkstra"):
+    for method in ("fast-marching", "dijkstra", "line-of-sight"):
         d, own = geodesic_distance(img, [[0.5, 0.5, 0.5]], method=method)
         assert np.all(np.isinf(d[5:])) and np.all(own[5:] == -1)
         assert np.all(np.isfinite(d[:4])) and np.all(own[:4] == 0)
@@ -113,8 +173,9 @@ def test_no_path_through_empty_voxels():
 def test_corner_connected_voxels_are_reached():
     labels = np.zeros((3, 3, 3), np.uint8)
     labels[0, 0, 0] = labels[1, 1, 1] = labels[2, 2, 2] = 1  # a diagonal chain (26-connectivity)
-    d, own = geodesic_distance(LabelImage(labels), [[0.5, 0.5, 0.5]])
-    np.testing.assert_allclose(d[2, 2, 2], 2 * np.sqrt(3), rtol=1e-12)
+    for method in ("fast-marching", "line-of-sight"):
+        d, own = geodesic_distance(LabelImage(labels), [[0.5, 0.5, 0.5]], method=method)
+        np.testing.assert_allclose(d[2, 2, 2], 2 * np.sqrt(3), rtol=1e-12)
 
 
 def test_compliance_distance_on_a_two_material_bar():

@@ -13,7 +13,15 @@ coupled.  Two methods:
   error;
 * ``"dijkstra"``: shortest paths on the 26-neighbour graph with exact step
   lengths (anisotropic spacing included); overestimates Euclidean distance by
-  up to ~8 % off the lattice directions.
+  up to 12.8 % off the lattice directions;
+* ``"line-of-sight"``: each voxel keeps a source (a seed, or a voxel centre
+  where the path bends) and takes the straight-line distance from it when the
+  segment stays in the material (:mod:`voxflex.voronoi._sight`): exact, to
+  round-off, wherever the seed is in sight (any convex part: a box, a beam),
+  and elsewhere the length of a polyline in the material bending at voxel
+  centres (never shorter than the geodesic, longer by a fraction of a voxel
+  per bend); 3-4x cheaper than fast marching.  One slowness only (no
+  ``compliance``).  The shape functions use it whenever the slowness is uniform.
 
 Measured on a free 48³ cube from its centre (d > 10 voxels), relative error
 to the Euclidean distance: see ``tests/test_geodesic.py`` and the closing note.
@@ -39,10 +47,11 @@ import numpy as np
 
 from ..errors import InputError, check_choice
 from . import _march as M
+from ._sight import sight
 
 __all__ = ["geodesic_distance"]
 
-METHODS = {"fast-marching": 2, "dijkstra": 0}
+METHODS = {"fast-marching": 2, "dijkstra": 0, "line-of-sight": -1}
 
 
 def _slowness(image, compliance):
@@ -112,9 +121,10 @@ def geodesic_distance(image, seeds, *, method: str = "fast-marching", compliance
         The object; voxels with label 0 are empty and never crossed.
     seeds : (s, 3) float array, metres
         World positions of the sources; each must lie in a material voxel.
-    method : {"fast-marching", "dijkstra"}, keyword-only
-        Second-order fast marching (accurate, the default) or Dijkstra on the
-        26-neighbourhood with exact (anisotropic) step lengths.
+    method : {"fast-marching", "dijkstra", "line-of-sight"}, keyword-only
+        Second-order fast marching (the default), Dijkstra on the
+        26-neighbourhood with exact (anisotropic) step lengths, or line-of-sight
+        propagation (exact in convex parts; not with ``compliance``).
     compliance : dict {label: young_modulus (Pa)}, optional
         Compliance distance: a step in label ``l`` costs
         ``length * E_ref / E_l`` with ``E_ref`` the largest modulus present.
@@ -132,7 +142,8 @@ def geodesic_distance(image, seeds, *, method: str = "fast-marching", compliance
     Raises
     ------
     InputError
-        Unknown method, seeds outside the material, bad compliance table.
+        Unknown method, seeds outside the material, bad compliance table,
+        ``"line-of-sight"`` with a compliance of more than one modulus.
 
     References
     ----------
@@ -144,5 +155,11 @@ def geodesic_distance(image, seeds, *, method: str = "fast-marching", compliance
     check_choice("method", method, METHODS)
     S, c, _ = _seed_voxels(image, seeds)
     mask, cost, pshape, spacing = _prepare(image, compliance)
+    if method == "line-of-sight":
+        if float(cost.min()) != float(cost.max()):
+            raise InputError("method='line-of-sight' needs one Young's modulus over the material; "
+                             "use method='fast-marching' with a compliance distance")
+        dist, owner = sight(mask, cost, pshape, spacing, c + M.PAD, np.arange(len(S)))
+        return M.unpad(dist, pshape), M.unpad(owner, pshape)
     dist, owner = M.march(mask, cost, pshape, spacing, c + M.PAD, np.arange(len(S)), fmm=METHODS[method])
     return M.unpad(dist, pshape), M.unpad(owner, pshape)

@@ -19,22 +19,59 @@ staircase: a slanted face is over-counted by up to its |n|₁/|n|₂ <= √3).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import get_num_threads
 
 from .._jit import njit, prange
 from . import _march as M
+from . import _sight as S
 
 
 @njit
 def _one_point(mask, cost, shape, spacing, d, own, p, nframes, laplace,
-               dx, ox, state, nxt, prv, touched, acc, hmin, smin, smax, radius, ball_i, ball_d, ball_o):
-    """Natural-neighbour weights of one point (padded index coords p); fills acc (n,), returns it unnormalised."""
-    cnt = M._ball(mask, cost, shape, spacing, p, radius, ball_i, ball_d)
-    for q in range(cnt):
-        ball_o[q] = nframes
-    nt = M._march(cost, shape, spacing, dx, ox, state, nxt, prv, d, True,
-                  ball_i[:cnt], ball_d[:cnt], ball_o[:cnt], 2, touched, 0, smin, smax)
+               dx, ox, state, nxt, prv, touched, acc, hmin, smin, smax, radius, ball_i, ball_d, ball_o,
+               table, src, spans):
+    """Natural-neighbour weights of one point (padded index coords p); fills acc (n,), returns it unnormalised.
+
+    With one slowness over the material (``smin == smax``) the distances are line-of-sight
+    distances (:mod:`._sight`): the stolen set by the span fill when the point sees all of it,
+    else by the bounded line-of-sight march; otherwise by bounded second-order fast marching.
+    """
+    if smin == smax:
+        r = _span_steal(mask, table, shape, spacing, smin, d, p, state, spans, spans.shape[0])
+        nr = r if r >= 0 else -r - 1
+        nt = 0
+        s1 = shape[1] * shape[2]
+        s2 = shape[2]
+        for q in range(nr):
+            a = spans[q, 0]
+            i = a // s1
+            j = (a - i * s1) // s2
+            k0 = a - i * s1 - j * s2
+            ryz = ((i + 0.5 - p[0]) * spacing[0]) ** 2 + ((j + 0.5 - p[1]) * spacing[1]) ** 2
+            for t in range(spans[q, 1]):
+                v = a + t
+                touched[nt] = v
+                nt += 1
+                dx[v] = smin * math.sqrt(ryz + ((k0 + t + 0.5 - p[2]) * spacing[2]) ** 2)
+        if r < 0:  # not all in sight: clear and march
+            for q in range(nt):
+                v = touched[q]
+                state[v] = 0
+                dx[v] = np.inf
+            pts = np.empty((1, 3))
+            pts[0, 0], pts[0, 1], pts[0, 2] = p[0], p[1], p[2]
+            ownp = np.full(1, nframes, dtype=np.int64)
+            nt = S._sight_march(mask, table, shape, spacing, smin, dx, ox, src, state, nxt, prv, d, True,
+                                pts, ownp, touched, 0, False)
+    else:
+        cnt = M._ball(mask, cost, shape, spacing, p, radius, ball_i, ball_d)
+        for q in range(cnt):
+            ball_o[q] = nframes
+        nt = M._march(cost, shape, spacing, dx, ox, state, nxt, prv, d, True,
+                      ball_i[:cnt], ball_d[:cnt], ball_o[:cnt], 2, touched, 0, smin, smax)
     s1 = shape[1] * shape[2]
     s2 = shape[2]
     if laplace == 0:
@@ -66,9 +103,95 @@ def _one_point(mask, cost, shape, spacing, d, own, p, nframes, laplace,
     return nt
 
 
+@njit
+def _span_steal(mask, table, shape, spacing, slow, d, p, state, spans, nspan_max):
+    """The voxels a point steals, when all of them are in straight line of sight of it.
+
+    Stolen voxels are the material voxels v with ``|p - c_v| < d(v)`` in the
+    26-connected component of p's voxel: with p seeing all of them (checked
+    row by row), the straight-line distance is p's geodesic distance there, so
+    this is exactly the stolen set, and because d is a distance the set is
+    closed under "the path to p": nothing stolen lies beyond it.  Found by a
+    span fill along the contiguous z rows (stack of maximal runs, each run
+    scanning the 8 neighbouring rows one voxel wider): no priority queue.
+
+    Marks the stolen voxels ``state = 1`` and writes the runs to ``spans``
+    (first flat index, length); returns the number of runs, or -1 when some
+    stolen voxel is not visible from p (the caller marches instead; the marks
+    of the runs written so far must be reset either way).
+    """
+    s1 = shape[1] * shape[2]
+    s2 = shape[2]
+    sx, sy, sz = spacing[0] * slow, spacing[1] * slow, spacing[2] * slow
+    px, py, pz = p[0], p[1], p[2]
+    fi, fj, fk = int(math.floor(px)), int(math.floor(py)), int(math.floor(pz))
+    v0 = fi * s1 + fj * s2 + fk
+    if mask[v0] == 0:
+        return -1
+    ns = 0
+    top = 0  # runs [0, top) are done; runs [top, ns) wait (the stack is the tail of ``spans``)
+    # the run through p's voxel
+    ryz = ((fi + 0.5 - px) * sx) ** 2 + ((fj + 0.5 - py) * sy) ** 2
+    if not math.sqrt(ryz + ((fk + 0.5 - pz) * sz) ** 2) < d[v0]:
+        return 0
+    a = v0
+    while state[a - 1] == 0 and math.sqrt(ryz + ((a - 1 - fi * s1 - fj * s2 + 0.5 - pz) * sz) ** 2) < d[a - 1]:
+        a -= 1
+    b = v0
+    while state[b + 1] == 0 and math.sqrt(ryz + ((b + 1 - fi * s1 - fj * s2 + 0.5 - pz) * sz) ** 2) < d[b + 1]:
+        b += 1
+    for v in range(a, b + 1):
+        state[v] = 1
+    spans[ns, 0] = a
+    spans[ns, 1] = b - a + 1
+    ns += 1
+    while top < ns:
+        a = spans[top, 0]
+        ln = spans[top, 1]
+        top += 1
+        i = a // s1
+        j = (a - i * s1) // s2
+        ka = a - i * s1 - j * s2
+        kb = ka + ln - 1
+        # the run must be visible from p: its box with p's voxel all material, else each centre by samples
+        if S._box_empty(table, shape, min(fi, i), min(fj, j), min(fk, ka), max(fi, i), max(fj, j), max(fk, kb)) != 0:
+            for k in range(ka, kb + 1):
+                if not S._segment_in_material(mask, shape, px, py, pz, i + 0.5, j + 0.5, k + 0.5):
+                    return -(ns + 1)
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                if di == 0 and dj == 0:
+                    continue
+                ii, jj = i + di, j + dj
+                base = ii * s1 + jj * s2
+                ryz = ((ii + 0.5 - px) * sx) ** 2 + ((jj + 0.5 - py) * sy) ** 2
+                k = ka - 1
+                while k <= kb + 1:
+                    v = base + k
+                    if state[v] != 0 or not math.sqrt(ryz + ((k + 0.5 - pz) * sz) ** 2) < d[v]:
+                        k += 1
+                        continue
+                    # a new run through v: extend both ways
+                    lo = k
+                    while state[base + lo - 1] == 0 and math.sqrt(ryz + ((lo - 1 + 0.5 - pz) * sz) ** 2) < d[base + lo - 1]:
+                        lo -= 1
+                    hi = k
+                    while state[base + hi + 1] == 0 and math.sqrt(ryz + ((hi + 1 + 0.5 - pz) * sz) ** 2) < d[base + hi + 1]:
+                        hi += 1
+                    if ns >= nspan_max:
+                        return -(ns + 1)
+                    for w in range(base + lo, base + hi + 1):
+                        state[w] = 1
+                    spans[ns, 0] = base + lo
+                    spans[ns, 1] = hi - lo + 1
+                    ns += 1
+                    k = hi + 2
+    return ns
+
+
 @njit(parallel=True)
 def _natural_kernel(mask, cost, shape, spacing, d, own, points, nframes, laplace, kmax, smin, smax, radius,
-                    nthreads, out_f, out_w, out_n):
+                    nthreads, table, out_f, out_w, out_n):
     """Weights of every point (q, 3) (padded index coords): top-kmax frames per point, normalised.
 
     The points are dealt round-robin to ``nthreads`` chunks, each with its own
@@ -90,9 +213,12 @@ def _natural_kernel(mask, cost, shape, spacing, d, own, points, nframes, laplace
         ball_i = np.empty(per, dtype=np.int64)
         ball_d = np.empty(per)
         ball_o = np.empty(per, dtype=np.int64)
+        src = np.empty(N if smin == smax else 1, dtype=np.int64)
+        spans = np.empty((N // 4 + 16 if smin == smax else 1, 2), dtype=np.int64)
         for q in range(t, points.shape[0], nthreads):
             _one_point(mask, cost, shape, spacing, d, own, points[q], nframes, laplace,
-                       dx, ox, state, nxt, prv, touched, acc, hmin, smin, smax, radius, ball_i, ball_d, ball_o)
+                       dx, ox, state, nxt, prv, touched, acc, hmin, smin, smax, radius, ball_i, ball_d, ball_o,
+                       table, src, spans)
             if laplace == 1:
                 for f in range(nframes):
                     if acc[f] > 0:
@@ -149,7 +275,7 @@ def natural_weights(mask, cost, pshape, spacing, d, own, points, nframes, *, lap
     if q:
         _natural_kernel(mask, cost, pshape, spacing, d, own, np.ascontiguousarray(points, dtype=np.float64),
                         int(nframes), int(laplace), int(kmax), float(cost.min()), float(cost.max()), M.BALL,
-                        min(q, 2 * get_num_threads()), out_f, out_w, out_n)
+                        min(q, 2 * get_num_threads()), S.empty_table(mask, pshape), out_f, out_w, out_n)
     return out_f, out_w, out_n
 
 
@@ -160,8 +286,8 @@ def natural_naive(mask, cost, pshape, spacing, frame_points, point, *, laplace):
     Returns dense weights (n,) of one point (padded index coords).
     """
     n = len(frame_points)
-    d, own = M.march(mask, cost, pshape, spacing, frame_points, np.arange(n), fmm=2)
-    d2, _ = M.march(mask, cost, pshape, spacing, np.asarray(point, dtype=np.float64)[None], [n], fmm=2)
+    d, own = S.frame_distances(mask, cost, pshape, spacing, frame_points, np.arange(n))
+    d2, _ = S.frame_distances(mask, cost, pshape, spacing, np.asarray(point, dtype=np.float64)[None], [n])
     stolen = (d2 < d) & (mask > 0)
     acc = np.zeros(n)
     if int(laplace) == 0:

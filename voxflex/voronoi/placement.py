@@ -53,6 +53,10 @@ from .geodesic import _prepare, _seed_voxels
 __all__ = ["place_frames"]
 
 DISTANCES = ("geodesic", "compliance")
+#: images with at least this many material voxels are first placed at half resolution
+COARSE_MIN_VOXELS = 200_000
+#: fine Lloyd iterations after a half-resolution placement
+FINE_ITERATIONS = 3
 
 
 def _compliance_for(distance, compliance):
@@ -209,6 +213,19 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     def seeds_of(pos):
         return image.world_to_index(np.asarray(pos).reshape(-1, 3)) + M.PAD
 
+    coarse = None
+    if iterations > 0 and comp is None and nmat >= COARSE_MIN_VOXELS:
+        coarse = _coarse_layout(image, material, ncomp, count, frames[:n_pinned], seed, iterations)
+    if coarse is not None:  # automatic frames from the half-resolution placement, then a few fine Lloyd steps
+        del frames[n_pinned:], frame_vox[n_pinned:]
+        taken = set(frame_vox)
+        for c in coarse:
+            v = _fine_voxel_of(image, material, vox_id, c, taken)
+            taken.add(v)
+            frames.append(centres[v])
+            frame_vox.append(v)
+        iterations = min(iterations, FINE_ITERATIONS)
+
     # farthest-point sampling in the Dijkstra metric, re-propagating only where a new frame is nearer
     dist, owner = M.march(mask, cost, pshape, spacing, seeds_of(frames), np.arange(len(frames)), fmm=0)
     while len(frames) < count:
@@ -302,3 +319,54 @@ def _repropagate(mask, cost, pshape, spacing, dist, owner, changed, seed_flat):
     prv = np.empty(N, dtype=np.int32)
     M._march(cost, pshape, spacing, dist, owner, state, nxt, prv, dist, False, si, sd, so, 0, touched, 0,
              float(cost.min()), float(cost.max()))
+
+
+def _coarse_layout(image, material, ncomp, count, pinned, seed, iterations):
+    """Automatic frames (world, (count - len(pinned), 3)) placed on the image halved along every axis.
+
+    The half-resolution image holds a voxel wherever its 2x2x2 block holds material.  It is
+    used only when it represents the object faithfully: the same number of connected
+    components (so each part keeps its frames), at least 90 % of the blocks' volume filled
+    (no thin plates or slits that the blocks would thicken or close) and enough voxels for
+    ``count`` frames; else None (the caller places at full resolution).
+    """
+    from scipy import ndimage
+
+    from ..image import LabelImage
+
+    pad = [(0, s % 2) for s in material.shape]
+    m = np.pad(material, pad)
+    nx, ny, nz = (s // 2 for s in m.shape)
+    blocks = m.reshape(nx, 2, ny, 2, nz, 2).sum(axis=(1, 3, 5))
+    coarse = blocks > 0
+    ncoarse = int(coarse.sum())
+    if ncoarse < count or material.sum() < 0.9 * 8 * ncoarse:
+        return None
+    if ndimage.label(coarse, structure=np.ones((3, 3, 3), bool))[1] != ncomp:
+        return None
+    img = LabelImage(coarse.astype(np.uint8), spacing=2.0 * np.asarray(image.spacing, dtype=np.float64),
+                     origin=image.origin, direction=image.direction)
+    pos = place_frames(img, count, positions=np.asarray(pinned).reshape(-1, 3) if len(pinned) else None,
+                       seed=seed, iterations=iterations)
+    return pos[len(pinned):]
+
+
+def _fine_voxel_of(image, material, vox_id, position, taken):
+    """The material voxel (id) of the 2x2x2 block under a half-resolution frame nearest to it (C order
+    on ties), skipping voxels that already hold a frame."""
+    c = image.world_to_index(np.asarray(position)[None])[0]
+    base = 2 * np.floor(c / 2.0).astype(np.int64)
+    best, bd = -1, np.inf
+    for o in np.ndindex(2, 2, 2):
+        ijk = base + o
+        if np.any(ijk >= material.shape) or not material[tuple(ijk)]:
+            continue
+        v = int(vox_id[tuple(ijk)])
+        d = float(np.sum((ijk + 0.5 - c) ** 2))
+        if v not in taken and d < bd:
+            best, bd = v, d
+    if best < 0:  # every material voxel of the block holds a frame: the nearest free one in the image
+        free = np.flatnonzero(~np.isin(np.arange(int(material.sum())), list(taken)))
+        cen = np.argwhere(material)[free] + 0.5
+        best = int(free[np.argmin(((cen - c) ** 2).sum(1))])
+    return best

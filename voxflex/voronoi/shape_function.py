@@ -31,7 +31,7 @@ How values are computed
    fit of the constant 1 is 1); a point's values are those of the polynomial
    of its voxel's node: w, ∇w and ∇²w are exact derivatives of one smooth
    function inside a node's region (they jump slightly between regions).
-4. At a point, weights <= 0 are dropped, the ``parents`` largest are kept and
+4. At a point, weights <= 1e-12 are dropped, the ``parents`` largest are kept and
    renormalised with consistent derivatives.
 
 Choosing ``parents``
@@ -61,8 +61,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._jit import njit, prange
 from ..errors import InputError, check_choice
 from . import _march as M
+from ._sight import frame_distances
 from .geodesic import _prepare, _seed_voxels
 from .natural_neighbour import natural_weights
 from .placement import _compliance_for
@@ -72,6 +74,9 @@ __all__ = ["ShapeFunction", "shape_function"]
 
 KINDS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard")
 _RIDGE = 1e-8
+#: fitted weights up to this are dropped as zero: the compiled and numpy evaluations of the same
+#: polynomial differ by round-off (~1e-16), which must not decide whether a frame is a parent
+_TINY = 1e-12
 
 
 def _basis(x):
@@ -195,21 +200,16 @@ class ShapeFunction:
     def _centre_weights(self):
         """Frame indices and weights (V, parents) at the material voxel centres, as in
         :meth:`centre_values` but without gradients and Hessians (the smoothing reads w only:
-        at 128³ the Hessians alone would take V x parents x 9 doubles, 600 MB).  Evaluated node
-        by node: a node's coefficients serve all its voxels without being copied to each."""
+        at 128³ the Hessians alone would take V x parents x 9 doubles, 600 MB).  Compiled
+        (:func:`_centre_kernel`, voxel by voxel in parallel, reading each voxel's node's
+        coefficients in place); its numpy twin is :func:`_weights_impl` (tested equal)."""
         mask = self.image.labels > 0
-        X = self.image.voxel_centers(mask)
-        nodes = self._node_of_voxel[mask]
-        m, P = len(X), self.parents
-        index = np.full((m, P), -1, dtype=np.int64)
-        w = np.zeros((m, P))
-        order = np.argsort(nodes, kind="stable")
-        bounds = np.searchsorted(nodes[order], np.arange(len(self._node_pos) + 1))
-        for q in range(len(self._node_pos)):
-            sel = order[bounds[q]:bounds[q + 1]]
-            if len(sel):
-                index[sel], w[sel] = _weights_impl(X[sel], self._node_pos[q], self._node_frames[q],
-                                                   self._node_coef[q], self._scale, P)
+        ijk = np.argwhere(mask)
+        # voxel centres in the nodes' frame (index coords: world = origin + (c * spacing) @ direction.T)
+        cn = self.image.world_to_index(self._node_pos)
+        index, w = _centre_kernel(ijk, self._node_of_voxel[mask], cn, np.asarray(self.image.spacing, dtype=np.float64),
+                                  np.asarray(self.image.direction, dtype=np.float64), self._node_frames,
+                                  self._node_coef, float(self._scale), int(self.parents))
         if self._anchor is not None:
             own = self._anchor[mask]
             a = own >= 0
@@ -264,6 +264,55 @@ class ShapeFunction:
         return ShapeValues(index=index, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=len(self.frames))
 
 
+@njit(parallel=True)
+def _centre_kernel(ijk, nodes, cnode, spacing, direction, nfr, ncoef, h, P):
+    """Compiled :func:`_weights_impl` at the material voxel centres ``ijk + 0.5`` (m, 3), each with the
+    polynomials of its node (``nodes`` (m,), node positions ``cnode`` in index coords): values,
+    w <= 0 dropped, the P largest kept (the first column on ties) and renormalised."""
+    m = ijk.shape[0]
+    K = nfr.shape[1]
+    index = np.full((m, P), -1, dtype=np.int64)
+    out = np.zeros((m, P))
+    for r in prange(m):
+        q = nodes[r]
+        e0 = (ijk[r, 0] + 0.5 - cnode[q, 0]) * spacing[0]
+        e1 = (ijk[r, 1] + 0.5 - cnode[q, 1]) * spacing[1]
+        e2 = (ijk[r, 2] + 0.5 - cnode[q, 2]) * spacing[2]
+        x = (direction[0, 0] * e0 + direction[0, 1] * e1 + direction[0, 2] * e2) / h
+        y = (direction[1, 0] * e0 + direction[1, 1] * e1 + direction[1, 2] * e2) / h
+        z = (direction[2, 0] * e0 + direction[2, 1] * e1 + direction[2, 2] * e2) / h
+        phi = (x, y, z, x * x, x * y, x * z, y * y, y * z, z * z)
+        n = 0
+        for k in range(K):
+            f = nfr[q, k]
+            if f < 0:
+                continue
+            c = ncoef[q, k]
+            v = c[0] + c[1] * phi[0] + c[2] * phi[1] + c[3] * phi[2] + c[4] * phi[3] + c[5] * phi[4] \
+                + c[6] * phi[5] + c[7] * phi[6] + c[8] * phi[7] + c[9] * phi[8]
+            if not v > _TINY:
+                continue
+            if n < P:
+                j = n
+                n += 1
+            elif v > out[r, P - 1]:
+                j = P - 1
+            else:
+                continue
+            while j > 0 and out[r, j - 1] < v:
+                out[r, j] = out[r, j - 1]
+                index[r, j] = index[r, j - 1]
+                j -= 1
+            out[r, j] = v
+            index[r, j] = f
+        tot = 0.0
+        for j in range(n):
+            tot += out[r, j]
+        for j in range(n):
+            out[r, j] /= tot
+    return index, out
+
+
 def _weights_impl(X, npos, nfr, ncoef, h, P):
     """Values only: the polynomial values at points, w <= 0 dropped, the P largest kept and renormalised.
 
@@ -277,15 +326,10 @@ def _weights_impl(X, npos, nfr, ncoef, h, P):
         nfr = np.broadcast_to(nfr, w.shape)
     else:
         w = ncoef[..., 0] + np.einsum("mkb,mb->mk", ncoef[..., 1:], phi)
-    valid = (nfr >= 0) & (w > 0)
+    valid = (nfr >= 0) & (w > _TINY)
     ws = np.where(valid, w, -np.inf)
-    K = w.shape[1]
-    if K > P:
-        part = np.sort(np.argpartition(-ws, P - 1, axis=1)[:, :P], axis=1)  # column order breaks ties as before
-    else:
-        part = np.broadcast_to(np.arange(K), ws.shape)
     rows = np.arange(len(X))[:, None]
-    order = np.take_along_axis(part, np.argsort(-ws[rows, part], axis=1, kind="stable"), axis=1)
+    order = np.argsort(-ws, axis=1, kind="stable")[:, :P]  # the first column on ties, as the kernel
     keep = valid[rows, order]
     index = np.full((len(X), P), -1, dtype=np.int64)
     out = np.zeros((len(X), P))
@@ -303,7 +347,7 @@ def _evaluate_impl(X, npos, nfr, ncoef, h, P):
     w = ncoef[..., 0] + np.einsum("mkb,mb->mk", ncoef[..., 1:], phi)
     dw = np.einsum("mkb,mbi->mki", ncoef[..., 1:], dphi) / h
     ddw = np.einsum("mkb,bij->mkij", ncoef[..., 1:], H) / (h * h)
-    valid = (nfr >= 0) & (w > 0)
+    valid = (nfr >= 0) & (w > _TINY)
     ws = np.where(valid, w, -np.inf)
     order = np.argsort(-ws, axis=1, kind="stable")[:, :P]
     rows = np.arange(len(X))[:, None]
@@ -422,7 +466,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
         aijk = np.argwhere(anchored)
         seed_pts = np.concatenate([seed_pts, aijk + 0.5 + M.PAD])
         seed_own = np.concatenate([seed_own, seed_owner[anchored].astype(np.int64)])
-    d, own = M.march(mask, cost, pshape, spacing, seed_pts, seed_own, fmm=2)
+    d, own = frame_distances(mask, cost, pshape, spacing, seed_pts, seed_own)
     ijk = np.argwhere(material)
     mflat = M.inner_to_flat(ijk, pshape)
     if np.any(own[mflat] < 0):
