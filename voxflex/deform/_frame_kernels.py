@@ -115,14 +115,13 @@ def frame_pairs(index, G, n):
     index = np.ascontiguousarray(np.take_along_axis(index, order, axis=1), dtype=np.int64)
     G = np.ascontiguousarray(np.take_along_axis(G, order[..., None, None], axis=1))
     ok = index >= 0
-    codes = []
+    coupled = np.zeros((n, n), dtype=bool)
     P = index.shape[1]
     for p in range(P):  # P (P + 1) / 2 column pairs, each vectorised over the samples
         for q in range(p, P):
             both = ok[:, p] & ok[:, q]
-            codes.append(np.unique(index[both, p] * n + index[both, q]))
-    u = np.unique(np.concatenate(codes)) if codes else np.zeros(0, dtype=np.int64)
-    pairs = np.stack([u // n, u % n], axis=1).astype(np.int64)
+            coupled[index[both, p], index[both, q]] = True
+    pairs = np.argwhere(coupled).astype(np.int64)  # row-major: sorted by a, then b
     pair_id = np.full((n, n), -1, dtype=np.int64)
     pair_id[pairs[:, 0], pairs[:, 1]] = np.arange(len(pairs))
     return index, G, pairs, pair_id
