@@ -47,6 +47,7 @@ _LAZY = {
     "TriangleDeformationMapping": "voxflex.deform.membrane",
     "StVKMembrane": "voxflex.deform.membrane",
     "DualQuaternionSkinning": "voxflex.deform.skinning",
+    "MovingLeastSquaresMapping": "voxflex.deform.mls",
     "PlasticMaterial": "voxflex.deform.plasticity",
     "SolverOptions": "voxflex.deform.solvers",
     "solve": "voxflex.deform.solvers",
