@@ -24,8 +24,11 @@ the segment (4 per voxel crossed, as in :func:`._march._ball`) lies in a
 material voxel.  All material must have one slowness (plain geodesic distance,
 scaled by that slowness); the compliance distance uses fast marching.
 
-The numpy twin is :func:`sight_naive` (tests): for each voxel the minimum
-over the sources of its 26 neighbours, iterated to a fixed point.
+There is no separate numpy twin of the propagation: the tests check it against
+brute-force oracles instead (Euclidean distances and the nearest of many seeds
+in boxes, the continuum geodesic around a wall, no path through empty voxels,
+corner connectivity; ``tests/test_geodesic.py``), and the natural-neighbour
+kernels against their naive full propagation.
 """
 
 from __future__ import annotations
@@ -233,11 +236,23 @@ def sight(mask, cost, shape, spacing, points, owners, *, table=None, faces_insid
     return dist, owner
 
 
-def frame_distances(mask, cost, shape, spacing, points, owners):
-    """The distances of the shape functions: line of sight with one slowness, else second-order fast marching.
 
+def frame_distances(mask, cost, shape, spacing, points, owners):
+    """The frames' distance field of the shape functions: second-order fast marching.
+
+    Not line of sight, although that is exact in convex parts and 3x cheaper: on the SOFA
+    frames beam (natural neighbours, 40 frames, 1000 mid-point samples) the frame model's tip
+    deflection was +2.30 % from the voxel model's with line-of-sight frame distances and
+    +0.51 % with fast-marching ones (the stolen sets measured in line of sight either way); on
+    the neo-Hooke cantilever with 10/20/50 frames: +12.7/+7.0/-1.9 % against +10.9/+6.5/-2.7 %.
     Returns ``dist, owner`` (flat, padded) from seed points (padded index coords).
     """
+    return M.march(mask, cost, shape, spacing, points, owners, fmm=2)
+
+
+def point_distances(mask, cost, shape, spacing, points, owners):
+    """Distances from inserted points, as the natural-neighbour kernels measure them: line of sight
+    with one slowness, else second-order fast marching.  Returns ``dist, owner`` (flat, padded)."""
     if uniform_slowness(cost) is not None:
         return sight(mask, cost, shape, spacing, points, owners)
     return M.march(mask, cost, shape, spacing, points, owners, fmm=2)

@@ -33,6 +33,21 @@ model's with this placement (+1.04 % with the earlier fast-marching one;
 changing only which frame wins exact ties gave +0.04 %: layouts this close
 differ by tenths of a percent either way).
 
+Large images (at least ``COARSE_MIN_VOXELS`` = 200,000 material voxels) run
+steps 3-5 first on the image halved along every axis (a voxel per 2x2x2 block
+holding material; recursively while it is still large), map each automatic
+frame to the nearest material voxel of its block, and finish with at most
+``FINE_ITERATIONS`` = 3 Lloyd iterations at full resolution.  A Lloyd
+iteration costs about one full Dijkstra (most cells change in the early ones),
+so this replaces ~10 full-resolution marches and the farthest-point marches
+(~4.5 V) by three: on a 128³ cube with 50 frames placement took 17 s of CPU,
+now ~5 s.  The layout is as even (Lloyd energy +1.1 % on a test box).  The
+halved image is used only where it is faithful: no blocks joined without
+neighbouring material voxels (a one-voxel gap or slit stays open), blocks
+filled to 90 % on average (no thin plates), the same components; else the
+placement is the full-resolution one.  The SOFA beam (40,000 voxels) is below
+the threshold and placed as before.
+
 Example
 -------
 >>> import numpy as np
@@ -125,7 +140,9 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     compliance : dict, optional
         Young's modulus per label (see :func:`geodesic_distance`).
     iterations : int
-        Maximum number of Lloyd iterations (0 disables the relaxation).
+        Maximum number of Lloyd iterations (0 disables the relaxation); on
+        large images those of the half-resolution placement, followed by at
+        most 3 at full resolution (see the module notes).
 
     Returns
     -------
@@ -325,10 +342,12 @@ def _coarse_layout(image, material, ncomp, count, pinned, seed, iterations):
     """Automatic frames (world, (count - len(pinned), 3)) placed on the image halved along every axis.
 
     The half-resolution image holds a voxel wherever its 2x2x2 block holds material.  It is
-    used only when it represents the object faithfully: the same number of connected
-    components (so each part keeps its frames), at least 90 % of the blocks' volume filled
-    (no thin plates or slits that the blocks would thicken or close) and enough voxels for
-    ``count`` frames; else None (the caller places at full resolution).
+    used only when it represents the object faithfully: no two neighbouring blocks are joined
+    unless some material voxels of theirs are neighbours (so a one-voxel gap or slit does not
+    close, and parts are not joined: :func:`_blocks_join_faithfully`), at least 90 % of the
+    blocks' volume filled (no thin plates the blocks would thicken), the same number of
+    connected components, and enough voxels for ``count`` frames; else None (the caller places
+    at full resolution).
     """
     from scipy import ndimage
 
@@ -340,7 +359,7 @@ def _coarse_layout(image, material, ncomp, count, pinned, seed, iterations):
     blocks = m.reshape(nx, 2, ny, 2, nz, 2).sum(axis=(1, 3, 5))
     coarse = blocks > 0
     ncoarse = int(coarse.sum())
-    if ncoarse < count or material.sum() < 0.9 * 8 * ncoarse:
+    if ncoarse < count or material.sum() < 0.9 * 8 * ncoarse or not _blocks_join_faithfully(m):
         return None
     if ndimage.label(coarse, structure=np.ones((3, 3, 3), bool))[1] != ncomp:
         return None
@@ -370,3 +389,38 @@ def _fine_voxel_of(image, material, vox_id, position, taken):
         cen = np.argwhere(material)[free] + 0.5
         best = int(free[np.argmin(((cen - c) ** 2).sum(1))])
     return best
+
+
+def _blocks_join_faithfully(m):
+    """True when every two 26-neighbouring 2x2x2 blocks of the (even-shaped) boolean image ``m``
+    that both hold material hold a pair of 26-neighbouring material voxels, one in each.
+
+    Voxel ``2B + p`` (block B, parity p in {0, 1}^3) and its neighbour ``2B + p + e`` lie in
+    block ``B + o`` with ``o = floor((p + e) / 2)`` per axis: o = -1 needs (p, e) = (0, -1),
+    o = +1 needs (1, +1), o = 0 allows (0, 0), (0, 1), (1, -1), (1, 0).
+    """
+    from itertools import product
+
+    nx, ny, nz = (s // 2 for s in m.shape)
+    P = m.reshape(nx, 2, ny, 2, nz, 2).transpose(1, 3, 5, 0, 2, 4)  # P[p0, p1, p2] is (nx, ny, nz)
+    Pp = np.pad(P, ((0, 0),) * 3 + ((1, 1),) * 3)
+    coarse = P.any(axis=(0, 1, 2))
+    cp = np.pad(coarse, 1)
+
+    def shifted(a, o):
+        return a[..., 1 + o[0]:1 + o[0] + nx, 1 + o[1]:1 + o[1] + ny, 1 + o[2]:1 + o[2] + nz]
+
+    options = {-1: [(0, -1)], 1: [(1, 1)], 0: [(0, 0), (0, 1), (1, -1), (1, 0)]}
+    forward = [o for o in product((-1, 0, 1), repeat=3) if o > (0, 0, 0)]
+    for o in forward:
+        need = coarse & shifted(cp, o)
+        if not need.any():
+            continue
+        conn = np.zeros_like(coarse)
+        for combo in product(*(options[c] for c in o)):
+            p = tuple(pe[0] for pe in combo)
+            q = tuple(pe[0] + pe[1] - 2 * c for pe, c in zip(combo, o))
+            conn |= P[p] & shifted(Pp[q], o)
+        if np.any(need & ~conn):
+            return False
+    return True
