@@ -10,9 +10,10 @@ and 10, 50, 200 frames with 1000 mid-point samples, it prints
 * one Newton iteration as the static solver runs it, split into assembly
   (energy, gradient and dense Hessian of a neo-Hooke material) and the solve
   (the free block ``H[free][:, free]`` as the solver takes it plus
-  ``solve_linear(method="cholesky")``), min and median of --repeat runs after
-  one warm-up run, at the product's BLAS setting (one thread), with the path
-  the solve took (Cholesky, or LDL^T when not positive definite);
+  ``solve_linear(method="cholesky")``), min and median of at least --repeat
+  runs and 1 s of runs after one warm-up run, at the product's BLAS setting
+  (one thread), with the path the solve took (Cholesky, or LDL^T when not
+  positive definite);
 * the bare LAPACK Cholesky (factor + solve) of the free block with 1 and 2
   BLAS threads: what the product's one-thread choice is measured against;
 * the flop bound: m (432 P^2 + 1080 P) for assembly (the stiffness kernel's
@@ -67,10 +68,16 @@ def _timed(f):
     return time.perf_counter() - t
 
 
-def _stats(f, repeat):
-    """min and median (s) of ``repeat`` runs of f after one warm-up run."""
+def _stats(f, repeat, window=1.0):
+    """min and median (s) of the runs of f after one warm-up run: at least ``repeat`` runs and
+    ``window`` seconds of them (at most 500 runs).  On a shared machine a few milliseconds of runs can
+    fall wholly inside another process's time slice; a longer window lets the minimum see the
+    machine's own speed."""
     f()
-    ts = [_timed(f) for _ in range(repeat)]
+    ts = []
+    end = time.perf_counter() + window
+    while len(ts) < repeat or (time.perf_counter() < end and len(ts) < 500):
+        ts.append(_timed(f))
     return min(ts), float(np.median(ts))
 
 
