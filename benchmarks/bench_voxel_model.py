@@ -5,10 +5,15 @@ Problems (beam [0,4]x[0,1]x[0,1], x = 0 clamped, rho g = 9.81 along -z, nu = 0.3
 1. linear (Hooke, small strain), E = 1e4, 64x16x16 voxels (56k DOF), one solve;
 2. large-deflection Neo-Hooke, E = 1e3, 32x8x8 voxels, 5 load steps, Newton.
 
-Every code is warmed first (the same problem on an 8x2x2 beam: voxflex's numba
-kernels, scikit-fem's and warp.fem's code paths; warp's compile time is
-printed apart), then timed 3 times (``--repeat``): the tables give the min and
-the median of the totals.  Two tables:
+Peers: scikit-fem (a test dependency) and warp.fem (optional: ``pip install
+warp-lang``, checked with 1.19.0 on the CPU, see ``_warp_cantilever.py``; its
+rows are skipped when it is missing).  Every code is warmed first (the same
+problem on an 8x2x2 beam: voxflex's numba kernels, scikit-fem's and
+warp.fem's code paths; warp's compile time is printed apart), then timed 3
+times (``--repeat``): the tables give the min and the median of the totals; a
+peer's runs serve both tables (its solver is the same in both).  The load
+average is printed after each problem: on the shared 2-core machine other
+work inflates every wall time.  Two tables:
 
 * **same solver**: every code solves with the same method and tolerance
   (``voxflex.deform.linear_solvers.solve_linear``; linear: Jacobi-CG at rtol
@@ -26,7 +31,7 @@ multigrid-CG and Jacobi-CG (rtol 1e-8): seconds (min/median), iterations,
 peak traced memory of the solve (``tracemalloc``, numpy arrays included) per
 DOF, and the exponent of a least-squares fit time ~ DOF^p.
 
-    python benchmarks/bench_voxel_model.py [--quick] [--repeat 3] [--colamd] [--memory NXxNYxNZ] [--big]
+    python benchmarks/bench_voxel_model.py [--quick] [--repeat 3] [--tables-only] [--colamd] [--memory NXxNYxNZ] [--big]
 
 ``--quick`` runs 32x8x8 / 16x4x4 and the series to 64x16x16; ``--colamd``
 adds scipy's default splu ordering (slow: ~40 s); ``--memory 128x44x44`` only
