@@ -106,6 +106,19 @@ def _seed_voxels(image, seeds, name="seeds"):
     return S, c, ijk
 
 
+def _centres(image, ijk):
+    """World centres (m, 3) of voxels ``ijk`` (m, 3): ``image.index_to_world(ijk + 0.5)`` by three
+    scaled columns instead of a (m, 3) x (3, 3) product (which takes ~1 s at 128³ on a busy
+    2-core machine with threaded BLAS)."""
+    x = (np.asarray(ijk, dtype=np.float64) + 0.5) * np.asarray(image.spacing, dtype=np.float64)
+    D = np.asarray(image.direction, dtype=np.float64)
+    out = x[:, :1] * D[:, 0]
+    out += x[:, 1:2] * D[:, 1]
+    out += x[:, 2:] * D[:, 2]
+    out += np.asarray(image.origin, dtype=np.float64)
+    return out
+
+
 def _prepare(image, compliance):
     """Padded flat mask, slowness and shape, and the spacing, for the kernels."""
     mask, cost, pshape = M.pad_grid(image.labels > 0, _slowness(image, compliance))

@@ -63,7 +63,7 @@ import numpy as np
 
 from ..errors import InputError, check_choice
 from . import _march as M
-from .geodesic import _prepare, _seed_voxels
+from .geodesic import _centres, _prepare, _seed_voxels
 
 __all__ = ["place_frames"]
 
@@ -108,7 +108,7 @@ def voxels_touching_box(image, lo, hi) -> np.ndarray:
     lo = np.asarray(lo, dtype=float)
     hi = np.asarray(hi, dtype=float)
     ijk = np.indices(image.shape).reshape(3, -1).T
-    centres = image.index_to_world(ijk + 0.5)
+    centres = _centres(image, ijk)
     half = 0.5 * np.abs(np.asarray(image.direction, dtype=float)) @ np.asarray(image.spacing, dtype=float)
     tol = 1e-9 * float(np.max(image.spacing))
     meets = np.all((centres + half >= lo - tol) & (centres - half <= hi + tol), axis=1)
@@ -183,7 +183,7 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
 
     mask, cost, pshape, spacing = _prepare(image, comp)
     ijk = np.argwhere(material)
-    centres = image.index_to_world(ijk + 0.5)
+    centres = _centres(image, ijk)
     mflat = M.inner_to_flat(ijk, pshape)
     vox_id = -np.ones(image.shape, dtype=np.int64)
     vox_id[material] = np.arange(nmat)

@@ -67,7 +67,7 @@ from .._jit import njit, prange
 from ..errors import InputError, check_choice
 from . import _march as M
 from ._sight import frame_distances
-from .geodesic import _prepare, _seed_voxels
+from .geodesic import _centres, _prepare, _seed_voxels
 from .natural_neighbour import natural_weights
 from .placement import _compliance_for
 from .shape_functions import ShapeValues
@@ -480,7 +480,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
     on = np.all(ijk % s == s // 2, axis=1)
     on[fv] = False
     lat = np.flatnonzero(on)
-    centres = image.index_to_world(ijk + 0.5)
+    centres = _centres(image, ijk)
     node_vox = np.concatenate([fv, lat])
     node_pos = np.concatenate([F, centres[lat]])
     # node regions (Dijkstra, through material), adding nodes in parts far from all
