@@ -30,10 +30,12 @@ it; the full stiffness is never built nor cached and gradients are
 matrix-free (linear beam 128x32x32, ``auto`` = multigrid-CG: peak resident
 memory 3443 -> 2122 bytes/DOF).  Implicit Euler adds ``M/h^2 + D/h``, built
 once per step, into each Hessian's own pattern (positions found once)
-instead of a sparse sum per iteration.  The line search evaluates a full
-Newton step with its Hessian (reused at the next iteration) except where
-Newton's rate predicts convergence there (:func:`_predict_converged`), and
-halved steps with the energy alone.
+instead of a sparse sum per iteration.  The line search judges its trials
+by the energy alone (a rejected full step costs no gradient nor Hessian), and
+an iterate where Newton's rate predicts convergence is evaluated without
+its Hessian (:func:`_predict_converged`): on the neo-Hooke beam 32x8x8
+(5 steps, sparse LU, 30 solves) 40 Hessians were built, now 32
+(``benchmarks/bench_solver_waste.py``).
 """
 
 from __future__ import annotations
@@ -292,9 +294,9 @@ def _predict_converged(rn, rn_last, target, floor) -> bool:
 
     The linear-rate estimate ``rn * (rn / rn_last)`` (Newton's rate is at
     least that good once it contracts) against the stopping threshold.  The
-    line search then evaluates that trial without its Hessian, which would
-    never be solved; a wrong guess costs one extra gradient pass (the Hessian
-    is then assembled at the next iteration).
+    iterate is then evaluated without its Hessian, which would never be
+    solved; a wrong guess costs one extra gradient pass (the Hessian is then
+    assembled in a second pass).
     """
     if rn_last is None or not rn < 0.5 * rn_last:
         return False
@@ -452,21 +454,25 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
     solver_used = ""
     scale = fnorm
     rn_prev, eta_prev = None, None
-    cached = None  # (x, problem(x)) of an accepted full step, evaluated by the line search
+    cached = None  # (x, problem(x)) of an accepted full step whose gradient the line search evaluated
     step_length, last_lin, t_last = 0.0, 0, time.perf_counter()
     lean = problem.block is not None
-    rn, rn_last = None, None  # the residual of this iterate and of the one before (the convergence rate)
+    history = []  # residuals of the iterates so far (Newton's rate)
     for it in range(options.max_iterations + 1):
-        rn_last = rn
+        # the Hessian of an iterate where Newton's rate predicts convergence would never be solved: skip it
+        # (built below after all when the iterate does not converge)
+        skip = len(history) >= 2 and step_length == 1.0 and _predict_converged(
+            history[-1], history[-2], tol * scale, floor)
         if cached is not None and cached[0] is x:
             pot, E, g, H, mag = cached[1]
         else:
-            pot, E, g, H, mag = problem(x, hessian=True)
+            pot, E, g, H, mag = problem(x, hessian=not skip)
         cached = None
         if not np.isfinite(pot) or not np.all(np.isfinite(g)):
             raise ConvergenceError(f"{label}: the energy is not finite at iteration {it} (inverted material?)")
         r = g[free]
         rn = vnorm(r)
+        history.append(rn)
         if it == 0:
             scale = max(scale, rn)
             # round-off floor: the elastic forces come from absolute positions, known to eps |x|, so
@@ -487,9 +493,9 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         if it == options.max_iterations:
             break
         if H is None and not lean:
-            # the line search skipped the Hessian of this iterate (Newton predicted convergence there)
+            # the Hessian was skipped (Newton predicted convergence here) or not built by the line search
+            problem.hessian_misses += skip
             pot, E, g, H, mag = problem(x, hessian=True)
-            problem.hessian_misses += 1
         rhs = -r
         if moving:
             if lean:
@@ -565,26 +571,24 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             x[free] += d
             step_length = 1.0
             continue
-        H = Hff = None  # release them before the line search builds the next Hessian (peak memory)
+        H = Hff = None  # release them before the next Hessian is built (peak memory)
         alpha = 1.0
         accepted = False
         for _ in range(MAX_HALVINGS):
             x_try = x.copy()
             x_try[free] += alpha * d
-            # the full step is usually accepted: evaluate it with gradient and Hessian at once, and
-            # reuse them at the next iteration (saves one energy pass per Newton iteration); skip the
-            # Hessian where Newton's rate predicts convergence at the trial (it would never be solved)
-            trial = problem(x_try, hessian=not _predict_converged(rn, rn_last, tol * scale, floor)) \
-                if alpha == 1.0 else None
-            pot_try = trial[0] if trial is not None else problem(x_try, hessian=False, gradient=False)[0]
+            # trials by their energy alone: a rejected full step costs no gradient nor Hessian (the
+            # accepted iterate gets its gradient and Hessian at the top of the next iteration)
+            pot_try = problem(x_try, hessian=False, gradient=False)[0]
+            trial = None
             if np.isfinite(pot_try) and pot_try <= pot + ARMIJO * alpha * slope + ROUNDOFF * mag:
                 accepted = True
-            elif trial is not None and np.isfinite(pot_try) and pot_try - pot <= NOISE * mag and \
-                    vnorm(trial[2][free]) <= 0.9 * rn:
+            elif alpha == 1.0 and np.isfinite(pot_try) and pot_try - pot <= NOISE * mag:
                 # near a solution of a high-contrast problem the energy's decrease (~|r|^2 / k_soft) falls
                 # below the round-off of the stiff parts' energy (~eps E_stiff V): judge the full Newton
                 # step by the residual it leaves instead, when the energy stays flat to NOISE
-                accepted = True
+                trial = problem(x_try, hessian=False)
+                accepted = vnorm(trial[2][free]) <= 0.9 * rn
             if accepted:
                 if trial is not None:
                     cached = (x_try, trial)
