@@ -13,7 +13,10 @@ warp.fem's code paths; warp's compile time is printed apart), then timed 3
 times (``--repeat``): the tables give the min and the median of the totals; a
 peer's runs serve both tables (its solver is the same in both).  The load
 average is printed after each problem: on the shared 2-core machine other
-work inflates every wall time.  Two tables:
+work inflates every wall time, so the CPU seconds of each call
+(``time.process_time``, every thread of the process, warp's compile
+excluded as in the wall time) are given too, with their ratios: less
+sensitive to other processes' load, but they count BLAS threads that spin.  Two tables:
 
 * **same solver**: every code solves with the same method and tolerance
   (``voxflex.deform.linear_solvers.solve_linear``; linear: Jacobi-CG at rtol
@@ -37,15 +40,18 @@ DOF, and the exponent of a least-squares fit time ~ DOF^p.
 adds scipy's default splu ordering (slow: ~40 s); ``--memory 128x44x44`` only
 measures time and peak resident memory (``resource.getrusage``) of building,
 assembling and solving a linear beam of that many voxels in this fresh
-process (Jacobi-CG through ``voxflex.deform.solvers.solve``); ``--big`` does
-the same with multigrid-CG for a 256x90x90 beam (2.07 million voxels, 6.4
-million DOF) and prints the peak bytes per DOF (~2.1 kB/DOF measured at
-128x32x32, i.e. ~13 GB; refused when /proc/meminfo shows under 1.3x that
-available); ``--solver`` picks the solver of ``--memory``.  Solvers other
-than ``cg`` take the lean path: ``VoxelModel.constant_stiffness_block``
-(the free-DOF block assembled and compacted in place, no full matrix kept)
-then ``solve_linear``; the run ends with a check that the reactions carry the
-load (matrix-free gradient).  Measured with --big on this 2-core machine
+process, through ``voxflex.deform.solvers.solve`` (``--solver``, default
+Jacobi-CG), which takes the lean path for this constant-tangent static
+problem: ``VoxelModel.constant_stiffness_block`` (the free-DOF block
+assembled and compacted in place, no full matrix kept) and gradients
+matrix-free; ``--big`` does the same with multigrid-CG for a 256x90x90 beam
+(2.07 million voxels, 6.4 million DOF) and prints the peak bytes per DOF
+(~2.1 kB/DOF measured at 128x32x32, i.e. ~13 GB; refused when /proc/meminfo
+shows under 1.3x that available); the run ends with a check that the
+reactions carry the load (matrix-free gradient).  Peak resident memory of
+``solve`` at 128x32x32 (/proc/self/status VmHWM, fresh process): ``auto``
+(multigrid-CG) 3443 bytes/DOF before it took the lean path, 2122 after;
+Jacobi-CG 1686 before.  Measured with --big on this 2-core machine
 (shared, 38 % of the CPU for the run): 6,384,651 DOF, multigrid-CG 16
 iterations to 4.4e-9, solve 260 s wall, total 393 s, peak RSS 8.67 GB =
 1423 bytes/DOF (the 128x32x32 path before: 3041), reactions equal to the
@@ -78,11 +84,16 @@ def _repeat(fn, n):
 
     runs = []
     for _ in range(n):
+        c = time.process_time()
         r = fn()
+        # CPU seconds of the call (all threads of this process), less a warm-up it ran (warp's compile)
+        r["cpu"] = time.process_time() - c - r.get("compile_cpu", 0.0)
         r["total"] = r["build"] + r["assemble"] + r["solve"]
         runs.append(r)
     best = min(runs, key=lambda r: r["total"])
     best["total_median"] = statistics.median(r["total"] for r in runs)
+    best["cpu_min"] = min(r["cpu"] for r in runs)
+    best["cpu_median"] = statistics.median(r["cpu"] for r in runs)
     return best
 
 
@@ -243,14 +254,13 @@ def solver_table(nx):
 def memory_run(shape, linear_solver="cg"):
     """Peak resident memory after each phase of the linear beam of ``shape`` voxels (fresh process).
 
-    ``"cg"`` runs through ``voxflex.deform.solvers.solve`` (Jacobi-CG on the
-    masked full matrix); ``"multigrid"`` extracts the free block and calls
-    ``solve_linear`` with the grid (what ``solve`` does for the other methods).
+    Through ``voxflex.deform.solvers.solve`` with ``linear_solver``: its lean
+    path for constant-tangent static problems (the free-DOF block assembled
+    and compacted in place, gradients matrix-free).
     """
     import resource
 
     from voxflex.deform.boundary import FixedRegion
-    from voxflex.deform.linear_solvers import solve_linear
     from voxflex.deform.materials import material
     from voxflex.deform.solvers import SolverOptions, solve
     from voxflex.deform.voxel_model import VoxelModel
@@ -267,35 +277,15 @@ def memory_run(shape, linear_solver="cg"):
     model = VoxelModel.from_image(image, {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
     rows.append(("image + model", time.perf_counter() - t, peak()))
     ndof = 3 * model.n_nodes
-    if linear_solver == "cg":
-        t = time.perf_counter()
-        model._ensure_pattern()
-        rows.append(("sparsity pattern", time.perf_counter() - t, peak()))
-    if linear_solver == "cg":
-        t = time.perf_counter()
-        H = model.hessian(model.rest)
-        rows.append(("stiffness (cached)", time.perf_counter() - t, peak()))
-        del H
-        t = time.perf_counter()
-        rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81],
-                    densities={1: 1.0}, options=SolverOptions(linear_solver="cg"))
-        rows.append((f"static solve (cg, {rec[-1].linear_iterations} iterations)", time.perf_counter() - t, peak()))
-        u = rec[-1].q - model.rest
-    else:
-        # the lean path: the free-DOF block assembled and compacted in place (the model keeps no full matrix)
-        t = time.perf_counter()
-        free = np.flatnonzero(np.repeat(model.rest[:, 0] > 1e-9, 3))
-        A = model.constant_stiffness_block(free)
-        rows.append(("sparsity pattern + free-DOF stiffness block (in place)", time.perf_counter() - t, peak()))
-        f = model.gravity_force({1: 1.0}, [0, 0, -9.81]).ravel()
-        t = time.perf_counter()
-        x, info = solve_linear(A, f[free], method=linear_solver, rtol=1e-8, grid=model.grid, free=free)
-        rows.append((f"static solve ({info.method}, {info.iterations} iterations, residual {info.residual:.1e})",
-                     time.perf_counter() - t, peak()))
-        del A
-        u = np.zeros(ndof)
-        u[free] = x
-        u = u.reshape(-1, 3)
+    # the product path: solve() takes the lean free block for this constant-tangent static problem
+    # (assembled on its own and compacted in place; no full stiffness built or cached)
+    t = time.perf_counter()
+    rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81],
+                densities={1: 1.0}, options=SolverOptions(linear_solver=linear_solver))
+    rows.append((f"static solve (solve(), {rec[-1].linear_solver}, {rec[-1].linear_iterations} iterations)",
+                 time.perf_counter() - t, peak()))
+    assert model._constant is None, "the lean path cached a stiffness"
+    u = rec[-1].q - model.rest
     # check: the reactions (matrix-free gradient K u at the fixed DOFs) carry the weight of the free nodes
     # (K annihilates translations: sum_fixed (K u)_z = -sum_free (K u)_z = -sum_free f_z)
     t = time.perf_counter()
@@ -450,9 +440,9 @@ def main():
     done = {}  # (code, problem, solver) -> result: a peer's runs serve both tables (its solver is the same)
     for title, problems in tables:
         print(f"\n{title}; {args.repeat} runs each, the columns of the fastest run")
-        print("| problem | code | build s | assemble s | solve s | total s min / median | newton | linear its "
-              "| u_z tip | solver |")
-        print("|---|---|---|---|---|---|---|---|---|---|")
+        print("| problem | code | build s | assemble s | solve s | total s min / median | CPU s min / median "
+              "| newton | linear its | u_z tip | solver |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
         for name, codes in problems:
             res = {}
             for code, fn in codes:
@@ -466,12 +456,14 @@ def main():
                 elif "compile" in r:
                     compile_notes.append(f"{code} {name}: kernel compile/warm-up {r['compile']:.2f} s (not in total)")
                 print(f"| {name} | {code} | {r['build']:.2f} | {r['assemble']:.2f} | {r['solve']:.2f} | "
-                      f"{r['total']:.2f} / {r['total_median']:.2f} | {r['newton']} | {r['linear']} | "
-                      f"{r['uz']:.6f} | {r['solver']} |", flush=True)
+                      f"{r['total']:.2f} / {r['total_median']:.2f} | {r['cpu_min']:.2f} / {r['cpu_median']:.2f} | "
+                      f"{r['newton']} | {r['linear']} | {r['uz']:.6f} | {r['solver']} |", flush=True)
             for peer in [c for c, _ in codes[1:]]:
+                a, b = res[peer], res["voxflex"]
                 print(f"| {name} | ratio {peer} / voxflex (min; median) | | | | "
-                      f"{res[peer]['total'] / res['voxflex']['total']:.2f}x; "
-                      f"{res[peer]['total_median'] / res['voxflex']['total_median']:.2f}x | | | | |", flush=True)
+                      f"{a['total'] / b['total']:.2f}x; {a['total_median'] / b['total_median']:.2f}x | "
+                      f"{a['cpu_min'] / b['cpu_min']:.2f}x; {a['cpu_median'] / b['cpu_median']:.2f}x | | | | |",
+                      flush=True)
             print(f"({_load()} after this problem)", flush=True)
     for note in compile_notes:
         print(note)
