@@ -4,10 +4,12 @@ For a full cube of n³ voxels and k frames it times
 
 * ``distances``: :func:`voxflex.voronoi.geodesic_distance` from the k frames, second-order
   fast marching (``fmm``) and 26-neighbour Dijkstra (``dijkstra``);
-* ``placement``: :func:`voxflex.voronoi.place_frames` (farthest point + Lloyd, at most 10 iterations);
+* ``placement``: :func:`voxflex.voronoi.place_frames` (farthest point + Lloyd, at most 10 iterations;
+  from 200,000 material voxels on, first at half resolution, then at most 3 full-resolution ones);
 * ``weights``: :func:`voxflex.voronoi.shape_function` (natural neighbours by default) and its
   weights at every material voxel centre (the input of the smoothing), i.e. everything the
-  frame model needs before the smoothing blend;
+  frame model needs before the smoothing blend (fast-marching frame distances, node regions,
+  stolen sets of the weight nodes, fits, centre weights);
 
 min and median of ``--repeat`` runs (kernels warmed first), the CPU seconds of the fastest run
 (process time, all threads: on a shared machine wall time is inflated by the other loads, CPU
