@@ -321,8 +321,12 @@ class _Masked:
         return y
 
 
-FREE_BLOCK_ROWS = 1 << 16
-"""Rows per pass of :func:`free_block` (its scratch: ~13 bytes per stored entry of that many rows)."""
+FREE_BLOCK_ROWS = 4096
+"""Rows per pass of :func:`free_block` (its scratch: ~13 bytes per stored entry of that many rows).
+
+At 64x16x16 voxels (56k DOF) 65536 rows (one pass) put the lean block's peak
+at 3702 bytes/DOF above the model, 4096 rows at 1973 (the assembly's own
+peak), and the block took 0.59-0.69 s against 0.73-0.89 s."""
 
 
 def free_block(A, free, *, overwrite: bool = False) -> sp.csr_matrix:
