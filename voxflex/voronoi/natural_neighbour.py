@@ -38,48 +38,54 @@ from . import _sight as S
 
 
 @njit
-def _one_point(mask, cost, shape, spacing, d, own, p, nframes, laplace,
-               dx, ox, state, nxt, prv, touched, acc, hmin, smin, smax, radius, ball_i, ball_d, ball_o,
-               table, src, spans):
-    """Natural-neighbour weights of one point (padded index coords p); fills acc (n,), returns it unnormalised.
+def _stolen_sight(mask, table, shape, spacing, slow, d, p, nframes, dx, ox, src, state, nxt, prv, touched, spans):
+    """Stolen voxels of a point (padded index coords p) in line-of-sight distances (one slowness):
+    by the span fill when the point sees all of them, else by the bounded line-of-sight march.
+    Writes them to ``touched`` with their ``dx``, marks them in ``state``; returns their count."""
+    r = _span_steal(mask, table, shape, spacing, slow, d, p, state, spans, spans.shape[0])
+    nr = r if r >= 0 else -r - 1
+    nt = 0
+    s1 = shape[1] * shape[2]
+    s2 = shape[2]
+    for q in range(nr):
+        a = spans[q, 0]
+        i = a // s1
+        j = (a - i * s1) // s2
+        k0 = a - i * s1 - j * s2
+        ryz = ((i + 0.5 - p[0]) * spacing[0]) ** 2 + ((j + 0.5 - p[1]) * spacing[1]) ** 2
+        for t in range(spans[q, 1]):
+            v = a + t
+            touched[nt] = v
+            nt += 1
+            dx[v] = slow * math.sqrt(ryz + ((k0 + t + 0.5 - p[2]) * spacing[2]) ** 2)
+    if r < 0:  # not all in sight: clear and march
+        for q in range(nt):
+            v = touched[q]
+            state[v] = 0
+            dx[v] = np.inf
+        pts = np.empty((1, 3))
+        pts[0, 0], pts[0, 1], pts[0, 2] = p[0], p[1], p[2]
+        ownp = np.full(1, nframes, dtype=np.int64)
+        nt = S._sight_march(mask, table, shape, spacing, slow, dx, ox, src, state, nxt, prv, d, True,
+                            pts, ownp, touched, 0, False)
+    return nt
 
-    With one slowness over the material (``smin == smax``) the distances are line-of-sight
-    distances (:mod:`._sight`): the stolen set by the span fill when the point sees all of it,
-    else by the bounded line-of-sight march; otherwise by bounded second-order fast marching.
-    """
-    if smin == smax:
-        r = _span_steal(mask, table, shape, spacing, smin, d, p, state, spans, spans.shape[0])
-        nr = r if r >= 0 else -r - 1
-        nt = 0
-        s1 = shape[1] * shape[2]
-        s2 = shape[2]
-        for q in range(nr):
-            a = spans[q, 0]
-            i = a // s1
-            j = (a - i * s1) // s2
-            k0 = a - i * s1 - j * s2
-            ryz = ((i + 0.5 - p[0]) * spacing[0]) ** 2 + ((j + 0.5 - p[1]) * spacing[1]) ** 2
-            for t in range(spans[q, 1]):
-                v = a + t
-                touched[nt] = v
-                nt += 1
-                dx[v] = smin * math.sqrt(ryz + ((k0 + t + 0.5 - p[2]) * spacing[2]) ** 2)
-        if r < 0:  # not all in sight: clear and march
-            for q in range(nt):
-                v = touched[q]
-                state[v] = 0
-                dx[v] = np.inf
-            pts = np.empty((1, 3))
-            pts[0, 0], pts[0, 1], pts[0, 2] = p[0], p[1], p[2]
-            ownp = np.full(1, nframes, dtype=np.int64)
-            nt = S._sight_march(mask, table, shape, spacing, smin, dx, ox, src, state, nxt, prv, d, True,
-                                pts, ownp, touched, 0, False)
-    else:
-        cnt = M._ball(mask, cost, shape, spacing, p, radius, ball_i, ball_d)
-        for q in range(cnt):
-            ball_o[q] = nframes
-        nt = M._march(cost, shape, spacing, dx, ox, state, nxt, prv, d, True,
-                      ball_i[:cnt], ball_d[:cnt], ball_o[:cnt], 2, touched, 0, smin, smax)
+
+@njit
+def _stolen_fmm(mask, cost, shape, spacing, d, p, nframes, dx, ox, state, nxt, prv, touched, smin, smax, radius,
+                ball_i, ball_d, ball_o):
+    """Stolen voxels of a point by bounded second-order fast marching (several slownesses)."""
+    cnt = M._ball(mask, cost, shape, spacing, p, radius, ball_i, ball_d)
+    for q in range(cnt):
+        ball_o[q] = nframes
+    return M._march(cost, shape, spacing, dx, ox, state, nxt, prv, d, True,
+                    ball_i[:cnt], ball_d[:cnt], ball_o[:cnt], 2, touched, 0, smin, smax)
+
+
+@njit
+def _accumulate(cost, shape, spacing, d, own, laplace, dx, ox, state, touched, nt, acc, hmin):
+    """Unnormalised weights of one point from its stolen voxels (acc (n,), and hmin for Laplace);
+    resets the scratch of the stolen voxels."""
     s1 = shape[1] * shape[2]
     s2 = shape[2]
     if laplace == 0:
@@ -108,7 +114,46 @@ def _one_point(mask, cost, shape, spacing, d, own, p, nframes, laplace,
         dx[v] = np.inf
         ox[v] = -1
         state[v] = 0
-    return nt
+
+
+@njit
+def _finish(acc, hmin, nframes, laplace, kmax, q, out_f, out_w, out_n):
+    """Row q of the outputs from acc: Laplace / distance-ratio weights, the kmax largest, normalised;
+    resets acc and hmin."""
+    if laplace == 1:
+        for f in range(nframes):
+            if acc[f] > 0:
+                acc[f] = acc[f] / hmin[f]
+    elif laplace == 2:  # distance ratio: inverse distance over the natural neighbours
+        for f in range(nframes):
+            acc[f] = 1.0 / hmin[f] if hmin[f] < np.inf else 0.0
+    m = 0
+    for f in range(nframes):
+        a = acc[f]
+        if a <= 0:
+            continue
+        if m < kmax:
+            j = m
+            m += 1
+        else:
+            if a <= out_w[q, kmax - 1]:
+                continue
+            j = kmax - 1
+        while j > 0 and out_w[q, j - 1] < a:
+            out_w[q, j] = out_w[q, j - 1]
+            out_f[q, j] = out_f[q, j - 1]
+            j -= 1
+        out_w[q, j] = a
+        out_f[q, j] = f
+    kept = 0.0
+    for j in range(m):
+        kept += out_w[q, j]
+    for j in range(m):
+        out_w[q, j] /= kept
+    out_n[q] = m
+    for f in range(nframes):
+        acc[f] = 0.0
+        hmin[f] = np.inf
 
 
 @njit
@@ -198,13 +243,42 @@ def _span_steal(mask, table, shape, spacing, slow, d, p, state, spans, nspan_max
 
 
 @njit(parallel=True)
-def _natural_kernel(mask, cost, shape, spacing, d, own, points, nframes, laplace, kmax, smin, smax, radius,
-                    nthreads, table, out_f, out_w, out_n):
-    """Weights of every point (q, 3) (padded index coords): top-kmax frames per point, normalised.
+def _natural_kernel_sight(mask, cost, shape, spacing, d, own, points, nframes, laplace, kmax, slow,
+                          nthreads, table, out_f, out_w, out_n):
+    """Weights of every point (q, 3) (padded index coords), line-of-sight stolen sets (one slowness):
+    top-kmax frames per point, normalised.
 
     The points are dealt round-robin to ``nthreads`` chunks, each with its own
     grid-sized scratch (allocated once per chunk, so keep ``nthreads`` a small
-    multiple of the number of threads)."""
+    multiple of the number of threads).  Two kernels (this one and
+    :func:`_natural_kernel_fmm`) rather than one with a branch: each compiles
+    only its own propagation."""
+    N = mask.shape[0]
+    for t in prange(nthreads):
+        dx = np.full(N, np.inf)
+        ox = np.full(N, -1, dtype=np.int64)
+        state = np.empty(N, dtype=np.uint8)
+        for v in range(N):
+            state[v] = 0 if mask[v] != 0 else 3
+        nxt = np.empty(N, dtype=np.int32)
+        prv = np.empty(N, dtype=np.int32)
+        touched = np.empty(N, dtype=np.int32)
+        src = np.empty(N, dtype=np.int64)
+        spans = np.empty((N // 4 + 16, 2), dtype=np.int64)
+        acc = np.zeros(nframes)
+        hmin = np.full(nframes, np.inf)
+        for q in range(t, points.shape[0], nthreads):
+            nt = _stolen_sight(mask, table, shape, spacing, slow, d, points[q], nframes, dx, ox, src, state,
+                               nxt, prv, touched, spans)
+            _accumulate(cost, shape, spacing, d, own, laplace, dx, ox, state, touched, nt, acc, hmin)
+            _finish(acc, hmin, nframes, laplace, kmax, q, out_f, out_w, out_n)
+
+
+@njit(parallel=True)
+def _natural_kernel_fmm(mask, cost, shape, spacing, d, own, points, nframes, laplace, kmax, smin, smax, radius,
+                        nthreads, out_f, out_w, out_n):
+    """As :func:`_natural_kernel_sight`, with stolen sets by bounded second-order fast marching
+    (the compliance distance: several slownesses)."""
     N = mask.shape[0]
     per = (2 * radius + 1) ** 3
     for t in prange(nthreads):
@@ -221,50 +295,11 @@ def _natural_kernel(mask, cost, shape, spacing, d, own, points, nframes, laplace
         ball_i = np.empty(per, dtype=np.int64)
         ball_d = np.empty(per)
         ball_o = np.empty(per, dtype=np.int64)
-        src = np.empty(N if smin == smax else 1, dtype=np.int64)
-        spans = np.empty((N // 4 + 16 if smin == smax else 1, 2), dtype=np.int64)
         for q in range(t, points.shape[0], nthreads):
-            _one_point(mask, cost, shape, spacing, d, own, points[q], nframes, laplace,
-                       dx, ox, state, nxt, prv, touched, acc, hmin, smin, smax, radius, ball_i, ball_d, ball_o,
-                       table, src, spans)
-            if laplace == 1:
-                for f in range(nframes):
-                    if acc[f] > 0:
-                        acc[f] = acc[f] / hmin[f]
-            elif laplace == 2:  # distance ratio: inverse distance over the natural neighbours
-                for f in range(nframes):
-                    acc[f] = 1.0 / hmin[f] if hmin[f] < np.inf else 0.0
-            tot = 0.0
-            for f in range(nframes):
-                tot += acc[f]
-            # keep the kmax largest
-            m = 0
-            for f in range(nframes):
-                a = acc[f]
-                if a <= 0:
-                    continue
-                if m < kmax:
-                    j = m
-                    m += 1
-                else:
-                    if a <= out_w[q, kmax - 1]:
-                        continue
-                    j = kmax - 1
-                while j > 0 and out_w[q, j - 1] < a:
-                    out_w[q, j] = out_w[q, j - 1]
-                    out_f[q, j] = out_f[q, j - 1]
-                    j -= 1
-                out_w[q, j] = a
-                out_f[q, j] = f
-            kept = 0.0
-            for j in range(m):
-                kept += out_w[q, j]
-            for j in range(m):
-                out_w[q, j] /= kept
-            out_n[q] = m
-            for f in range(nframes):
-                acc[f] = 0.0
-                hmin[f] = np.inf
+            nt = _stolen_fmm(mask, cost, shape, spacing, d, points[q], nframes, dx, ox, state, nxt, prv, touched,
+                             smin, smax, radius, ball_i, ball_d, ball_o)
+            _accumulate(cost, shape, spacing, d, own, laplace, dx, ox, state, touched, nt, acc, hmin)
+            _finish(acc, hmin, nframes, laplace, kmax, q, out_f, out_w, out_n)
 
 
 def natural_weights(mask, cost, pshape, spacing, d, own, points, nframes, *, laplace, kmax=32):
@@ -281,9 +316,15 @@ def natural_weights(mask, cost, pshape, spacing, d, own, points, nframes, *, lap
     out_w = np.zeros((q, kmax))
     out_n = np.zeros(q, dtype=np.int64)
     if q:
-        _natural_kernel(mask, cost, pshape, spacing, d, own, np.ascontiguousarray(points, dtype=np.float64),
-                        int(nframes), int(laplace), int(kmax), float(cost.min()), float(cost.max()), M.BALL,
-                        min(q, 2 * get_num_threads()), S.empty_table(mask, pshape), out_f, out_w, out_n)
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        nth = min(q, 2 * get_num_threads())
+        slow = S.uniform_slowness(cost)
+        if slow is not None:
+            _natural_kernel_sight(mask, cost, pshape, spacing, d, own, pts, int(nframes), int(laplace), int(kmax),
+                                  slow, nth, S.empty_table(mask, pshape), out_f, out_w, out_n)
+        else:
+            _natural_kernel_fmm(mask, cost, pshape, spacing, d, own, pts, int(nframes), int(laplace), int(kmax),
+                                float(cost.min()), float(cost.max()), M.BALL, nth, out_f, out_w, out_n)
     return out_f, out_w, out_n
 
 

@@ -63,7 +63,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._jit import njit, prange
+from .._jit import njit
 from ..errors import InputError, check_choice
 from . import _march as M
 from ._sight import frame_distances
@@ -203,7 +203,7 @@ class ShapeFunction:
         """Frame indices and weights (V, parents) at the material voxel centres, as in
         :meth:`centre_values` but without gradients and Hessians (the smoothing reads w only:
         at 128³ the Hessians alone would take V x parents x 9 doubles, 600 MB).  Compiled
-        (:func:`_centre_kernel`, voxel by voxel in parallel, reading each voxel's node's
+        (:func:`_centre_kernel`, voxel by voxel, reading each voxel's node's
         coefficients in place); its numpy twin is :func:`_weights_impl` (tested equal)."""
         mask = self.image.labels > 0
         ijk = np.argwhere(mask)
@@ -266,7 +266,7 @@ class ShapeFunction:
         return ShapeValues(index=index, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=len(self.frames))
 
 
-@njit(parallel=True)
+@njit
 def _centre_kernel(ijk, nodes, cnode, spacing, direction, nfr, ncoef, h, P):
     """Compiled :func:`_weights_impl` at the material voxel centres ``ijk + 0.5`` (m, 3), each with the
     polynomials of its node (``nodes`` (m,), node positions ``cnode`` in index coords): values,
@@ -275,7 +275,7 @@ def _centre_kernel(ijk, nodes, cnode, spacing, direction, nfr, ncoef, h, P):
     K = nfr.shape[1]
     index = np.full((m, P), -1, dtype=np.int64)
     out = np.zeros((m, P))
-    for r in prange(m):
+    for r in range(m):
         q = nodes[r]
         e0 = (ijk[r, 0] + 0.5 - cnode[q, 0]) * spacing[0]
         e1 = (ijk[r, 1] + 0.5 - cnode[q, 1]) * spacing[1]
