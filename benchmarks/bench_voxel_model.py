@@ -27,6 +27,18 @@ sensitive to other processes' load, but they count BLAS threads that spin.  Two 
   shared methods that needs no grid (Jacobi-CG for the linear beam, LU for
   Neo-Hooke).
 
+Measured (``--repeat 3 --tables-only``, warp-lang 1.19.0, scikit-fem 12.0.2,
+load average 4.6-6.0 on the 2 shared cores, CPU seconds min / median, ratio
+peer / voxflex): same solver, linear 64x16x16 Jacobi-CG: voxflex 2.34 / 2.47,
+warp.fem 3.39 / 3.61 (1.45x), scikit-fem 12.3 / 12.8 (5.3x); Neo-Hooke
+32x8x8 sparse LU: voxflex 10.4 / 10.8, warp.fem 19.5 / 21.4 (1.9x),
+scikit-fem 57.6 / 61.6 (5.5x).  Best solver each: voxflex multigrid-CG
+0.91 / 0.92 (warp 3.7x, scikit-fem 13.5x) and Neo-Hooke ``auto`` 3.52 / 3.81
+(warp 5.5x, scikit-fem 16x).  With one solver for all, its time bounds the
+ratio: the same Jacobi-CG iterations (318) take ~2 CPU s in every code, and
+30 LU factorisations of 7776 unknowns take ~8.5 of voxflex's 10.4 CPU s
+(warp.fem's 19.5 s would be only ~2.3x even with free assembly).
+
 Columns: build = mesh/model and sparsity; assemble = energy, gradient and
 stiffness (Newton: every tangent and residual); solve = the linear solves.
 Then the **scaling series** of the linear beam 16x4x4 ... 128x32x32 solved by
