@@ -36,7 +36,7 @@ scikit-fem 57.6 / 61.6 (5.5x).  Best solver each: voxflex multigrid-CG
 0.91 / 0.92 (warp 3.7x, scikit-fem 13.5x) and Neo-Hooke ``auto`` 3.52 / 3.81
 (warp 5.5x, scikit-fem 16x).  With one solver for all, its time bounds the
 ratio: the same Jacobi-CG iterations (318) take ~2 CPU s in every code, and
-30 LU factorisations of 7776 unknowns take ~8.5 of voxflex's 10.4 CPU s
+30 LU factorisations of 7776 unknowns take ~8 of voxflex's 10.4 CPU s (78 % in a profile)
 (warp.fem's 19.5 s would be only ~2.3x even with free assembly).
 
 Columns: build = mesh/model and sparsity; assemble = energy, gradient and
