@@ -30,10 +30,31 @@ stresses of a random 1e-3 perturbation turned one negative, so the solve fell
 back to LDL^T.  The 1000 mid-point samples themselves leave exactly the six
 rigid modes.)
 
-Measured (2-core x86_64 Xeon, AVX-512, shared with other work: load average
-about 2-4; numpy matmul 40-68 GFLOP/s; kernels compiled and cached):
-see the table in the report of the commit that changed this file; rerun with
-``python benchmarks/bench_frames.py --big``.
+Measured on the 2-core x86_64 Xeon (AVX-512) shared with other work, load
+average 3.5-5.5 throughout (numpy matmul read 28-46 GFLOP/s instead of 68 when
+quiet), 1000 mid-point samples, P = 6, milliseconds, min over 2-3 runs of the
+benchmark (each min of >= 1 s of runs); "before" is the code of 224b797 under
+this same benchmark:
+
+| grid | frames | free unknowns | assembly before / after | solve before / after | bare Cholesky 1 / 2 threads |
+|---|---|---|---|---|---|
+| 64^3 | 10 | 108 | 9.1 / 2.6 | 1.0 / 0.15 | 0.06 / 0.06 |
+| 64^3 | 50 | 552 | 12.7 / 3.2 | 5.2 / 4.0 | 2.2-3.7 / 2.9-1492 |
+| 64^3 | 200 | 2256 | 70.7 / 11.6 | 185 / 214 | 163-294 / 92-5947 |
+| 128^3 | 10 | 108 | 6.7 / 2.3 | 0.98 / 0.14 | 0.05 / 0.05 |
+| 128^3 | 50 | 576 | 8.3 / 3.1 | 5.1 / 5.6 | 2.6-4.0 / 7.7-872 |
+| 128^3 | 200 | 2232 | 77.7 / 18.8 | 182 / 283 | 170-272 / 272-440 |
+
+The solve is the solver's free-block gather ``H[np.ix_(free, free)]`` (0.7-1.5 ms
+at 552, twice ``H.take(free, 0).take(free, 1)``) plus the Cholesky; the two-thread
+Cholesky stalled for 0.9-1.5 s at 552-576 unknowns and 5.9 s at 2256 (min of
+its runs!), so the product keeps one thread.  The old 128^3 rows ran at a
+lower load (3.1-3.5) than the old 64^3 ones: read the speed-up from rows run
+together, 2.7-6x for assembly.
+
+Precompute at 64^3: placement 0.7-2 s, weights 7-14 s, samples 3-7 s; at 128^3:
+13-15 s, 76-114 s, 58-89 s (weights and samples dominate; the model's own
+tables take 0.01-0.05 s).
 
 Usage: python benchmarks/bench_frames.py [--big] [--repeat 5] [--samples 1000] [--parents 6] [--counts 10,50,200]
 """
