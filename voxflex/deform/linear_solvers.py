@@ -6,8 +6,7 @@
   symmetric-indefinite dense solve when A is not positive definite.
 * ``"direct"``: sparse LU with the ``MMD_AT_PLUS_A`` fill-reducing ordering
   (scipy's default COLAMD ordering is ~3x slower on voxel elasticity: 38 s vs
-  11.6 s at 56k DOF, see NOTES); the ordering of the last pattern is reused
-  for the next matrix with the same pattern (Newton's tangents).
+  11.6 s at 56k DOF, see NOTES).
 * ``"cg"``: conjugate gradients with the Jacobi (diagonal) preconditioner.
 * ``"amg"``: conjugate gradients preconditioned by pyamg smoothed aggregation
   with the rigid-body modes as near-null space (needs node positions).  Its
@@ -211,43 +210,17 @@ def _dense(A, b):
             return sla.solve(Ad, b, assume_a="sym", check_finite=False), "not positive definite: symmetric LDL^T solve"
 
 
-_ORDERING = {}  # "key": digest of the last sparsity pattern factorised, "perm": its fill-reducing permutation
-
-
-def _pattern_digest(A) -> bytes:
-    """A 16-byte digest of the sparsity pattern (shape, indptr, indices) of a CSC / CSR matrix."""
-    import hashlib
-
-    h = hashlib.blake2b(digest_size=16)
-    h.update(np.asarray(A.shape, dtype=np.int64).tobytes())
-    h.update(np.ascontiguousarray(A.indptr).view(np.uint8))
-    h.update(np.ascontiguousarray(A.indices).view(np.uint8))
-    return h.digest()
-
-
 def _direct(A, b):
-    """Sparse LU (SuperLU) with the ``MMD_AT_PLUS_A`` ordering, the ordering reused across equal patterns.
+    """Sparse LU (SuperLU) with the ``MMD_AT_PLUS_A`` ordering.
 
-    Newton's tangents share one pattern: the column permutation SuperLU's MMD
-    chose for the last pattern is kept (as a 16-byte digest of the pattern and
-    the permutation), and a matrix with the same pattern is permuted
-    symmetrically and factorised in that order (``NATURAL``): the same factors
-    and fill (4,341,492 entries on the 7776-unknown neo-Hooke beam either way),
-    without recomputing the ordering (0.06 of 0.7 s per factorisation there).
+    Reusing the ordering across Newton's tangents (one pattern: the matrix
+    permuted once by the first MMD permutation, then ``NATURAL``) was
+    measured and dropped: same fill, 0.30-0.36 CPU s per factorisation either
+    way at 7776 unknowns (neo-Hooke beam 32x8x8); the numeric factorisation
+    is the cost, not the ordering.
     """
     A = sp.csc_matrix(A)
-    if not A.has_canonical_format:
-        A = A.copy()
-        A.sum_duplicates()
-    key = _pattern_digest(A)
-    if _ORDERING.get("key") == key:
-        p = _ORDERING["perm"]
-        lu = spla.splu(A[p][:, p].tocsc(), permc_spec="NATURAL")
-        x = np.empty_like(b)
-        x[p] = lu.solve(b[p])
-        return x
     lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
-    _ORDERING.update(key=key, perm=np.argsort(lu.perm_c))
     return lu.solve(b)
 
 
