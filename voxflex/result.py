@@ -21,7 +21,7 @@ attrs ``voxflex_version``, ``scene``                     version string; the sce
 ``origin`` (+ ``direction``, extension)
 =========================================== ============ =======================================
 
-Extensions: root attr ``node_kind`` (``"voxel"`` or ``"affine"``), attr ``format = "voxflex-result"``;
+Extensions: root attr ``node_kind`` (``"voxel"``, ``"affine"`` or ``"rigid"``), attr ``format = "voxflex-result"``;
 the group ``/model`` whose attributes describe the model (``node_kind``, ``count``,
 ``dofs``, ``quadrature``, ``samples``, ``shape_function``, ``precompute_seconds`` ...).
 With obstacles, ``/contact/force`` (T, obstacles, 3): the total force (N) each
@@ -96,7 +96,8 @@ class Result:
     version : str
         The voxflex version that produced it.
     node_kind : str
-        ``"voxel"`` (trilinear corner nodes) or ``"affine"`` (reduced frame models).
+        ``"voxel"`` (trilinear corner nodes), ``"affine"`` or ``"rigid"`` (reduced frame models;
+        ``/nodes/state`` holds 12 numbers per affine frame, 6 per rigid frame).
     model : dict
         Scalar attributes describing the model (written as ``/model`` attributes).
     contact_force : (T, k, 3) float or None

@@ -337,7 +337,7 @@ class NodesSpec:
 
     ``kind``: ``"affine"`` (12-DOF frames, the reduced model: the default),
     ``"voxel"`` (trilinear nodes at the voxel corners, the full-resolution
-    reference) or ``"rigid"`` (6-DOF frames, not built yet).  The frame keys: ``count`` frames in all
+    reference) or ``"rigid"`` (6-DOF frames: static scenes only).  The frame keys: ``count`` frames in all
     (default 20, or the number of material voxels when the object has fewer),
     ``positions`` (frames given by the user, world, placed first),
     ``shape_function`` (default natural-neighbour), ``parents`` (at most this
