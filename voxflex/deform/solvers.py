@@ -370,8 +370,8 @@ class _FreeBlock:
 
     def __call__(self, H) -> sp.csr_matrix:
         """``H[free][:, free]`` of a CSR matrix H (N, N) with sorted indices."""
-        if isinstance(H, np.ndarray):  # a dense Hessian (reduced models): plain indexing
-            return H[np.ix_(self.free, self.free)]
+        if isinstance(H, np.ndarray):  # a dense Hessian (reduced models): rows, then columns
+            return H.take(self.free, 0).take(self.free, 1)  # 0.54 ms against 1.3 ms by np.ix_ at 552 of 600
         H = sp.csr_matrix(H)
         if not self._same_pattern(H):
             if not H.has_canonical_format:
