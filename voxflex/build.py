@@ -183,7 +183,12 @@ def _frame_model(scene: Scene, image, materials, *, cache: bool = True):
             disk.save("frames", key, _to_store(frames, sf, samples))
     info = {"shape_function": kind, "parents": int(nodes.parents), "distance": nodes.distance,
             "precompute_cached": stored is not None}
-    model = FrameModel.from_image(image, frames, sf, materials, samples=samples, use_occupancy=occupancy, info=info)
+    # [elasticity] volumetric: "reduced" asks for F-bar / B-bar over each frame's cell; "auto" stays "full"
+    # for frames: measured (benchmarks/bench_locking.py) the reduced term removes the locking but makes
+    # the cantilever 12-74 % softer than the beam trend, and at nu = 0.45 (the default scene) it is no closer
+    volumetric = scene.elasticity.volumetric
+    model = FrameModel.from_image(image, frames, sf, materials, samples=samples, use_occupancy=occupancy, info=info,
+                                  volumetric="full" if volumetric == "auto" else volumetric)
     if quadrature != "gauss-legendre":
         from .deform.modes import check_modes
 

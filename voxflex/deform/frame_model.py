@@ -16,6 +16,31 @@ further point mappings of the same frames (mass points: the voxel centres,
 weighted by density and occupancy; their shape values are evaluated only
 when mass or gravity is needed).
 
+Volumetric locking (``volumetric``): a few frames bending a nearly
+incompressible body cannot keep every sample's volume, so the body is far too
+stiff (a 16x4x4 cantilever with 20 frames bends 10x too little at nu = 0.4999,
+``benchmarks/bench_locking.py``).  ``volumetric="reduced"`` integrates the
+volumetric term over coarser groups of samples: the samples of one label whose
+largest weight is on the same frame (the frame's cell) share the group's
+volume-weighted mean ``F_g = sum_s vol_s F_s / sum_s vol_s`` (linear in q), and each
+sample sees F-bar, ``F~_s = (det F_g / det F_s)^(1/3) F_s``, or for materials with
+a constant tangent its linearisation B-bar, ``F~_s = F_s + (tr F_g - tr F_s) I / 3``.
+The energy is ``sum_s vol_s W(F~_s)``, with its exact gradient and Hessian (every
+sample of a group couples with the group's mean: dense within a group, numpy,
+sparse products ``J^T C J_g``).  Affine motions give ``F~ = F`` (the patch
+test holds).  As with the voxel model a sample cannot pass through zero volume
+(infinite energy where ``det F_s det F_g <= 0``).  ``"auto"`` reduces the labels
+whose effective Poisson ratio at rest is >= 0.4
+(:func:`~voxflex.deform.voxel_model.nearly_incompressible`); elastons always
+integrate it in full (``"reduced"`` is refused there).  The class default is
+``"full"``; scenes build frames with ``"full"`` unless they say ``[elasticity]
+volumetric = "reduced"`` (their ``"auto"`` stays ``"full"`` for frames).  Measured
+(``benchmarks/bench_locking.py``): the reduced term removes the locking (the tip
+changes by < 10 % from nu = 0.3 to 0.4999, against 90 % with ``"full"`` and 20
+frames) but the groups span the beam's section, the affine frames cannot give the
+Poisson contraction's variation across it, and the cantilever comes out 12-74 %
+softer than the beam-theory trend from the full nu = 0.3 value.
+
 The model satisfies the protocol of :mod:`voxflex.deform.model`, so the same
 solvers, loads, result files and renders run it.
 
@@ -47,7 +72,7 @@ from typing import Callable, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError
+from ..errors import InputError, check_choice
 from ..sampling.quadrature import unit_cube_rule
 from ..voronoi.shape_functions import ShapeValues
 from ..voronoi.trilinear import TrilinearGrid
@@ -56,7 +81,7 @@ from ._frame_kernels import frame_tables
 from .linear_solvers import vdot
 from .mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping, PointMapping
 from .nodes import AffineFrames
-from .voxel_model import boundary_quads, triangulate
+from .voxel_model import VOLUMETRIC, boundary_quads, nearly_incompressible, triangulate
 
 __all__ = ["FrameModel", "VoxelSamples", "voxel_samples"]
 
@@ -118,7 +143,8 @@ class FrameModel:
     dofs_per_node = 12
     dof_grid = None  # the DOFs are frames, not the corners of a voxel grid (no geometric multigrid)
 
-    def __init__(self, image, frames, shape_function, samples, materials, *, info=None, use_occupancy=True):
+    def __init__(self, image, frames, shape_function, samples, materials, *, info=None, use_occupancy=True,
+                 volumetric="full"):
         self.image = image
         self.frames = np.asarray(frames, dtype=float)
         self.nodes = AffineFrames(self.frames)
@@ -146,6 +172,15 @@ class FrameModel:
             # parents sorted by frame and the coupled frame pairs, once
             self._index, self._G, self._pairs, self._pair_id = K.frame_pairs(
                 samples.values.index, frame_tables(samples.values, self.frames), len(self.frames))
+        check_choice("volumetric", volumetric, VOLUMETRIC)
+        if self.elaston and volumetric == "reduced":
+            raise InputError('volumetric = "reduced" needs point samples (F-bar over groups of samples); elaston '
+                             'quadrature integrates the volumetric term in full: use "auto" or "full", or '
+                             'quadrature = "midpoint" or "gauss-legendre"')
+        self.volumetric_option = volumetric
+        self.volumetric = {int(lab): (not self.elaston) and (volumetric == "reduced" or (
+            volumetric == "auto" and nearly_incompressible(mat))) for lab, mat in self.materials.items()}
+        self._bar = None
         self._J = None
         self._groups = [(int(lab), np.flatnonzero(samples.label == lab)) for lab in np.unique(samples.label)]
         self._volume = np.ascontiguousarray(samples.volume, dtype=float)
@@ -156,7 +191,8 @@ class FrameModel:
     # -- construction -------------------------------------------------------
     @classmethod
     def from_image(cls, image, frames, shape_function, materials: Mapping[int, object], *, samples=None,
-                   quadrature: str = "gauss-legendre", use_occupancy: bool = True, info=None) -> "FrameModel":
+                   quadrature: str = "gauss-legendre", use_occupancy: bool = True, info=None,
+                   volumetric: str = "full") -> "FrameModel":
         """Frame model of ``image`` with frames at ``frames`` (n, 3) and shape functions ``shape_function``.
 
         Parameters
@@ -171,11 +207,17 @@ class FrameModel:
             ``quadrature`` per voxel (``"gauss-legendre"`` or ``"midpoint"``).
         use_occupancy : bool
             Weight volumes and masses by the image's occupancy fractions.
+        volumetric : {"full", "reduced", "auto"}
+            Integration of the volumetric term (module docstring): every sample
+            (``"full"``), F-bar / B-bar over the samples of each frame's cell
+            (``"reduced"``), or reduced for labels with an effective Poisson
+            ratio >= 0.4 (``"auto"``, the scenes' default).
 
         Raises
         ------
         InputError
-            No frame, a label without material, shape functions that do not fit the frames.
+            No frame, a label without material, shape functions that do not fit the frames,
+            an unknown ``volumetric`` or ``"reduced"`` with elastons.
         """
         frames = np.asarray(frames, dtype=float)
         if frames.ndim != 2 or frames.shape[1] != 3 or len(frames) == 0:
@@ -195,7 +237,7 @@ class FrameModel:
                 f"the samples' shape functions were built for {samples.values.n_nodes} frames, not {len(frames)}"
             )
         return cls(image, frames, shape_function, samples, {int(k): materials[int(k)] for k in present},
-                   info=info, use_occupancy=use_occupancy)
+                   info=info, use_occupancy=use_occupancy, volumetric=volumetric)
 
     # -- sizes -----------------------------------------------------------------
     @property
@@ -268,6 +310,8 @@ class FrameModel:
         q = self._check_q(q)
         if self.elaston:
             return self._elaston_pass(q, gradient, hessian)
+        if any(self.volumetric.values()):
+            return self._reduced_pass(q, gradient, hessian)
         vol = self._volume
         m = len(vol)
         F = np.empty((m, 3, 3))
@@ -294,6 +338,96 @@ class FrameModel:
             # a dense Hessian: frames sharing material couple (the solver takes it as is)
             H = K.frame_stiffness_dense(self._index, self._G, A, self.n_nodes, vol,
                                         (self._index, self._G, self._pairs, self._pair_id))
+        return float(energy), grad, H
+
+    def _bar_tables(self):
+        """Groups of the reduced samples (label, largest-weight frame), their averaging matrix
+        ``vec F_g = Avg vec F`` (9 ng, 9 m) and ``J_g = Avg J`` (9 ng, 12 n), once."""
+        if self._bar is None:
+            v = self.samples.values
+            m = self.n_samples
+            red_labels = [lab for lab, red in self.volumetric.items() if red]
+            ids = np.flatnonzero(np.isin(self.samples.label, red_labels))
+            wmax = np.where(v.index[ids] >= 0, v.w[ids], -np.inf)
+            dom = v.index[ids, np.argmax(wmax, axis=1)].astype(np.int64)
+            key = self.samples.label[ids].astype(np.int64) * self.n_nodes + dom
+            _, gid = np.unique(key, return_inverse=True)
+            gid = gid.reshape(-1)
+            vol = self._volume[ids]
+            Vg = np.bincount(gid, vol)
+            wts = np.divide(vol, Vg[gid], out=np.zeros_like(vol), where=Vg[gid] > 0)
+            ng = len(Vg)
+            group = np.full(m, -1, dtype=np.int64)
+            group[ids] = gid
+            rows = (9 * gid[:, None] + np.arange(9)).ravel()
+            cols = (9 * ids[:, None] + np.arange(9)).ravel()
+            Avg = sp.csr_matrix((np.repeat(wts, 9), (rows, cols)), shape=(9 * ng, 9 * m))
+            self._bar = {"group": group, "Vg": Vg, "ng": ng, "Avg": Avg, "Jg": (Avg @ self.jacobian()).tocsr()}
+        return self._bar
+
+    def _reduced_pass(self, q, gradient, hessian):
+        """Point samples with the volumetric term of some labels reduced over groups (F-bar / B-bar).
+
+        Per sample ``W(Phi(F_s, F_g))``: its derivatives in (F_s, F_g) from :func:`_bar_evaluate`,
+        chained through ``F_g = Avg F``; the Hessian is the dense kernel on the (F_s, F_s) blocks
+        plus ``J^T C J_g + (J^T C J_g)^T + J_g^T D J_g`` (C: the (F_s, F_g) blocks, D: the (F_g, F_g)
+        blocks summed per group), numpy and scipy.sparse.
+        """
+        tab = self._bar_tables()
+        vol = self._volume
+        m, n, ng = len(vol), self.n_nodes, tab["ng"]
+        group = tab["group"]
+        F = np.empty((m, 3, 3))
+        K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
+        Fg = (tab["Avg"] @ F.reshape(-1)).reshape(ng, 3, 3)
+        want = gradient or hessian
+        energy = 0.0
+        P = np.zeros((m, 9)) if want else None
+        A = np.zeros((m, 9, 9)) if hessian else None
+        SB = np.zeros((ng, 9))
+        C = np.zeros((m, 9, 9)) if hessian else None
+        D = np.zeros((ng, 9, 9)) if hessian else None
+        for label, ids in self._groups:
+            mat = self.materials[label]
+            if not self.volumetric[label]:
+                W, Pl, Al = mat.evaluate(F[ids], tangent=hessian)
+                energy += vdot(vol[ids], W)
+                if want:
+                    P[ids] = Pl.reshape(-1, 9)
+                if hessian:
+                    A[ids] = Al.reshape(-1, 9, 9)
+                continue
+            g = group[ids]
+            out = _bar_evaluate(mat, F[ids], Fg[g], linear=bool(getattr(mat, "constant_tangent", False)),
+                                gradient=want, tangent=hessian)
+            energy += vdot(vol[ids], out[0])
+            if want:
+                P[ids] = out[1]
+                np.add.at(SB, g, vol[ids, None] * out[2])
+            if hessian:
+                A[ids] = out[3]
+                C[ids] = vol[ids, None, None] * out[4]
+                np.add.at(D, g, vol[ids, None, None] * out[5])
+        if not want:
+            return float(energy), None, None
+        Vg = tab["Vg"]
+        red = group >= 0
+        P[red] += np.divide(SB, Vg[:, None], out=np.zeros_like(SB), where=Vg[:, None] > 0)[group[red]]
+        grad = None
+        if gradient:
+            grad = np.zeros((n, 12))
+            K.frame_forces(self._index, self._G, P.reshape(m, 3, 3), vol, grad)
+        H = None
+        if hessian:
+            H = K.frame_stiffness_dense(self._index, self._G, A.reshape(m, 3, 3, 3, 3), n, vol,
+                                        (self._index, self._G, self._pairs, self._pair_id))
+            J, Jg = self.jacobian(), tab["Jg"]
+            rid = np.flatnonzero(red)
+            Cm = sp.bsr_matrix((C[rid], group[rid], np.searchsorted(rid, np.arange(m + 1))),
+                               shape=(9 * m, 9 * ng)).tocsr()
+            X = ((J.T @ Cm) @ Jg).toarray()
+            Dm = sp.bsr_matrix((D, np.arange(ng), np.arange(ng + 1)), shape=(9 * ng, 9 * ng)).tocsr()
+            H += X + X.T + (Jg.T @ (Dm @ Jg)).toarray()
         return float(energy), grad, H
 
     def _elaston_pass(self, q, gradient, hessian):
@@ -527,7 +661,101 @@ class FrameModel:
         return ""
 
     def describe(self) -> dict:
+        reduced = sorted(lab for lab, red in self.volumetric.items() if red)
+        vol = "full" if not reduced else ("reduced" if len(reduced) == len(self.volumetric) else
+                                          "reduced for label(s) " + ", ".join(map(str, reduced)))
         out = {"node_kind": self.node_kind, "count": self.n_nodes, "dofs": 12 * self.n_nodes,
-               "quadrature": self.samples.kind, "samples": self.n_samples}
+               "quadrature": self.samples.kind, "samples": self.n_samples, "volumetric": vol}
         out.update(self.info)
         return out
+
+
+_I9 = np.eye(3).reshape(9)
+
+
+def _inverse_products(Finv):
+    """``T`` (k, 9, 9) with ``T[3i+j, 3k+l] = Finv[l, i] Finv[j, k]`` (``-d2 ln det F``)."""
+    return np.einsum("eli,ejk->eijkl", Finv, Finv).reshape(-1, 9, 9)
+
+
+def _bar_evaluate(material, F, Fg, *, linear, gradient=True, tangent=True):
+    """Derivatives of ``W(Phi(F, F_g))`` per sample in (F, F_g) (numpy).
+
+    ``Phi = (det F_g / det F)^(1/3) F`` (F-bar) or, with ``linear``, its linearisation
+    ``F + (tr F_g - tr F) I / 3`` (B-bar).  With ``r = (det F_g / det F)^(1/3)``,
+    ``l = ln r`` (dl = ``(-F^-T : dF + F_g^-T : dF_g) / 3``), ``P~``, ``A~`` the material's stress
+    and tangent at ``Phi`` and ``s = P~ : F``: dPhi/dF = ``r I + r vec F (x) dl/dF``,
+    dPhi/dF_g = ``r vec F (x) dl/dF_g``, and the second-order term
+    ``P~ : d2Phi = s r (dl dl^T + d2l) + r (dl p^T + p dl^T)`` with ``p = (P~, 0)`` and
+    ``d2l = diag(T(F), -T(F_g)) / 3``.
+
+    Parameters
+    ----------
+    F, Fg : (k, 3, 3) float, the sample's and its group's mean deformation gradient
+
+    Returns
+    -------
+    W : (k,) energy density (Pa), +inf where ``det F det F_g <= 0`` (F-bar)
+    gF, gG : (k, 9) dW/dF, dW/dF_g (Pa) or None
+    HFF, HFG, HGG : (k, 9, 9) second derivatives (Pa) or None
+    """
+    k = len(F)
+    if linear:
+        Ft = F + ((np.trace(Fg, axis1=1, axis2=2) - np.trace(F, axis1=1, axis2=2)) / 3.0)[:, None, None] * np.eye(3)
+        if not (gradient or tangent):
+            energy = getattr(material, "energy", None)
+            return (energy(Ft) if energy is not None else material.evaluate(Ft, tangent=False)[0]), None, None, \
+                None, None, None
+        W, Pt, At = material.evaluate(Ft, tangent=tangent)
+        Pt = Pt.reshape(k, 9)
+        b = np.outer(_I9, _I9) / 3.0
+        a = np.eye(9) - b
+        gF, gG = Pt @ a, Pt @ b
+        if not tangent:
+            return W, gF, gG, None, None, None
+        At = At.reshape(k, 9, 9)
+        return W, gF, gG, a @ At @ a, a @ At @ b, b @ At @ b
+    J = np.linalg.det(F)
+    Jg = np.linalg.det(Fg)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = Jg / J
+    ok = np.isfinite(ratio) & (ratio > 0)
+    r = np.where(ok, np.cbrt(np.where(ok, ratio, 1.0)), 1.0)
+    Fs = np.where(ok[:, None, None], F, np.eye(3))
+    Ft = r[:, None, None] * Fs
+    bad = ~ok
+    if not (gradient or tangent):
+        energy = getattr(material, "energy", None)
+        W = energy(Ft) if energy is not None else material.evaluate(Ft, tangent=False)[0]
+        return np.where(bad, np.inf, W), None, None, None, None, None
+    W, Pt, At = material.evaluate(Ft, tangent=tangent)
+    W = np.where(bad, np.inf, W)
+    Pt = Pt.reshape(k, 9)
+    Finv = np.linalg.inv(Fs)
+    Fgs = np.where(ok[:, None, None], Fg, np.eye(3))
+    Fginv = np.linalg.inv(Fgs)
+    lF = -Finv.transpose(0, 2, 1).reshape(k, 9) / 3.0
+    lG = Fginv.transpose(0, 2, 1).reshape(k, 9) / 3.0
+    s = np.einsum("ei,ei->e", Pt, Fs.reshape(k, 9))
+    gF = r[:, None] * Pt + (r * s)[:, None] * lF
+    gG = (r * s)[:, None] * lG
+    if np.any(bad):
+        gF[bad] = np.nan
+        gG[bad] = np.nan
+    if not tangent:
+        return W, gF, gG, None, None, None
+    At = At.reshape(k, 9, 9)
+    Fv = Fs.reshape(k, 9)
+    a = r[:, None, None] * (np.eye(9)[None] + Fv[:, :, None] * lF[:, None, :])  # dPhi/dF (k, 9, 9)
+    b = r[:, None, None] * Fv[:, :, None] * lG[:, None, :]  # dPhi/dF_g
+    aT = a.transpose(0, 2, 1)
+    sr = (s * r)[:, None, None]
+    rr = r[:, None, None]
+    HFF = aT @ At @ a + sr * (lF[:, :, None] * lF[:, None, :] + _inverse_products(Finv) / 3.0) \
+        + rr * (lF[:, :, None] * Pt[:, None, :] + Pt[:, :, None] * lF[:, None, :])
+    HFG = aT @ At @ b + sr * (lF[:, :, None] * lG[:, None, :]) + rr * (Pt[:, :, None] * lG[:, None, :])
+    HGG = b.transpose(0, 2, 1) @ At @ b + sr * (lG[:, :, None] * lG[:, None, :] - _inverse_products(Fginv) / 3.0)
+    if np.any(bad):
+        for M in (HFF, HFG, HGG):
+            M[bad] = np.nan
+    return W, gF, gG, HFF, HFG, HGG
