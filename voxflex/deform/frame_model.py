@@ -27,7 +27,10 @@ sample sees F-bar, ``F~_s = (det F_g / det F_s)^(1/3) F_s``, or for materials wi
 a constant tangent its linearisation B-bar, ``F~_s = F_s + (tr F_g - tr F_s) I / 3``.
 The energy is ``sum_s vol_s W(F~_s)``, with its exact gradient and Hessian (every
 sample of a group couples with the group's mean: dense within a group, numpy,
-sparse products ``J^T C J_g``).  Affine motions give ``F~ = F`` (the patch
+sparse products ``J^T C J_g``; one energy, gradient and Hessian pass of a neo-Hooke
+cantilever with 20 frames and 200 samples takes about 30 ms against 0.9 ms in
+full, 76 ms against 7.5 ms with 50 frames and 2048 Gauss samples, 2 CPUs: no
+compiled kernel yet).  Affine motions give ``F~ = F`` (the patch
 test holds).  As with the voxel model a sample cannot pass through zero volume
 (infinite energy where ``det F_s det F_g <= 0``).  ``"auto"`` reduces the labels
 whose effective Poisson ratio at rest is >= 0.4
