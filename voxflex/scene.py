@@ -384,10 +384,11 @@ class ElasticitySpec:
 
     ``quadrature`` defaults to the node kind's own (resolved by :class:`Scene`):
     ``"gauss-legendre"`` (2x2x2 per voxel) for voxel nodes, ``"midpoint"``
-    (``samples`` regions) for frames."""
+    (``samples`` regions) for frames.  ``samples`` defaults to 20
+    per frame (``voxflex.build.SAMPLES_PER_FRAME``, resolved where the frame count is known)."""
 
     quadrature: str | None = None
-    samples: int = 200
+    samples: int | None = None
     strain: str | None = None
     volumetric: str = "auto"
     hourglass: str = "stiffness"
@@ -397,7 +398,9 @@ class ElasticitySpec:
             _string("elasticity", "quadrature", self.quadrature, QUADRATURES)
         _string("elasticity", "volumetric", self.volumetric, VOLUMETRIC)
         _string("elasticity", "hourglass", self.hourglass, HOURGLASS)
-        object.__setattr__(self, "samples", _number("elasticity", "samples", self.samples, integer=True, minimum=1))
+        if self.samples is not None:
+            object.__setattr__(self, "samples", _number("elasticity", "samples", self.samples, integer=True,
+                                                        minimum=1))
         if self.strain is not None:
             _string("elasticity", "strain", self.strain, STRAIN_NAMES)
 
