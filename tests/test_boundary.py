@@ -35,9 +35,36 @@ def test_fixed_dofs_components_and_prescribed_rotation():
     expected = np.stack([X[:, 0], 0.5 - (X[:, 2] - 0.5), 0.5 + (X[:, 1] - 0.5)], axis=1)  # 90 deg about x
     got = np.array([[pos[3 * i + c] for c in range(3)] for i in right])
     assert np.allclose(got, expected, atol=1e-14)
-    # linear interpolation from the identity in the load factor
-    half = prescribed_positions(model, regions, dofs, owner, 0.5)
-    assert np.allclose(half, 0.5 * (end + model.rest.ravel()[dofs]), atol=1e-14)
+    # half-way the rotation is half the angle about the same axis (a screw motion, rigid throughout);
+    # the held DOFs stay at rest
+    half = dict(zip(dofs.tolist(), prescribed_positions(model, regions, dofs, owner, 0.5).tolist()))
+    c, s = np.cos(np.pi / 4), np.sin(np.pi / 4)
+    y, z = X[:, 1] - 0.5, X[:, 2] - 0.5
+    expected = np.stack([X[:, 0], 0.5 + c * y - s * z, 0.5 + s * y + c * z], axis=1)  # 45 deg about x
+    got = np.array([[half[3 * i + k] for k in range(3)] for i in right])
+    assert np.allclose(got, expected, atol=1e-14)
+    assert all(half[d] == model.rest.ravel()[d] for d in (3 * left[:, None] + np.arange(3)).ravel())
+
+
+def test_transform_at_rigid_screw_and_linear_otherwise():
+    """Rigid maps move along their screw motion: rigid at every fraction, exact at the ends, a
+    one-parameter group (T(a) T(b) = T(a + b), 1e-14); other maps interpolate linearly."""
+    from voxflex.deform.model import transform_at
+    from voxflex.deform.nodes import rotation_exp
+
+    R = rotation_exp(np.array([[0.3, -0.2, 0.9]]))[0]
+    T = np.hstack([R, np.array([[0.4], [-1.0], [2.0]])])
+    assert np.abs(transform_at(T, 1.0) - T).max() < 1e-14
+    assert np.abs(transform_at(T, 0.0) - np.eye(3, 4)).max() < 1e-15
+    for s in (0.25, 0.5, 0.8):
+        A = transform_at(T, s)[:, :3]
+        assert np.abs(A.T @ A - np.eye(3)).max() < 1e-14 and abs(np.linalg.det(A) - 1) < 1e-14
+    a, b = transform_at(T, 0.3), transform_at(T, 0.45)
+    both = np.hstack([a[:, :3] @ b[:, :3], (a[:, :3] @ b[:, 3] + a[:, 3])[:, None]])
+    assert np.abs(both - transform_at(T, 0.75)).max() < 1e-14
+    stretch = np.hstack([np.diag([1.2, 1.0, 1.0]), np.ones((3, 1))])
+    assert np.allclose(transform_at(stretch, 0.5), np.hstack([np.diag([1.1, 1.0, 1.0]), 0.5 * np.ones((3, 1))]),
+                       atol=1e-15)
 
 
 def test_force_regions_total_and_traction():

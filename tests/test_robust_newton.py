@@ -50,3 +50,29 @@ def test_a_buckled_column_is_reported_as_unstable_not_returned_as_equilibrium():
     small = FixedRegion([4 - 1e-9, -1, -1], [9, 9, 9], transform=[[0.99, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]])
     records = solve(model, fixed=[CLAMP, small], options=SolverOptions(steps=1, check_stability=True))
     assert np.all(np.isfinite(records[-1].q))
+
+
+def test_inertia_counts_the_eigenvalues_below_a_shift():
+    """The sparse stability check (Sylvester's inertia of a symmetric factorisation, then shift-inverted
+    Lanczos) against a dense eigensolver: the exact count of eigenvalues below the shift, and the one
+    nearest below it (1e-8 relative); with a 1e6 spread of the diagonal too."""
+    import scipy.sparse as sp
+
+    from voxflex.deform.solvers import _below
+
+    rng = np.random.default_rng(3)
+    n = 600
+    R = sp.random(n, n, density=4e-3, random_state=4)
+    base = (R + R.T).tocsc()
+    for spread, lowest in ((1.0, -1.0), (1e6, -1.0), (1e6, 49.0), (1e6, -30.0)):
+        A = (base + sp.diags(rng.uniform(1.0, spread, n))).tocsc()
+        ev0 = np.linalg.eigvalsh(A.toarray())[0]
+        A = (A - sp.identity(n) * (ev0 - lowest)).tocsc()
+        ev = np.linalg.eigvalsh(A.toarray())
+        shift = -1e-8 * abs(A.diagonal()).max()
+        count, lam = _below(A, shift)
+        assert count == int(np.count_nonzero(ev < shift))
+        if count == 0:
+            assert lam is None
+        else:
+            assert lam == pytest.approx(ev[count - 1], rel=1e-8)

@@ -3,9 +3,10 @@
 * :class:`FixedRegion`: the nodes whose *rest* position lies in the box
   ``[min, max]`` are held (all components, or only those in ``components`` —
   a sliding support), optionally moved by an affine map ``transform`` (3x4)
-  reached at the end of the run and interpolated linearly from the identity
-  in the load factor (static) or in time (dynamics):
-  ``x(s) = X + s (A X + t - X)``.  Which DOFs a box holds is the model's
+  reached at the end of the run: a rigid map along its screw motion (every
+  intermediate map rigid), any other map linearly from the identity,
+  ``x(s) = X + s (A X + t - X)``, in the load factor (static) or in time
+  (dynamics); see :func:`~voxflex.deform.model.transform_at`.  Which DOFs a box holds is the model's
   answer (:meth:`~voxflex.deform.model.Model.held_dofs`): voxel-corner
   points in the box, or frames in the box (their translation and matrix rows).
 * :class:`ForceRegion`: a total force on the material in the box, or a
@@ -24,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError, check_choice
-from .model import moved_rest
+from .model import moved_rest, transform_at
 
 FORCE_KINDS = ("force", "traction")
 """Kinds of region loads (the scene's ``[[load]] kind`` besides ``gravity``)."""
@@ -88,15 +89,15 @@ class FixedRegion:
         X = np.asarray(X, dtype=float)
         if self.transform is None:
             return X.copy()
-        A, t = self.transform[:, :3], self.transform[:, 3]
-        return X + factor * (X @ A.T + t - X)
+        T = transform_at(self.transform, factor)
+        return X @ T[:, :3].T + T[:, 3]
 
     @staticmethod
     def rotation(min, max, axis_point, axis, angle, components: str = "xyz") -> "FixedRegion":
         """Region rotated by ``angle`` (radians) about the line through ``axis_point`` along ``axis``.
 
-        The final map is exact; intermediate load steps interpolate the matrix
-        linearly (not a rotation in between; use enough steps for large angles).
+        The intermediate load steps turn the region by the same fraction of
+        ``angle`` about the same axis (a screw motion, rigid throughout).
         """
         p = _vec3("axis point", axis_point)
         a = _vec3("axis", axis)
