@@ -45,8 +45,16 @@ this same benchmark:
 | 128^3 | 50 | 576 | 8.3 / 3.1 | 5.1 / 5.6 | 2.6-4.0 / 7.7-872 |
 | 128^3 | 200 | 2232 | 77.7 / 18.8 | 182 / 283 | 170-272 / 272-440 |
 
-The solve is the solver's free-block gather ``H[np.ix_(free, free)]`` (0.7-1.5 ms
-at 552, twice ``H.take(free, 0).take(free, 1)``) plus the Cholesky; the two-thread
+On a quiet machine (load average 0.05, matmul 75 GFLOP/s), 64^3 with 50 frames:
+assembly 2.90 / 3.11 ms, solve 2.82 / 2.92 ms (of which the bare Cholesky
+2.10 ms), 5.72 ms per Newton iteration against a flop bound of 1.00 ms: the
+issue's 5 ms target is missed by 0.7 ms.  Two Python threads over halves of the
+samples (the stiffness kernel releases the GIL) did not help: 1.29 / 1.45 ms
+against 1.35 / 1.36 ms serial for the pair blocks.
+
+The solve is the solver's free-block gather (``H.take(free, 0).take(free, 1)``
+since the rows above were measured: ``H[np.ix_(free, free)]`` took 0.7-1.5 ms
+at 552, twice as long) plus the Cholesky; the two-thread
 Cholesky stalled for 0.9-1.5 s at 552-576 unknowns and 5.9 s at 2256 (min of
 its runs!), so the product keeps one thread.  The old 128^3 rows ran at a
 lower load (3.1-3.5) than the old 64^3 ones: read the speed-up from rows run
@@ -154,15 +162,19 @@ def run(n_grid, counts, samples, parents, repeat, flops):
         def assemble():
             out["egh"] = model.energy_gradient_hessian(q)
 
+        from voxflex.deform.solvers import _FreeBlock
+
+        reduce = _FreeBlock(free, 12 * len(frames))
+
         def solve():
             _, g, H = out["egh"]
-            Hff = H[np.ix_(free, free)]  # what the Newton solver does with a dense Hessian
+            Hff = reduce(H)  # the Newton solver's own free-block gather for a dense Hessian
             out["info"] = solve_linear(Hff, -g.ravel()[free], method="cholesky")[1]
 
         with threadpool_limits(1):
             amin, amed = _stats(assemble, repeat)
             smin, smed = _stats(solve, repeat)
-        Hff = out["egh"][2][np.ix_(free, free)]
+        Hff = reduce(out["egh"][2])
         rhs = -out["egh"][1].ravel()[free]
         bare = []
         for threads in (1, 2):
