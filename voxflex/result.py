@@ -590,6 +590,11 @@ def field_lines(r) -> list:
     if r.reactions is not None:
         for i, force in enumerate(r.reactions[-1]):
             lines.append(f"reaction of fixed region #{i} at the end: {_fmt(force)} N")
+    if getattr(r, "contact_force", None) is not None:
+        for i, force in enumerate(r.contact_force[-1]):
+            lines.append(f"contact force of obstacle #{i} at the end: {_fmt(force)} N")
+    if getattr(r, "cable_tension", None) is not None:
+        lines.append(f"cable tensions at the end: {_fmt(r.cable_tension[-1])} N")
     if r.min_det_F is not None and r.inverted_samples is not None:
         worst = int(np.argmin(r.min_det_F))
         lines.append(f"inversion: {int(r.inverted_samples.max())} samples with det F <= 0 at worst; "

@@ -37,7 +37,7 @@ NODE_KINDS = ("affine", "rigid", "voxel")
 """``[nodes] kind`` values: affine frames (12 DOF), rigid frames (6 DOF), voxel-corner points (3 DOF)."""
 
 IMPLEMENTED_NODE_KINDS = ("affine", "rigid", "voxel")
-"""The node kinds a scene can be simulated with today (rigid frames need a non-additive state update)."""
+"""The node kinds a scene can be simulated with (rigid frames: static scenes only)."""
 
 
 @runtime_checkable
