@@ -47,8 +47,13 @@ this same benchmark:
 
 On a quiet machine (load average 0.05, matmul 75 GFLOP/s), 64^3 with 50 frames:
 assembly 2.90 / 3.11 ms, solve 2.82 / 2.92 ms (of which the bare Cholesky
-2.10 ms), 5.72 ms per Newton iteration against a flop bound of 1.00 ms: the
-issue's 5 ms target is missed by 0.7 ms.  Two Python threads over halves of the
+2.10 ms), 5.72 ms per Newton iteration against a flop bound of 1.00 ms.  Then
+the invariant strain's geometric term without the I2 terms neo-Hooke does not
+use (0.51 -> 0.28 ms with them, less without) and the free block gathered by
+slice copies of runs of free DOFs (0.26 ms against 0.66 ms by ``take``), at
+load 0.9: assembly 2.60 / 2.75 ms, solve 2.72 / 2.85 ms (Cholesky 2.18 ms),
+**5.33 ms**: the issue's 5 ms target is still missed, by 0.3 ms; the bare
+LAPACK Cholesky of the 552 free unknowns is 41 % of it.  Two Python threads over halves of the
 samples (the stiffness kernel releases the GIL) did not help: 1.29 / 1.45 ms
 against 1.35 / 1.36 ms serial for the pair blocks.
 

@@ -97,11 +97,6 @@ def _matmul(A, B, C):
             C[i, j] = acc
 
 
-@njit(error_model="numpy")
-def _levi(i, j, k):
-    return (i - j) * (j - k) * (k - i) / 2.0
-
-
 # ----------------------------------------------------------------------------- linear / green / small
 @njit(error_model="numpy")
 def _tensor_kernel(F, s, kind, want_j, want_g, E, J, G):
@@ -528,31 +523,49 @@ def _invariant_kernel(F, s, deviatoric, want_j, want_g, E, J, G):
             a13 = s1 * d1
             a23 = s2 * d2
             a33 = s1 * dd1 * I1 + s2 * dd2 * I2
+            # rank-one and rank-two parts, written into all 81 entries (flat 9-vectors: ij = 3 i + j)
+            full = w2 != 0.0 or a23 != 0.0  # I2 enters (neo-Hooke's laws leave it out: s2 = 0)
+            for ij in range(9):
+                i, j = ij // 3, ij % 3
+                u3 = g3[i, j]
+                u1 = g1[i, j]
+                for kl in range(9):
+                    k, l = kl // 3, kl % 3
+                    G[e, i, j, k, l] = a33 * u3 * g3[k, l] + a13 * (u3 * g1[k, l] + u1 * g3[k, l])
+                if full:
+                    u2 = g2[i, j]
+                    fij = f[i, j]
+                    for kl in range(9):
+                        k, l = kl // 3, kl % 3
+                        G[e, i, j, k, l] += (a23 * (u3 * g2[k, l] + u2 * g3[k, l])
+                                             + w2 * (4.0 * fij * f[k, l] - 2.0 * f[i, l] * f[k, j]))
+            # delta terms: d2 I1 = 2 dik djl; d2 I2 adds 2 I1 dik djl - 2 dik C_lj - 2 B_ik djl
+            diag = 2.0 * w1 + 2.0 * w2 * I1
             for i in range(3):
                 for j in range(3):
-                    for k in range(3):
+                    G[e, i, j, i, j] += diag
+            if w2 != 0.0:
+                for i in range(3):
+                    for j in range(3):
                         for l in range(3):
-                            dik = 1.0 if i == k else 0.0
-                            djl = 1.0 if j == l else 0.0
-                            h1 = 2.0 * dik * djl
-                            h2 = (
-                                4.0 * f[i, j] * f[k, l]
-                                + 2.0 * I1 * dik * djl
-                                - 2.0 * (dik * C[l, j] + f[i, l] * f[k, j] + Bm[i, k] * djl)
-                            )
-                            h3 = 0.0
-                            if i != k and j != l:
-                                m = 3 - i - k
+                            G[e, i, j, i, l] -= 2.0 * w2 * C[l, j]
+                        for k in range(3):
+                            G[e, i, j, k, j] -= 2.0 * w2 * Bm[i, k]
+            # d2 J / dF_ij dF_kl = eps_ikm eps_jlq F_mq (i != k, j != l; eps_ikm = +1 when k = i + 1 mod 3)
+            if w3 != 0.0:
+                for i in range(3):
+                    for k in range(3):
+                        if i == k:
+                            continue
+                        m = 3 - i - k
+                        si = w3 if (k - i) % 3 == 1 else -w3
+                        for j in range(3):
+                            for l in range(3):
+                                if j == l:
+                                    continue
                                 q = 3 - j - l
-                                h3 = _levi(i, k, m) * _levi(j, l, q) * f[m, q]
-                            G[e, i, j, k, l] = (
-                                w1 * h1
-                                + w2 * h2
-                                + w3 * h3
-                                + a13 * (g3[i, j] * g1[k, l] + g1[i, j] * g3[k, l])
-                                + a23 * (g3[i, j] * g2[k, l] + g2[i, j] * g3[k, l])
-                                + a33 * g3[i, j] * g3[k, l]
-                            )
+                                sj = si if (l - j) % 3 == 1 else -si
+                                G[e, i, j, k, l] += sj * f[m, q]
 
 
 # ----------------------------------------------------------------------------- principal stretches

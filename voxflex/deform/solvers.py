@@ -320,6 +320,11 @@ def _forcing(rn, rn_prev, eta_prev, scale):
 _BUILD_CHUNK = 1 << 24
 
 
+DENSE_RUNS_MAX = 24
+"""Runs of consecutive free DOFs up to which a dense free block is gathered by slice copies (runs²
+copies of contiguous rows) rather than two fancy-indexing passes."""
+
+
 class _FreeBlock:
     """Extracts ``H[free][:, free]`` by a data gather with an index map built once per pattern.
 
@@ -335,6 +340,12 @@ class _FreeBlock:
         self.size = int(size)
         self.direct_only = False  # set once an "auto" iterative solve fell back to direct in this run
         self.fixed = np.setdiff1d(np.arange(self.size), self.free)  # once, not per Jacobi-CG solve
+        # runs of consecutive free DOFs (start in the block, start in H, length): a dense block is
+        # gathered by runs x runs slice copies (held frames leave a few runs of 12 DOFs)
+        cut = np.flatnonzero(np.diff(self.free) != 1) + 1
+        starts = np.concatenate([[0], cut]).astype(np.int64)
+        ends = np.concatenate([cut, [len(self.free)]]).astype(np.int64)
+        self.runs = [(int(a), int(self.free[a]), int(b - a)) for a, b in zip(starts, ends)] if len(self.free) else []
         self._indptr = None
         self._indices = None
 
@@ -371,8 +382,15 @@ class _FreeBlock:
 
     def __call__(self, H) -> sp.csr_matrix:
         """``H[free][:, free]`` of a CSR matrix H (N, N) with sorted indices."""
-        if isinstance(H, np.ndarray):  # a dense Hessian (reduced models): rows, then columns
-            return H.take(self.free, 0).take(self.free, 1)  # 0.54 ms against 1.3 ms by np.ix_ at 552 of 600
+        if isinstance(H, np.ndarray):  # a dense Hessian (reduced models)
+            if len(self.runs) > DENSE_RUNS_MAX:
+                return H.take(self.free, 0).take(self.free, 1)  # 0.54-0.68 ms at 552 of 600 (np.ix_: 1.3)
+            nf = len(self.free)
+            out = np.empty((nf, nf))
+            for oi, hi, li in self.runs:  # 0.2 ms at 552 of 600 with 5 runs
+                for oj, hj, lj in self.runs:
+                    out[oi:oi + li, oj:oj + lj] = H[hi:hi + li, hj:hj + lj]
+            return out
         H = sp.csr_matrix(H)
         if not self._same_pattern(H):
             if not H.has_canonical_format:
