@@ -11,7 +11,8 @@ One object, one set of frames, two weight schemes, measured at the same points:
   point handle at its voxel centre (b = that vertex, bc = the identity), the rows normalised
   afterwards as libigl advises.
 
-Measured at the mesh vertices (the voxel centres): time, partition of unity (max |sum w - 1|,
+Measured at the mesh vertices (the voxel centres): time (each scheme warmed, then min and median of
+``--repeat`` runs), partition of unity (max |sum w - 1|,
 BBW before normalising), the smallest weight, locality (frames with w > 1e-3 per point: mean and
 max), linear precision (max |sum_i w_i x_i - x| in voxels, everywhere and inside the frames' hull),
 and w_i at frame i (the Kronecker property; the blended voxflex weights smooth it).
@@ -171,6 +172,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shape", default="24,12,12", help="bar size in voxels nx,ny,nz")
     ap.add_argument("--frames", type=int, default=16)
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs of each weight scheme (min and median)")
     ap.add_argument("--cantilever", type=int, default=0, metavar="N",
                     help="also the cantilever tip error with N frames and each weight set (slow)")
     a = ap.parse_args(argv)
@@ -201,28 +203,38 @@ def main(argv=None):
     n = len(frames)
     print(f"# {platform.platform()}, os.cpu_count() = {os.cpu_count()}, load {os.getloadavg()[0]:.1f}; "
           f"bar {shape} voxels, {n} frames (place_frames), {len(V)} points (voxel centres), {len(T)} tets for BBW")
+    def timed(fn):
+        """(result, min s, median s) of --repeat runs."""
+        ts = []
+        for _ in range(max(a.repeat, 1)):
+            t = time.perf_counter()
+            out = fn()
+            ts.append(time.perf_counter() - t)
+        return out, min(ts), float(np.median(ts))
+
+    # warm libigl too (its first solve allocates and sets up), on a small bar with the same call
+    Vw, Tw = tet_mesh_of_centres(np.ones((4, 2, 2), np.uint8))
+    igl.bbw(Vw, Tw, np.array([0, len(Vw) - 1], dtype=np.int64), np.eye(2), partition_unity=False, max_iter=5)
     results = []
     for parents in (4, 8):
-        t = time.perf_counter()
-        sf = shape_function(img, frames, parents=parents)
-        sv = sf(V)
-        dt = time.perf_counter() - t
-        results.append((f"voxflex sibson, parents={parents}", dt, properties(dense(sv, n), V, frames, inside, frame_rows)))
-    t = time.perf_counter()
-    Wb = igl.bbw(V, T, frame_rows.astype(np.int64), np.eye(n), partition_unity=False, max_iter=100)
-    dt = time.perf_counter() - t
+        sv, tmin, tmed = timed(lambda: shape_function(img, frames, parents=parents)(V))
+        results.append((f"voxflex sibson, parents={parents}", (tmin, tmed),
+                        properties(dense(sv, n), V, frames, inside, frame_rows)))
+    Wb, tmin, tmed = timed(lambda: igl.bbw(V, T, frame_rows.astype(np.int64), np.eye(n), partition_unity=False,
+                                           max_iter=100))
     raw = properties(Wb, V, frames, inside, frame_rows)
     Wn = Wb / Wb.sum(1, keepdims=True)
     pn = properties(Wn, V, frames, inside, frame_rows)
     pn["pu_raw"] = raw["pu"]
-    results.append(("libigl bbw (rows normalised)", dt, pn))
+    results.append(("libigl bbw (rows normalised)", (tmin, tmed), pn))
     print()
-    print("| weights | time s | max abs(sum w - 1) | min w | frames w > 1e-3 per point (mean / max) "
+    print(f"time: min / median of {max(a.repeat, 1)} warm runs")
+    print("| weights | time s (min / median) | max abs(sum w - 1) | min w | frames w > 1e-3 per point (mean / max) "
           "| linear precision, voxels (all / in the frames' hull) | min w_i at frame i |")
     print("|---|---|---|---|---|---|---|")
     for name, dt, p in results:
         pu = f"{p['pu']:.1e}" + (f" ({p['pu_raw']:.1e} before)" if "pu_raw" in p else "")
-        print(f"| {name} | {dt:.2f} | {pu} | {p['min']:.1e} | {p['supp_mean']:.2f} / {p['supp_max']} | "
+        print(f"| {name} | {dt[0]:.2f} / {dt[1]:.2f} | {pu} | {p['min']:.1e} | {p['supp_mean']:.2f} / {p['supp_max']} | "
               f"{p['lin_all']:.2f} / {p['lin_in']:.2f} | {p['kron']:.3f} |")
     if a.cantilever:
         ref, rows = cantilever(a.cantilever, igl)

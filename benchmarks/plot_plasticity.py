@@ -32,8 +32,7 @@ import numpy as np
 
 from voxflex.deform.boundary import FixedRegion
 from voxflex.deform.materials import material
-from voxflex.deform.plasticity import PlasticMaterial
-from voxflex.deform.solvers import SolverOptions, solve
+from voxflex.deform.plasticity import PlasticMaterial, equilibrate
 from voxflex.deform.voxel_model import VoxelModel
 from voxflex.image.label_image import LabelImage
 
@@ -57,20 +56,6 @@ def _end(eps):
     T = np.zeros((3, 4))
     T[:, :3] = np.diag([1.0 + eps, 1.0, 1.0])
     return FixedRegion([L - 1e-12, -INF, -INF], [INF, INF, INF], "x", T)
-
-
-def _level(model, mat, q, fixed):
-    """Solve with the plastic state fixed, return-map, repeat until e_p is stationary; commit."""
-    for _ in range(200):
-        q = solve(model, fixed=fixed, options=SolverOptions(steps=1, tolerance=1e-10), q0=q)[-1].q
-        before = mat.plastic_strain.copy()
-        mat.update(model.deformation_gradients(q))
-        if np.max(np.abs(mat.plastic_strain - before)) < 1e-13:
-            break
-    else:
-        raise RuntimeError("the staggered plasticity loop did not converge")
-    mat.commit()
-    return q
 
 
 def _stress(model, q):
@@ -109,9 +94,9 @@ def run():
     q = model.rest.copy()
     stress = []
     for eps in path:
-        q = _level(model, mat, q, _supports() + [_end(eps)])
+        q = equilibrate(model, mat, q, _supports() + [_end(eps)])
         stress.append(_stress(model, q))
-    q = _level(model, mat, q, _supports())  # release the end: the permanent set
+    q = equilibrate(model, mat, q, _supports())  # release the end: the permanent set
     end = model.rest[:, 0] > L - 1e-12
     permanent = float(np.mean(q[end, 0] - model.rest[end, 0])) / L
     return np.concatenate([[0.0], path]), np.array([0.0, *stress]), permanent, (eps1, eps_max, sig_max, eps_zero)

@@ -9,7 +9,7 @@ sigma = 3 mu (eps_y + H eps) / (1 + 3 mu H / E) in loading (eps the axial
 strain), elastic unloading with slope E, and a permanent set eps_p = eps - sigma / E
 when the end is released.
 
-Each load level is solved by voxflex.deform.solvers.solve (one static step from
+Each load level is solved by voxflex.deform.plasticity.equilibrate (one static step from
 the previous state), then the plastic state is return-mapped and the level
 re-solved until e_p stops changing (the staggered scheme of the module); the
 fixed point is the exact incremental solution, so the forces match the closed
@@ -24,8 +24,7 @@ import pytest
 
 from voxflex.deform.boundary import FixedRegion
 from voxflex.deform.materials import material
-from voxflex.deform.plasticity import PlasticMaterial, von_mises_strain
-from voxflex.deform.solvers import SolverOptions, solve
+from voxflex.deform.plasticity import PlasticMaterial, equilibrate, von_mises_strain
 from voxflex.deform.voxel_model import VoxelModel
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
@@ -56,20 +55,6 @@ def _end(eps):
     return FixedRegion([L - 1e-9, -INF, -INF], [INF, INF, INF], "x", T)
 
 
-def _level(model, mat, q, fixed):
-    """Solve with the plastic state fixed, return-map, repeat until e_p is stationary; commit."""
-    for _ in range(200):
-        q = solve(model, fixed=fixed, options=SolverOptions(steps=1, tolerance=1e-10), q0=q)[-1].q
-        before = mat.plastic_strain.copy()
-        mat.update(model.deformation_gradients(q))
-        if np.max(np.abs(mat.plastic_strain - before)) < 1e-13:
-            break
-    else:  # pragma: no cover
-        raise AssertionError("staggered plasticity did not converge")
-    mat.commit()
-    return q
-
-
 def _force(model, q):
     end = model.rest[:, 0] > L - 1e-9
     return float(model.gradient(q)[end, 0].sum())  # reaction on the end face = sigma * area (area 1)
@@ -88,7 +73,7 @@ def test_bar_loading_unloading_and_permanent_set():
     q = model.rest.copy()
     loading = np.array([0.5, 1.0, 1.5, 2.0, 3.0]) * eps_yield
     for eps in loading:
-        q = _level(model, mat, q, _supports() + [_end(eps)])
+        q = equilibrate(model, mat, q, _supports() + [_end(eps)])
         f = _force(model, q)
         assert f == pytest.approx(_sigma_loading(eps), rel=1e-7), eps
     eps_max = loading[-1]
@@ -97,12 +82,12 @@ def test_bar_loading_unloading_and_permanent_set():
     # unloading by a strain decrement smaller than the elastic range: elastic, slope E (the initial stiffness)
     d = 0.5 * eps_yield
     alpha_before = mat.alpha.copy()
-    q = _level(model, mat, q, _supports() + [_end(eps_max - d)])
+    q = equilibrate(model, mat, q, _supports() + [_end(eps_max - d)])
     f_un = _force(model, q)
     assert (sig_max - f_un) / d == pytest.approx(E, rel=1e-6)
     np.testing.assert_array_equal(mat.alpha, alpha_before)  # no further yield
     # release the end: the bar keeps a permanent set eps_p = eps_max - sigma_max / E
-    q = _level(model, mat, q, _supports())
+    q = equilibrate(model, mat, q, _supports())
     end = model.rest[:, 0] > L - 1e-9
     set_ = float(np.mean(q[end, 0] - model.rest[end, 0])) / L
     expected = eps_max - sig_max / E

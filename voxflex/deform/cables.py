@@ -66,6 +66,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError
+from .model import ModelLayer
 from .spring_mappings import DistanceMapping
 
 __all__ = ["Cable", "CableModel", "cable_law", "with_cables"]
@@ -210,7 +211,7 @@ class Cable:
 # ---------------------------------------------------------------------------
 # the wrapper
 # ---------------------------------------------------------------------------
-class CableModel:
+class CableModel(ModelLayer):
     """A model with cables (see the module docstring).
 
     Parameters
@@ -236,6 +237,9 @@ class CableModel:
     NotImplementedError
         A model whose point mapping is not linear in q (rigid frames).
     """
+
+    layer = "cable"
+    layer_advice = "cables: a large shortening or pull in one step can fail to converge; use more steps"
 
     def __init__(self, inner, cables: Sequence[Cable]):
         cables = tuple(cables)
@@ -280,47 +284,12 @@ class CableModel:
         self._one_sided = np.array([bool(c.tension_only) for c in cables])
         self.fraction = 0.0
 
-    # -- the protocol, forwarded ------------------------------------------------
-    node_kind = property(lambda self: self.inner.node_kind)
-    dofs_per_node = property(lambda self: self.inner.dofs_per_node)
-    rest = property(lambda self: self.inner.rest)
-    image = property(lambda self: self.inner.image)
-    dof_grid = property(lambda self: self.inner.dof_grid)
-    supported_by_contact = property(lambda self: self.inner.supported_by_contact)
-
-    @property
-    def n_nodes(self) -> int:
-        return self.inner.n_nodes
-
-    @property
-    def constant_tangent(self) -> bool:
-        """False: the cables' stiffness changes with the state."""
-        return False
-
-    def __getattr__(self, name):
-        # everything else (mass, gravity, mappings, faces, held DOFs ...) is the inner model's
-        if name == "inner":
-            raise AttributeError(name)
-        return getattr(self.inner, name)
-
-    def advice(self) -> str:
-        inner = self.inner.advice()
-        mine = "cables: a large shortening or pull in one step can fail to converge; use more steps"
-        return f"{inner}; {mine}" if inner else mine
-
     def describe(self) -> dict:
         out = dict(self.inner.describe())
         out.update({"cables": len(self.cables), "cable_points": len(self.points)})
         return out
 
     # -- time ---------------------------------------------------------------------
-    def set_time(self, fraction: float) -> None:
-        """Set the run fraction s (0 at the start, 1 at the end) of the shortening and pull."""
-        f = float(fraction)
-        if not np.isfinite(f):
-            raise InputError(f"cable time fraction must be finite, got {fraction!r}")
-        self.fraction = f
-
     def begin_step(self, fraction: float, q_prev, q_start):
         """Note the step's fraction, then let the inner model choose the start state."""
         self.set_time(fraction)

@@ -83,6 +83,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import ConvergenceError, InputError
+from .model import ModelLayer
 from .obstacles import Obstacle, obstacle
 
 __all__ = ["ContactModel", "collision_points", "barrier", "friction_mollifier", "with_contact", "POINT_RULES",
@@ -231,7 +232,7 @@ def _psd(blocks):
 # ---------------------------------------------------------------------------
 # the wrapper
 # ---------------------------------------------------------------------------
-class ContactModel:
+class ContactModel(ModelLayer):
     """A model with a barrier against obstacles (see the module docstring).
 
     Parameters
@@ -270,6 +271,10 @@ class ContactModel:
     InputError
         No obstacle, bad distance, stiffness or slip, the rest state inside an obstacle.
     """
+
+    layer = "contact"
+    layer_advice = ("contact: a step that cannot keep every collision point outside the obstacles is refused; "
+                    "use more steps or a smaller dt")
 
     def __init__(self, inner, obstacles: Sequence[Obstacle], *, points="surface", distance=None, stiffness=None,
                  project: bool = True, slip=None):
@@ -317,34 +322,7 @@ class ContactModel:
             raise InputError(f"the body at rest touches or enters obstacle {o} ({obstacles[o].kind}) at "
                              f"{self.points[p].tolist()}; move the obstacle or the object apart")
 
-    # -- the protocol, forwarded ------------------------------------------------
     supported_by_contact = True  # the obstacles may hold the body: no static support check
-    node_kind = property(lambda self: self.inner.node_kind)
-    dofs_per_node = property(lambda self: self.inner.dofs_per_node)
-    rest = property(lambda self: self.inner.rest)
-    image = property(lambda self: self.inner.image)
-    dof_grid = property(lambda self: self.inner.dof_grid)
-
-    @property
-    def n_nodes(self) -> int:
-        return self.inner.n_nodes
-
-    @property
-    def constant_tangent(self) -> bool:
-        """False: the barrier's Hessian changes with the state."""
-        return False
-
-    def __getattr__(self, name):
-        # everything else (mass, gravity, mappings, faces, held DOFs ...) is the inner model's
-        if name == "inner":
-            raise AttributeError(name)
-        return getattr(self.inner, name)
-
-    def advice(self) -> str:
-        inner = self.inner.advice()
-        mine = ("contact: a step that cannot keep every collision point outside the obstacles is refused; "
-                "use more steps or a smaller dt")
-        return f"{inner}; {mine}" if inner else mine
 
     def describe(self) -> dict:
         out = dict(self.inner.describe())
@@ -355,13 +333,6 @@ class ContactModel:
         return out
 
     # -- time ---------------------------------------------------------------------
-    def set_time(self, fraction: float) -> None:
-        """Place moving obstacles at ``fraction`` (0 at the start of the run, 1 at its end)."""
-        f = float(fraction)
-        if not np.isfinite(f):
-            raise InputError(f"contact time fraction must be finite, got {fraction!r}")
-        self.fraction = f
-
     def admissible(self, q) -> bool:
         """Whether every collision point of state q (n, d) lies outside every obstacle (d > 0)."""
         return bool(np.all(self._distances(self.mapping.apply(np.asarray(q, dtype=float)))[0] > 0))

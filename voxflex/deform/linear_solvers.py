@@ -81,6 +81,7 @@ class LinearSolveInfo:
     residual: float
     seconds: float
     note: str = ""
+    fell_back: bool = False  # an iterative method missed rtol and the direct solver answered
 
 
 def rigid_body_modes(positions) -> np.ndarray:
@@ -164,6 +165,7 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
     bnorm = vnorm(b)
     if bnorm == 0.0:
         return np.zeros(N), LinearSolveInfo(method, 0, 0.0, 0.0)
+    fell_back = False
     if method == "cholesky":
         x, note = _dense(A, b)
         its = 0
@@ -185,10 +187,11 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
             note = f"{method} stopped after {its} iterations above rtol {rtol:.1e}; fell back to direct"
             x = _direct(A, b)
             method = "direct"
+            fell_back = True
     res = vnorm(A @ x - b) / bnorm
     if not np.all(np.isfinite(x)):
         raise ConvergenceError(f"linear solve ({method}, {N} unknowns) produced non-finite values; the matrix is singular")
-    return x, LinearSolveInfo(method, int(its), res, time.perf_counter() - t0, note)
+    return x, LinearSolveInfo(method, int(its), res, time.perf_counter() - t0, note, fell_back)
 
 
 _BLAS = []  # one threadpoolctl controller, made at the first dense solve

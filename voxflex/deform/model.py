@@ -31,7 +31,9 @@ from typing import Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Model", "PointMap", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "moved_rest", "transform_at"]
+from ..errors import InputError
+
+__all__ = ["Model", "PointMap", "ModelLayer", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "moved_rest", "transform_at"]
 
 NODE_KINDS = ("affine", "rigid", "voxel")
 """``[nodes] kind`` values: affine frames (12 DOF), rigid frames (6 DOF), voxel-corner points (3 DOF)."""
@@ -150,6 +152,54 @@ class Model(Protocol):
 
     def moved_state(self, transform) -> np.ndarray:
         """The state (n, d) of the whole body moved by the affine map ``[A | t]`` (3, 4)."""
+
+
+class ModelLayer:
+    """Base of the layers that add an energy to a wrapped model (contact, cables).
+
+    Forwards the protocol's description of the nodes to ``self.inner``, and
+    every attribute it does not define (mass, gravity, mappings, faces, held
+    DOFs ...) through ``__getattr__``.  A layer's energy changes with the state
+    (``constant_tangent`` is False) and may move with the run fraction
+    (:meth:`set_time`, stored as ``self.fraction``).  Subclasses set
+    ``layer`` (a word for messages) and ``layer_advice`` (appended to the
+    inner model's advice).
+    """
+
+    layer = "layer"
+    layer_advice = ""
+
+    node_kind = property(lambda self: self.inner.node_kind)
+    dofs_per_node = property(lambda self: self.inner.dofs_per_node)
+    rest = property(lambda self: self.inner.rest)
+    image = property(lambda self: self.inner.image)
+    dof_grid = property(lambda self: self.inner.dof_grid)
+    supported_by_contact = property(lambda self: self.inner.supported_by_contact)
+
+    @property
+    def n_nodes(self) -> int:
+        return self.inner.n_nodes
+
+    @property
+    def constant_tangent(self) -> bool:
+        """False: the layer's Hessian changes with the state."""
+        return False
+
+    def __getattr__(self, name):
+        if name == "inner":  # not set yet (during construction or unpickling)
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    def advice(self) -> str:
+        inner = self.inner.advice()
+        return f"{inner}; {self.layer_advice}" if inner else self.layer_advice
+
+    def set_time(self, fraction: float) -> None:
+        """Set the run fraction (0 at the start of the run, 1 at its end)."""
+        f = float(fraction)
+        if not np.isfinite(f):
+            raise InputError(f"{self.layer} time fraction must be finite, got {fraction!r}")
+        self.fraction = f
 
 
 RIGID_TRANSFORM_TOL = 1e-9

@@ -55,7 +55,7 @@ import numpy as np
 from ..errors import InputError
 from .materials import Material, strain_kind
 
-__all__ = ["PlasticMaterial", "von_mises_strain"]
+__all__ = ["PlasticMaterial", "von_mises_strain", "equilibrate"]
 
 _SQ23 = np.sqrt(2.0 / 3.0)
 
@@ -222,3 +222,33 @@ class PlasticMaterial:
         self.plastic_strain[:] = 0.0
         self.alpha[:] = 0.0
         self.commit()
+
+
+def equilibrate(model, material, q, fixed, *, tolerance: float = 1e-10, passes: int = 200,
+                stationary: float = 1e-13):
+    """Static equilibrium with plasticity by staggering, then commit the plastic state.
+
+    Solves the model with the plastic strains held (one static step from ``q``),
+    return-maps them at the solution (:meth:`PlasticMaterial.update`), and
+    repeats until no plastic strain changes by more than ``stationary``; then
+    :meth:`PlasticMaterial.commit`.  Returns the state (n, d).
+
+    Raises
+    ------
+    ConvergenceError
+        The plastic strains still change after ``passes`` solves.
+    """
+    from ..errors import ConvergenceError
+    from .solvers import SolverOptions, solve
+
+    for _ in range(passes):
+        q = solve(model, fixed=fixed, options=SolverOptions(steps=1, tolerance=tolerance), q0=q)[-1].q
+        before = material.plastic_strain.copy()
+        material.update(model.deformation_gradients(q))
+        if np.max(np.abs(material.plastic_strain - before)) < stationary:
+            break
+    else:
+        raise ConvergenceError(f"staggered plasticity did not converge in {passes} solves; "
+                               "use smaller load increments")
+    material.commit()
+    return q

@@ -444,6 +444,7 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=
         Hff = reduce(H)
         d, direct = solve_linear(Hff, rhs, method="direct")
         direct.note = f"cg stopped after {info.iterations} iterations above rtol {eta:.1e}; fell back to direct"
+        direct.fell_back = True
         direct.iterations = info.iterations
         return d, direct, Hff
     Hff = reduce(H)
@@ -542,7 +543,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         last_lin = info.iterations
         problem.solves += 1
         solver_used = info.method + (f" ({info.note})" if info.note else "")
-        if options.linear_solver == "auto" and "fell back to direct" in info.note:
+        if options.linear_solver == "auto" and info.fell_back:
             # high stiffness contrast or near-incompressibility defeated the iterative solver once:
             # the rest of the run goes straight to the direct solver (a two-bone limb with a 1e5
             # contrast took 394 s with repeated fallbacks, 6.8 s direct)

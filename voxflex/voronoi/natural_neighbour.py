@@ -117,6 +117,36 @@ def _accumulate(cost, shape, spacing, d, own, laplace, dx, ox, state, touched, n
 
 
 @njit
+def keep_largest_insert(values, index, count, k, v, f):
+    """Insert value v of item f into the descending ``values[:count]`` (with ``index``), keeping at most
+    k entries (the first one stays on ties); returns the new count."""
+    if count < k:
+        j = count
+        count += 1
+    elif v > values[k - 1]:
+        j = k - 1
+    else:
+        return count
+    while j > 0 and values[j - 1] < v:
+        values[j] = values[j - 1]
+        index[j] = index[j - 1]
+        j -= 1
+    values[j] = v
+    index[j] = f
+    return count
+
+
+@njit
+def normalise_first(values, count):
+    """Divide ``values[:count]`` by their sum."""
+    total = 0.0
+    for j in range(count):
+        total += values[j]
+    for j in range(count):
+        values[j] /= total
+
+
+@njit
 def _finish(acc, hmin, nframes, laplace, kmax, q, out_f, out_w, out_n):
     """Row q of the outputs from acc: Laplace / distance-ratio weights, the kmax largest, normalised;
     resets acc and hmin."""
@@ -129,27 +159,9 @@ def _finish(acc, hmin, nframes, laplace, kmax, q, out_f, out_w, out_n):
             acc[f] = 1.0 / hmin[f] if hmin[f] < np.inf else 0.0
     m = 0
     for f in range(nframes):
-        a = acc[f]
-        if a <= 0:
-            continue
-        if m < kmax:
-            j = m
-            m += 1
-        else:
-            if a <= out_w[q, kmax - 1]:
-                continue
-            j = kmax - 1
-        while j > 0 and out_w[q, j - 1] < a:
-            out_w[q, j] = out_w[q, j - 1]
-            out_f[q, j] = out_f[q, j - 1]
-            j -= 1
-        out_w[q, j] = a
-        out_f[q, j] = f
-    kept = 0.0
-    for j in range(m):
-        kept += out_w[q, j]
-    for j in range(m):
-        out_w[q, j] /= kept
+        if acc[f] > 0:
+            m = keep_largest_insert(out_w[q], out_f[q], m, kmax, acc[f], f)
+    normalise_first(out_w[q], m)
     out_n[q] = m
     for f in range(nframes):
         acc[f] = 0.0

@@ -68,7 +68,7 @@ from ..errors import InputError, check_choice
 from . import _march as M
 from ._sight import frame_distances
 from .geodesic import _centres, _prepare, _seed_voxels
-from .natural_neighbour import natural_weights
+from .natural_neighbour import keep_largest_insert, natural_weights, normalise_first
 from .placement import _compliance_for
 from .shape_functions import ShapeValues
 
@@ -292,26 +292,9 @@ def _centre_kernel(ijk, nodes, cnode, spacing, direction, nfr, ncoef, h, P):
             c = ncoef[q, k]
             v = c[0] + c[1] * phi[0] + c[2] * phi[1] + c[3] * phi[2] + c[4] * phi[3] + c[5] * phi[4] \
                 + c[6] * phi[5] + c[7] * phi[6] + c[8] * phi[7] + c[9] * phi[8]
-            if not v > _TINY:
-                continue
-            if n < P:
-                j = n
-                n += 1
-            elif v > out[r, P - 1]:
-                j = P - 1
-            else:
-                continue
-            while j > 0 and out[r, j - 1] < v:
-                out[r, j] = out[r, j - 1]
-                index[r, j] = index[r, j - 1]
-                j -= 1
-            out[r, j] = v
-            index[r, j] = f
-        tot = 0.0
-        for j in range(n):
-            tot += out[r, j]
-        for j in range(n):
-            out[r, j] /= tot
+            if v > _TINY:
+                n = keep_largest_insert(out[r], index[r], n, P, v, f)
+        normalise_first(out[r], n)
     return index, out
 
 
