@@ -127,3 +127,50 @@ def test_free_block_equals_fancy_indexing_in_blocks_and_in_place(monkeypatch):
         ls.free_block(ro, free, overwrite=True)
     with pytest.raises(InputError, match="square CSR"):
         ls.free_block(sp.csc_matrix(K), free)
+
+
+def _spd(n, cond, seed=0):
+    """A symmetric positive-definite matrix with eigenvalues log-spaced over [1, cond]."""
+    rng = np.random.default_rng(seed)
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    return (Q * np.logspace(0, np.log10(cond), n)) @ Q.T
+
+
+def test_mixed_precision_cholesky_reaches_the_double_solution(monkeypatch):
+    # above MIXED_MIN the dense path factors in float32 and refines in float64: the residual must reach
+    # MIXED_RTOL (1e-13) or the round-off of a double solve, and the answer LAPACK's double solve to
+    # cond * 1e-12 (the forward error a relative residual of 1e-12 allows)
+    from voxflex.deform import linear_solvers as ls
+
+    n = ls.MIXED_MIN + 20
+    b = np.random.default_rng(1).standard_normal(n)
+    real = ls._mixed_cholesky
+    for cond in (1e2, 1e5):
+        A = _spd(n, cond)
+        calls = []
+        monkeypatch.setattr(ls, "_mixed_cholesky", lambda A, b: calls.append(real(A, b)) or calls[-1])
+        x, info = solve_linear(A, b, method="cholesky")
+        assert calls and calls[0] is not None  # the single-precision path answered
+        ref = np.linalg.solve(A, b)
+        # MIXED_RTOL, or where that is below a double residual's own round-off, no worse than LAPACK's double solve
+        assert info.residual <= max(ls.MIXED_RTOL, 10 * np.linalg.norm(A @ ref - b) / np.linalg.norm(b))
+        assert np.linalg.norm(x - ref) <= cond * 1e-12 * np.linalg.norm(ref)
+
+
+def test_mixed_precision_cholesky_falls_back_when_single_precision_cannot_refine():
+    # cond 1e9 > 1/eps_single: the float32 factor is useless (or fails); the double Cholesky answers, with a
+    # residual at the round-off of LAPACK's general double solve (within 10x)
+    from voxflex.deform import linear_solvers as ls
+
+    n = ls.MIXED_MIN + 20
+    A = _spd(n, 1e9, seed=2)
+    b = np.random.default_rng(3).standard_normal(n)
+    assert ls._mixed_cholesky(A, b) is None
+    x, info = solve_linear(A, b, method="cholesky")
+    ref = np.linalg.solve(A, b)
+    assert info.note == "" and info.residual <= 10 * np.linalg.norm(A @ ref - b) / np.linalg.norm(b)
+    # indefinite: LDL^T answers, and says so
+    A[0, 0] = -1.0
+    x, info = solve_linear(A, b, method="cholesky")
+    assert "not positive definite" in info.note
+    assert np.linalg.norm(A @ x - b) <= 1e-6 * np.linalg.norm(b)

@@ -194,6 +194,8 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
     return x, LinearSolveInfo(method, int(its), res, time.perf_counter() - t0, note, fell_back)
 
 
+MIXED_MIN = 300  # dense systems from this size factor in single precision and refine (see _mixed_cholesky)
+MIXED_RTOL = 1e-13  # relative residual the refinement reaches (the double Cholesky's is about 1e-15)
 _BLAS = []  # one threadpoolctl controller, made at the first dense solve
 
 
@@ -209,11 +211,54 @@ def _dense(A, b):
         _BLAS.append(ThreadpoolController())
     Ad = A.toarray() if sp.issparse(A) else np.asarray(A, dtype=float)
     with _BLAS[0].limit(limits=1, user_api="blas"):
-        try:
-            c = sla.cho_factor(Ad, lower=True, check_finite=False)
-            return sla.cho_solve(c, b, check_finite=False), ""
-        except np.linalg.LinAlgError:
-            return sla.solve(Ad, b, assume_a="sym", check_finite=False), "not positive definite: symmetric LDL^T solve"
+        if Ad.shape[0] >= MIXED_MIN:
+            x = _mixed_cholesky(Ad, b)
+            if x is not None:
+                return x, ""
+        c, info = sla.lapack.dpotrf(Ad.T, lower=1, clean=0)  # Ad is symmetric: Ad.T is its Fortran-ordered view
+        if info == 0:
+            return sla.lapack.dpotrs(c, b, lower=1)[0], ""
+        return sla.solve(Ad, b, assume_a="sym", check_finite=False), "not positive definite: symmetric LDL^T solve"
+
+
+def _mixed_cholesky(A, b, max_refine: int = 6):
+    """Cholesky in single precision refined to a double-precision residual, or None.
+
+    The factorisation, the cost at these sizes, runs in float32, about 1.7x
+    as fast as in float64 (552 unknowns, one thread, quiet: 1.63 against 2.73
+    ms); each refinement step is a double residual ``r = b - A x`` (A itself
+    is never rounded) and two float32 triangular solves, O(N^2).  It stops
+    at ``|r| <= MIXED_RTOL |b|``: three solves when ``cond(A)`` is about 1e4
+    (each step gains about ``1 / (cond eps_single)``), or when the residual
+    stops falling at the round-off of a double residual itself,
+    ``4 eps |A|_F |x|`` (which is where a double Cholesky's residual lies
+    too on ill-conditioned systems).  It returns None (the caller factors in
+    double) when A is not positive definite in single precision or the
+    refinement stalls above that, which happens once ``cond(A)`` nears
+    1/eps_single (about 1e7).  A is symmetric, so its transpose is the
+    Fortran-ordered copy LAPACK wants, without a transposing copy.
+    Factor + solve at 552 / 1000 unknowns (cond 6e3, one thread, min of 3x20):
+    cho_factor/cho_solve 3.38 / 12.3 ms, dpotrf/dpotrs 3.08 / 15.7 ms, this 2.60 / 11.0 ms.
+    """
+    c, info = sla.lapack.spotrf(A.T.astype(np.float32), lower=1, clean=0, overwrite_a=1)
+    if info != 0:
+        return None
+    target = MIXED_RTOL * vnorm(b)
+    floor = 4 * np.finfo(float).eps * np.sqrt(vdot(A.ravel(), A.ravel()))  # times |x|: a double residual's round-off
+    x = np.zeros_like(b)
+    r, rn = b, np.inf
+    for _ in range(max_refine):
+        dx, info = sla.lapack.spotrs(c, r.astype(np.float32), lower=1)
+        if info != 0 or not np.all(np.isfinite(dx)):
+            return None
+        x += dx
+        r = b - A @ x
+        rn_last, rn = rn, vnorm(r)
+        if rn <= target:
+            return x
+        if rn > rn_last / 4:  # stagnated: good only at the round-off of the residual itself
+            return x if rn <= floor * vnorm(x) else None
+    return None
 
 
 def _direct(A, b):
