@@ -84,7 +84,7 @@ from ..errors import InputError
 from .membrane import StVKMembrane, TriangleDeformationMapping
 
 __all__ = ["MembraneModel", "VertexMap", "disk_mesh", "rectangle_mesh", "load_membrane_mesh", "footprint_image",
-           "open_rim", "MEMBRANE_NODE_KIND", "MEMBRANE_SHAPES"]
+           "open_rim", "MEMBRANE_NODE_KIND", "MEMBRANE_SHAPES", "RIMS"]
 
 MEMBRANE_NODE_KIND = "membrane"
 """``[nodes] kind`` of the membrane model."""
@@ -92,6 +92,9 @@ MEMBRANE_NODE_KIND = "membrane"
 MEMBRANE_SHAPES = {"disk": 1, "rectangle": 2}
 """Flat sheets voxflex makes for ``[object] shape`` (membranes only): name -> number of ``size`` values
 (disk: radius; rectangle: lx, ly), in the plane z = origin_z, normal +z."""
+
+RIMS = ("free", "clamped")
+"""``[membrane] rim``: the open rim left to ``[[fixed]]`` regions, or clamped (its vertices are not DOFs)."""
 
 FLAT_TOL = 1e-10
 """|n_t x n_0| below which every triangle normal counts as parallel (a flat membrane)."""
