@@ -468,7 +468,8 @@ class LoadSpec:
             if self.vector is not None and any(v != 0 for v in _vector(t, "vector", self.vector)):
                 raise InputError('[load] vector does not apply to kind = "pressure" (it pushes along the '
                                  "membrane's normals); remove it")
-            if self.min is not None or self.max is not None:
+            bounds = [_vector(t, k, getattr(self, k), finite=False) for k in ("min", "max") if getattr(self, k) is not None]
+            if any(not math.isinf(v) for box in bounds for v in box):  # (to_toml writes the unbounded box)
                 raise InputError('[load] kind = "pressure" acts on the whole membrane (a conservative pressure '
                                  "needs all of it); remove min/max")
             object.__setattr__(self, "vector", (0.0, 0.0, 0.0))  # simulate() reads a vector from every load
