@@ -1075,7 +1075,12 @@ def describe_scene(path) -> str:
     for f in scene.fixed:
         how = "moved by a transform" if f.transform is not None else f"held ({f.components})"
         lines.append(f"  fixed: box {list(f.min)} .. {list(f.max)} {how}")
+    if scene.membrane is not None:
+        lines.append(f"  membrane: thickness {scene.membrane.thickness:g} m, rim {scene.membrane.rim}")
     for ld in scene.loads:
+        if ld.kind == PRESSURE_KIND:
+            lines.append(f"  load: pressure {ld.pressure:g} Pa on the whole membrane")
+            continue
         region = "" if ld.kind == "gravity" else f" on box {list(ld.min)} .. {list(ld.max)}"
         lines.append(f"  load: {ld.kind} {list(ld.vector)}{region}")
     s = scene.solver
