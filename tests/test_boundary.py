@@ -91,4 +91,4 @@ def test_region_validation():
     with pytest.raises(InputError, match="3x4"):
         FixedRegion([0, 0, 0], [1, 1, 1], transform=np.eye(3))
     with pytest.raises(InputError, match="force kind"):
-        ForceRegion([0, 0, 0], [1, 1, 1], [1, 0, 0], kind="pressure")
+        ForceRegion([0, 0, 0], [1, 1, 1], [1, 0, 0], kind="suction")  # "pressure" is a kind now (membranes)

@@ -31,7 +31,12 @@ class ComponentsDroppedWarning(UserWarning):
 
 def build_image(scene: Scene):
     """The label image of ``scene.object`` (shape or mesh voxelized, image loaded), with the
-    components that ``keep`` / ``min_component_voxels`` drop removed (with a warning)."""
+    components that ``keep`` / ``min_component_voxels`` drop removed (with a warning); for a
+    membrane, the voxels its mesh passes through (:func:`~voxflex.deform.membrane_model.footprint_image`)."""
+    if scene.nodes.kind == "membrane":
+        from .deform.membrane_model import footprint_image
+
+        return footprint_image(*_membrane_mesh(scene), scene.object.voxel_size)
     return _drop_components(_raw_image(scene), scene.object.keep, scene.object.min_component_voxels)
 
 
@@ -336,6 +341,59 @@ def _rigid_model(scene: Scene, image, materials, *, cache: bool = True):
     return RigidFrameModel(inner, densities=densities)
 
 
+def _membrane_mesh(scene: Scene):
+    """(points (n, 3), triangles (m, 3)) of a membrane scene: a disk or rectangle made at
+    ``voxel_size`` (the target edge length), or the mesh file as it is."""
+    from .deform.membrane_model import disk_mesh, load_membrane_mesh, rectangle_mesh
+
+    obj = scene.object
+    if obj.mesh is not None:
+        return load_membrane_mesh(obj.mesh, up=obj.up)
+    if obj.up != "z":
+        raise InputError('[object] up applies to a membrane mesh file; a disk or rectangle lies in z = origin_z '
+                         "(remove up)")
+    origin = np.asarray(obj.origin if obj.origin is not None else (0.0, 0.0, 0.0), dtype=float)
+    if obj.shape == "disk":
+        r = obj.size[0]
+        return disk_mesh(r, obj.voxel_size, center=origin + np.array([r, r, 0.0]))
+    return rectangle_mesh(obj.size, obj.voxel_size, origin=origin)
+
+
+def _membrane_model(scene: Scene, image, materials):
+    """The membrane of the scene (:class:`~voxflex.deform.membrane_model.MembraneModel`).
+
+    The [[material]] (stvk: young, poisson, density) and ``[membrane] thickness``
+    make the plane-stress StVK membrane; ``[[load]] kind = "pressure"`` loads
+    add up to its pressure (ramped with the load factor in static runs, full in
+    dynamics).  Refused: a pressure on a membrane whose open rim is not held in all
+    three components (by ``rim = "clamped"`` or ``[[fixed]]`` regions), since
+    the follower pressure is conservative only then.
+    """
+    from .deform.membrane import StVKMembrane
+    from .deform.membrane_model import MembraneModel, open_rim
+
+    spec = scene.materials[0]
+    law = StVKMembrane(young=spec.young, poisson=spec.poisson, thickness=scene.membrane.thickness)
+    points, triangles = _membrane_mesh(scene)
+    pressure = float(sum(ld.pressure for ld in scene.loads if ld.kind == "pressure"))
+    rim = open_rim(triangles)
+    clamped = rim if scene.membrane.rim == "clamped" else None
+    model = MembraneModel(points, triangles, law, density=spec.density, pressure=pressure,
+                          pressure_ramp=scene.solver.kind == "static", clamped=clamped,
+                          voxel_size=scene.object.voxel_size)
+    model._image = image
+    if pressure != 0.0 and clamped is None and len(rim):
+        held = set()
+        for f in scene.fixed:
+            held.update(int(d) for d in model.held_dofs(f.min, f.max, f.components))
+        loose = [int(v) for v in rim if not all(3 * int(model._index_of[v]) + k in held for k in range(3))]
+        if loose:
+            raise InputError(f"a pressure is conservative only on a clamped or closed membrane, and {len(loose)} of "
+                             f"the {len(rim)} rim vertices are not held (e.g. {points[loose[0]].tolist()}); set "
+                             '[membrane] rim = "clamped" or cover the rim with [[fixed]] regions')
+    return model
+
+
 def _not_implemented(kind: str):
     def builder(scene, image, materials):
         built = [k for k, b in MODEL_BUILDERS.items() if not getattr(b, "not_implemented", False)]
@@ -352,6 +410,7 @@ MODEL_BUILDERS: dict[str, Callable] = {
     "voxel": _voxel_model,
     "affine": _frame_model,
     "rigid": _rigid_model,
+    "membrane": _membrane_model,
 }
 """Registry: ``[nodes] kind`` -> builder ``(scene, image, materials) -> Model``."""
 

@@ -34,7 +34,7 @@ import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from .deform.boundary import FORCE_KINDS
+from .deform.boundary import FORCE_KINDS, PRESSURE_KIND
 from .deform.linear_solvers import METHODS as LINEAR_SOLVERS
 from .deform.materials import MATERIALS, MODEL_CONSTANTS, POISSON_RANGE, check_constants
 from .deform.model import NODE_KINDS as _NODE_KINDS
@@ -42,6 +42,7 @@ from .deform.obstacles import OBSTACLE_KINDS
 from .deform.contact import POINT_RULES as CONTACT_POINT_RULES
 from .deform.cables import Cable
 from .deform.fields import check_field_names
+from .deform.membrane_model import MEMBRANE_NODE_KIND, MEMBRANE_SHAPES, RIMS as MEMBRANE_RIMS
 from .deform.solvers import KINDS as SOLVER_KINDS, MASS_KINDS
 from .deform.strains import STRAINS
 from .deform.voxel_model import HOURGLASS, VOLUMETRIC
@@ -64,15 +65,16 @@ __all__ = [
     "ObstacleSpec",
     "ContactSpec",
     "CableSpec",
+    "MembraneSpec",
     "describe_scene",
     "default_scene_path",
 ]
 
 # every vocabulary is defined once, in the stage that owns it
-SHAPES = {name: entry[1] for name, entry in PRIMITIVES.items()}
-NODE_KINDS = _NODE_KINDS
+SHAPES = {**{name: entry[1] for name, entry in PRIMITIVES.items()}, **MEMBRANE_SHAPES}
+NODE_KINDS = (*_NODE_KINDS, MEMBRANE_NODE_KIND)
 SHAPE_FUNCTIONS = SHAPE_FUNCTION_KINDS + VOXEL_SHAPE_FUNCTIONS
-LOAD_KINDS = ("gravity", *FORCE_KINDS)
+LOAD_KINDS = ("gravity", *FORCE_KINDS, PRESSURE_KIND)
 STRAIN_NAMES = tuple(STRAINS)
 DISTANCES = ("geodesic", "compliance")
 KEEP = ("all", "largest")
@@ -270,6 +272,8 @@ def _size_help(shape: str) -> str:
         "box": "[lx, ly, lz]",
         "cylinder": "[radius, length]",
         "sphere": "[radius]",
+        "disk": "[radius]",
+        "rectangle": "[lx, ly]",
     }.get(shape, "a list of positive numbers")
 
 
@@ -441,18 +445,41 @@ class FixedSpec:
 @dataclass(frozen=True)
 class LoadSpec:
     """``[[load]]``: ``gravity`` (acceleration, m/s^2, on every label's density),
-    ``traction`` (Pa on the boundary faces inside [min, max]) or ``force``
-    (a total force in N spread over the nodes inside [min, max])."""
+    ``traction`` (Pa on the boundary faces inside [min, max]), ``force``
+    (a total force in N spread over the nodes inside [min, max]) or ``pressure``
+    (``pressure`` Pa along the normals of a membrane's triangles, a follower load;
+    membranes only, on the whole membrane: no vector, min or max)."""
 
     kind: str = "gravity"
-    vector: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    vector: tuple[float, float, float] | None = None
     min: tuple[float, float, float] | None = None
     max: tuple[float, float, float] | None = None
+    pressure: float | None = None
 
     def __post_init__(self):
         t = "load"
         _string(t, "kind", self.kind, LOAD_KINDS)
-        object.__setattr__(self, "vector", _vector(t, "vector", self.vector))
+        if self.kind == PRESSURE_KIND:
+            if self.pressure is None:
+                raise InputError('[load] kind = "pressure" needs pressure (Pa), e.g. pressure = 1000.0')
+            object.__setattr__(self, "pressure", _number(t, "pressure", self.pressure))
+            if math.isinf(self.pressure):
+                raise InputError(f"[load] pressure must be finite, got {self.pressure!r}")
+            if self.vector is not None and any(v != 0 for v in _vector(t, "vector", self.vector)):
+                raise InputError('[load] vector does not apply to kind = "pressure" (it pushes along the '
+                                 "membrane's normals); remove it")
+            bounds = [_vector(t, k, getattr(self, k), finite=False) for k in ("min", "max") if getattr(self, k) is not None]
+            if any(not math.isinf(v) for box in bounds for v in box):  # (to_toml writes the unbounded box)
+                raise InputError('[load] kind = "pressure" acts on the whole membrane (a conservative pressure '
+                                 "needs all of it); remove min/max")
+            object.__setattr__(self, "vector", (0.0, 0.0, 0.0))  # simulate() reads a vector from every load
+            object.__setattr__(self, "min", (-_INF,) * 3)
+            object.__setattr__(self, "max", (_INF,) * 3)
+            return
+        if self.pressure is not None:
+            raise InputError(f'[load] pressure applies to kind = "pressure" only; remove it (kind = "{self.kind}")')
+        vector = (0.0, 0.0, -9.81) if self.vector is None else self.vector
+        object.__setattr__(self, "vector", _vector(t, "vector", vector))
         if self.kind == "gravity":
             if self.min is not None or self.max is not None:
                 raise InputError("[load] min/max apply to traction and force loads; gravity acts everywhere")
@@ -678,6 +705,76 @@ class CableSpec:
             raise InputError(f"[cable] {exc}") from None
 
 
+@dataclass(frozen=True)
+class MembraneSpec:
+    """``[membrane]``: the sheet of ``[nodes] kind = "membrane"`` (:mod:`voxflex.deform.membrane_model`).
+
+    ``thickness`` h (m, required); ``rim``: ``"clamped"`` holds every vertex of the
+    mesh's open rim (the edges only one triangle uses) in place, ``"free"`` (the
+    default) leaves it to ``[[fixed]]`` regions.
+    """
+
+    thickness: float | None = None
+    rim: str = "free"
+
+    def __post_init__(self):
+        t = "membrane"
+        if self.thickness is None:
+            raise InputError("[membrane] needs thickness (m), e.g. thickness = 0.001")
+        object.__setattr__(self, "thickness", _number(t, "thickness", self.thickness, positive=True))
+        _string(t, "rim", self.rim, MEMBRANE_RIMS)
+
+
+def _check_membrane_scene(scene) -> None:
+    """The keys that apply to membranes, and those that apply only to them (one-line errors naming the fix)."""
+    obj = scene.object
+    if scene.nodes.kind != MEMBRANE_NODE_KIND:
+        if obj.shape in MEMBRANE_SHAPES:
+            raise InputError(f'[object] shape = "{obj.shape}" is a membrane; use [nodes] kind = "membrane" (with a '
+                             "[membrane] table) or a solid shape (box, cylinder, sphere)")
+        if scene.membrane is not None:
+            raise InputError('[membrane] applies to [nodes] kind = "membrane" only; remove it or set that kind')
+        bad = [ld.kind for ld in scene.loads if ld.kind == PRESSURE_KIND]
+        if bad:
+            raise InputError('[load] kind = "pressure" acts on membranes only; use [nodes] kind = "membrane", or a '
+                             'traction load on a solid')
+        return
+    fix = 'for [nodes] kind = "membrane"'
+    if scene.membrane is None:
+        raise InputError('[nodes] kind = "membrane" needs a [membrane] table with thickness (m)')
+    if obj.image is not None or (obj.shape is not None and obj.shape not in MEMBRANE_SHAPES):
+        raise InputError(f"a membrane is a surface: give [object] shape = \"disk\" or \"rectangle\", or mesh = a "
+                         f"surface mesh file ({fix})")
+    for key, default in (("occupancy", None), ("keep", "all"), ("min_component_voxels", 1)):
+        if getattr(obj, key) != default:
+            raise InputError(f"[object] {key} does not apply to membranes; remove it ({fix})")
+    nodes = scene.nodes
+    for key in ("count", "positions", "shape_function"):
+        if getattr(nodes, key) is not None:
+            raise InputError(f"[nodes] {key} applies to frames and voxels; remove it ({fix}: the mesh's vertices "
+                             "are the nodes)")
+    el = scene.elasticity
+    if el.quadrature != "midpoint" or el.samples is not None or el.strain is not None:
+        raise InputError("[elasticity] quadrature, samples and strain do not apply to membranes (one point per "
+                         f"triangle, Green strain); remove them ({fix})")
+    models = sorted({m.model for m in scene.materials})
+    if models != ["stvk"] or len(scene.materials) != 1 or scene.materials[0].label != 1:
+        raise InputError('a membrane takes one [[material]] with model = "stvk", young, poisson (label 1), '
+                         f"got models {models}; the membrane law is the plane-stress StVK")
+    if scene.materials[0].young is None or scene.materials[0].poisson is None:
+        raise InputError('the membrane\'s [[material]] needs young (Pa) and poisson (model = "stvk")')
+    kinds = [ld.kind for ld in scene.loads if ld.kind == "traction"]
+    if kinds:
+        raise InputError('[load] kind = "traction" needs voxel faces; push a membrane with kind = "pressure" or '
+                         '"force"')
+    if scene.obstacles:
+        raise InputError("membranes do not take [[obstacle]] contact yet; remove the obstacles or use a solid")
+    if scene.cables:
+        raise InputError("membranes do not take [[cable]] tables yet; remove them or use a solid")
+    if scene.output.fields:
+        raise InputError("result fields ([output] fields) are not implemented for membranes yet; remove the key")
+
+
 _SINGLE = {
     "object": ObjectSpec,
     "nodes": NodesSpec,
@@ -685,11 +782,12 @@ _SINGLE = {
     "solver": SolverSpec,
     "output": OutputSpec,
     "contact": ContactSpec,
+    "membrane": MembraneSpec,
 }
 _ARRAYS = {"material": MaterialSpec, "fixed": FixedSpec, "load": LoadSpec, "probe": ProbeSpec,
            "obstacle": ObstacleSpec, "cable": CableSpec}
 _TOP_KEYS = ("title", "object", "material", "nodes", "elasticity", "fixed", "load", "solver", "probe", "output",
-             "obstacle", "contact", "cable")
+             "obstacle", "contact", "cable", "membrane")
 _FIELD = {"material": "materials", "fixed": "fixed", "load": "loads", "probe": "probes", "obstacle": "obstacles",
           "cable": "cables"}
 
@@ -715,6 +813,7 @@ class Scene:
     obstacles: tuple[ObstacleSpec, ...] = ()
     contact: ContactSpec = field(default_factory=ContactSpec)
     cables: tuple[CableSpec, ...] = ()
+    membrane: MembraneSpec | None = None
     title: str | None = None
     base_dir: str | None = field(default=None, compare=False)
 
@@ -747,6 +846,7 @@ class Scene:
             object.__setattr__(self, "elasticity", replace(self.elasticity, quadrature=own))
         if not isinstance(self.contact, ContactSpec):
             raise InputError("Scene.contact must be a ContactSpec (the [contact] table)")
+        _check_membrane_scene(self)
 
     # -- reading ----------------------------------------------------------
     @classmethod
@@ -838,6 +938,8 @@ class Scene:
             lines += _table("contact", self.contact)
         for c in self.cables:
             lines += _table("cable", c, array=True)
+        if self.membrane is not None:
+            lines += _table("membrane", self.membrane)
         return "\n".join(lines).rstrip("\n") + "\n"
 
     # -- conveniences -----------------------------------------------------
@@ -973,7 +1075,12 @@ def describe_scene(path) -> str:
     for f in scene.fixed:
         how = "moved by a transform" if f.transform is not None else f"held ({f.components})"
         lines.append(f"  fixed: box {list(f.min)} .. {list(f.max)} {how}")
+    if scene.membrane is not None:
+        lines.append(f"  membrane: thickness {scene.membrane.thickness:g} m, rim {scene.membrane.rim}")
     for ld in scene.loads:
+        if ld.kind == PRESSURE_KIND:
+            lines.append(f"  load: pressure {ld.pressure:g} Pa on the whole membrane")
+            continue
         region = "" if ld.kind == "gravity" else f" on box {list(ld.min)} .. {list(ld.max)}"
         lines.append(f"  load: {ld.kind} {list(ld.vector)}{region}")
     s = scene.solver

@@ -28,7 +28,12 @@ from ..errors import InputError, check_choice
 from .model import moved_rest, transform_at
 
 FORCE_KINDS = ("force", "traction")
-"""Kinds of region loads (the scene's ``[[load]] kind`` besides ``gravity``)."""
+"""Kinds of region loads (the scene's ``[[load]] kind`` besides ``gravity`` and ``pressure``)."""
+
+PRESSURE_KIND = "pressure"
+"""``[[load]] kind`` of a follower pressure on a membrane.  It is a potential of the membrane
+model (:mod:`voxflex.deform.membrane_model`), not a dead load: a :class:`ForceRegion` of this
+kind contributes no force here (:func:`region_forces` skips it)."""
 
 
 def _vec3(name, value):
@@ -122,7 +127,8 @@ class ForceRegion:
         ``kind="force"``: the total force (N), spread over the material in
         the box (see :func:`region_forces`); ``kind="traction"``: force per
         unit area (Pa) on the boundary faces whose centre lies in the box.
-    kind : {"force", "traction"}
+    kind : {"force", "traction", "pressure"}
+        ("pressure": carried by the membrane model's energy; no force here)
     """
 
     min: np.ndarray
@@ -137,7 +143,7 @@ class ForceRegion:
         vec = _vec3("force vector", self.vector)
         if not np.all(np.isfinite(vec)):
             raise InputError(f"force vector must be finite, got {vec.tolist()}")
-        check_choice("force kind", self.kind, FORCE_KINDS)
+        check_choice("force kind", self.kind, (*FORCE_KINDS, PRESSURE_KIND))
         object.__setattr__(self, "min", lo)
         object.__setattr__(self, "max", hi)
         object.__setattr__(self, "vector", vec)
@@ -242,14 +248,19 @@ def region_forces(model, regions) -> np.ndarray:
     f = np.zeros(rest.shape)
     faces = None
     for r, region in enumerate(regions):
-        if faces is None:
-            corners, area, _ = model.boundary_faces()
-            fpts, fw = face_points(corners, area)
-            faces = (corners.mean(axis=1), fpts, fw)
-        centre, fpts, fw = faces
+        if region.kind == PRESSURE_KIND:
+            continue  # a follower pressure is in the model's energy (membranes)
+        pts = sel = None
         if region.kind == "force":
             pts, vol = model.volume_points()
             sel = _in_box(pts, region.min, region.max)
+        if faces is None and not (region.kind == "force" and np.any(sel)):
+            corners, area, _ = model.boundary_faces()  # only when faces are needed (membranes have none)
+            fpts, fw = face_points(corners, area)
+            faces = (corners.mean(axis=1), fpts, fw)
+        if faces is not None:
+            centre, fpts, fw = faces
+        if region.kind == "force":
             if np.any(sel):
                 pts, share = pts[sel], vol[sel]
             else:

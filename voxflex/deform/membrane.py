@@ -130,14 +130,20 @@ class TriangleDeformationMapping:
         np.add.at(out, T[:, 0], -G.sum(axis=2))
         return out
 
-    def jacobian(self, x=None) -> sp.csr_matrix:
-        """Assembled J ``(6m, 3n)``: row ``6 t + 2 i + J`` = F[t, i, J], column ``3 point + i``."""
-        m = self.m
+    @property
+    def corner_coefficients(self) -> np.ndarray:
+        """``coef`` ``(m, 3, 2)``: ``F[t, i, J] = sum_c x[triangles[t, c], i] coef[t, c, J]`` (1/m)."""
         Di = self._Dm_inv  # F_iJ = sum_c (x_c - x_0)_i Di[c-1, J]
-        coef = np.zeros((m, 3, 2))  # coef[t, corner, J]
+        coef = np.zeros((self.m, 3, 2))
         coef[:, 1, :] = Di[:, 0, :]
         coef[:, 2, :] = Di[:, 1, :]
         coef[:, 0, :] = -Di.sum(axis=1)
+        return coef
+
+    def jacobian(self, x=None) -> sp.csr_matrix:
+        """Assembled J ``(6m, 3n)``: row ``6 t + 2 i + J`` = F[t, i, J], column ``3 point + i``."""
+        m = self.m
+        coef = self.corner_coefficients  # coef[t, corner, J]
         t, c, i, J = np.meshgrid(np.arange(m), np.arange(3), np.arange(3), np.arange(2), indexing="ij")
         rows = 6 * t + 2 * i + J
         cols = 3 * self.triangles[t, c] + i
