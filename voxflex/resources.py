@@ -95,7 +95,7 @@ class Estimate:
 
     def summary(self) -> str:
         """One line: sizes, memory and time."""
-        what = "frames" if self.node_kind != "voxel" else "nodes"
+        what = {"voxel": "nodes", "membrane": "vertices"}.get(self.node_kind, "frames")
         return (f"about {self.voxels:,} voxels, {self.nodes:,} {what}, {self.dofs:,} DOF; memory ~{_human(self.total_bytes)} "
                 f"(model {_human(self.model_bytes)} + {self.states:,} states x {_human(self.state_bytes)}); "
                 f"time ~{_duration(self.seconds)} (rough)")

@@ -607,6 +607,8 @@ def _model_text(r) -> str:
     m = r.model
     if r.node_kind == "voxel":
         text = f"voxel nodes, {r.n_nodes} nodes, {r.n_dofs} DOF"
+    elif r.node_kind == "membrane":
+        text = f"membrane, {r.n_nodes} vertices, {r.n_dofs} DOF"
     else:
         text = f"{r.n_nodes} {r.node_kind} frames, {r.n_dofs} DOF"
     extra = [f"{k.replace('_', ' ')} {m[k]}" for k in ("shape_function", "quadrature", "samples") if k in m]

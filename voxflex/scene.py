@@ -72,7 +72,7 @@ __all__ = [
 
 # every vocabulary is defined once, in the stage that owns it
 SHAPES = {**{name: entry[1] for name, entry in PRIMITIVES.items()}, **MEMBRANE_SHAPES}
-NODE_KINDS = (*_NODE_KINDS, MEMBRANE_NODE_KIND)
+NODE_KINDS = _NODE_KINDS
 SHAPE_FUNCTIONS = SHAPE_FUNCTION_KINDS + VOXEL_SHAPE_FUNCTIONS
 LOAD_KINDS = ("gravity", *FORCE_KINDS, PRESSURE_KIND)
 STRAIN_NAMES = tuple(STRAINS)

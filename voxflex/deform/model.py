@@ -35,10 +35,11 @@ from ..errors import InputError
 
 __all__ = ["Model", "PointMap", "ModelLayer", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "moved_rest", "transform_at"]
 
-NODE_KINDS = ("affine", "rigid", "voxel")
-"""``[nodes] kind`` values: affine frames (12 DOF), rigid frames (6 DOF), voxel-corner points (3 DOF)."""
+NODE_KINDS = ("affine", "rigid", "voxel", "membrane")
+"""``[nodes] kind`` values: affine frames (12 DOF), rigid frames (6 DOF), voxel-corner points (3 DOF),
+the vertices of a membrane's triangle mesh (3 DOF, :mod:`voxflex.deform.membrane_model`)."""
 
-IMPLEMENTED_NODE_KINDS = ("affine", "rigid", "voxel")
+IMPLEMENTED_NODE_KINDS = ("affine", "rigid", "voxel", "membrane")
 """The node kinds a scene can be simulated with (rigid frames: static scenes only)."""
 
 
