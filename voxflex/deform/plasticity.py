@@ -67,7 +67,12 @@ from ..errors import InputError
 from .materials import Material, strain_kind
 from .model import ModelLayer, end_step
 
-__all__ = ["PlasticMaterial", "PlasticModel", "von_mises_strain", "equilibrate", "STATIONARY"]
+__all__ = ["PlasticMaterial", "PlasticModel", "von_mises_strain", "equilibrate", "STATIONARY",
+           "ANDERSON_DEPTH"]
+
+ANDERSON_DEPTH = 5
+"""Passes of a step that :meth:`PlasticModel.end_step` combines (Anderson mixing) to speed up the
+staggered iteration."""
 
 STATIONARY = 1e-10
 """A step's plastic strains are settled when no component changes by more than this fraction of the
@@ -343,7 +348,7 @@ class PlasticModel(ModelLayer):
 
     def describe(self) -> dict:
         out = dict(self.inner.describe())
-        out["plastic_labels"] = sorted(self.plastic)
+        out["plastic_labels"] = " ".join(map(str, sorted(self.plastic)))  # a result attribute: one string
         return out
 
     def end_step(self, q) -> bool:
@@ -355,17 +360,53 @@ class PlasticModel(ModelLayer):
         """
         changed = end_step(self.inner, q)
         F = self.inner.deformation_gradients(q)
+        x = self._vector()  # the plastic strains the step was solved with
         for mat, ids in self.plastic.values():
-            before = mat.plastic_strain.copy()
             mat.update(F[ids])
-            if np.max(np.abs(mat.plastic_strain - before), initial=0.0) > self.stationary * mat.yield_strain:
-                changed = True
+        g = self._vector()  # their return map at the solution
+        scale = np.concatenate([np.full(m.n_samples * 6, m.yield_strain) for m, _ in self.plastic.values()])
+        if np.max(np.abs(g - x) / scale, initial=0.0) > self.stationary:
+            self._set(self._accelerate(x, g))
+            return True
+        self._pairs = []
         if changed:
             return True
         for mat, _ in self.plastic.values():
             mat.commit()
         self.history.append(self._snapshot())
         return False
+
+    def _vector(self) -> np.ndarray:
+        return np.concatenate([m.plastic_strain.ravel() for m, _ in self.plastic.values()])
+
+    def _set(self, x) -> None:
+        start = 0
+        for mat, _ in self.plastic.values():
+            n = mat.plastic_strain.size
+            mat.plastic_strain[:] = x[start:start + n].reshape(-1, 6)
+            start += n
+
+    def _accelerate(self, x, g) -> np.ndarray:
+        """The next plastic strains of the fixed-point iteration ``x -> g(x)`` (solve, then return-map),
+        by Anderson mixing of the last :data:`ANDERSON_DEPTH` passes of the step.
+
+        Plain iteration (``g`` itself) converges linearly, slowly where the plastic zone is large
+        (measured on examples/plastic_bar.toml: the change shrinks by 0.76 to 0.92 per pass, over
+        100 passes per step); Anderson's least-squares combination of the last residuals
+        ``f = g - x`` takes ``sum_j c_j g_j`` with ``sum_j c_j = 1`` minimising ``|sum_j c_j f_j|``.
+        Only the iterates change: a step settles where the return map reproduces its input, so
+        the committed state is an exact return map of the converged solution either way.
+        """
+        pairs = getattr(self, "_pairs", [])
+        pairs.append((x, g))
+        self._pairs = pairs = pairs[-(ANDERSON_DEPTH + 1):]
+        if len(pairs) < 2:
+            return g
+        f = [gj - xj for xj, gj in pairs]
+        dF = np.stack([f[j + 1] - f[j] for j in range(len(f) - 1)], axis=1)
+        dG = np.stack([pairs[j + 1][1] - pairs[j][1] for j in range(len(f) - 1)], axis=1)
+        gamma = np.linalg.lstsq(dF, f[-1], rcond=1e-12)[0]
+        return g - dG @ gamma
 
     def use_state(self, index: int) -> None:
         """Set the plastic state to ``history[index]`` (results evaluate stresses and reactions of each
