@@ -22,7 +22,7 @@ def _load(name: str) -> Scene:
 def test_every_example_parses():
     names = sorted(p.stem for p in EXAMPLES.glob("*.toml"))
     assert names == ["ball_on_plane", "cable_bar", "cantilever", "drop", "membrane_pressure", "object_image",
-                     "object_mesh", "object_shape", "pushed_block", "stretch", "twist", "two_bone_limb"]
+                     "object_mesh", "object_shape", "plastic_bar", "pushed_block", "stretch", "twist", "two_bone_limb"]
     for name in names:
         assert _load(name).probes
 

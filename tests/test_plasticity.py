@@ -10,11 +10,14 @@ strain), elastic unloading with slope E, and a permanent set eps_p = eps - sigma
 when the end is released.
 
 Each load level is solved by voxflex.deform.plasticity.equilibrate (one static step from
-the previous state), then the plastic state is return-mapped and the level
-re-solved until e_p stops changing (the staggered scheme of the module); the
-fixed point is the exact incremental solution, so the forces match the closed
-form to the solver's tolerance: 1e-7 relative (Newton stops at 1e-8 of the
-force scale; the staggered loop at a change of e_p below 1e-13).
+the previous state): the solver's post-convergence hook (PlasticModel.end_step)
+return-maps the plastic state and re-solves the level until e_p stops changing
+(the staggered scheme of the module); the fixed point is the exact incremental
+solution, so the forces match the closed form to the solver's tolerance: 1e-7
+relative (Newton stops at 1e-10 of the force scale; the staggered loop at a
+change of e_p below 1e-10 of the yield strain).  The same holds for a load ramp
+of several steps in one solve() call, and for implicit Euler with heavy damping
+(its steps end at rest).
 """
 
 from __future__ import annotations
@@ -124,9 +127,54 @@ def test_return_mapping_lands_on_the_hardened_yield_surface():
 def test_bad_input():
     base = material("hooke", young=E, poisson=NU, strain="linear")
     mat = PlasticMaterial(base, 4, yield_strain=1e-3)
+    mat.evaluate(np.tile(np.eye(3), (3, 1, 1)))  # virgin: the base material, any rows
+    assert mat.update(np.tile(np.diag([1.01, 1.0, 1.0]), (4, 1, 1))) == 4
     with pytest.raises(InputError, match="samples="):
-        mat.evaluate(np.tile(np.eye(3), (3, 1, 1)))
+        mat.evaluate(np.tile(np.eye(3), (3, 1, 1)))  # yielded: rows must match the samples
     with pytest.raises(InputError, match="tensor strain"):
         PlasticMaterial(material("neo-hookean", young=1.0, poisson=0.3), 4, yield_strain=1e-3)
     with pytest.raises(InputError, match="yield_strain"):
         PlasticMaterial(base, 4, yield_strain=0.0)
+
+
+def test_load_ramp_in_one_solve_commits_each_step():
+    """solve() with 4 static steps: each record's end force is the closed form at its strain, and
+    PlasticModel.history holds one committed state per step (yield counts from the closed form: none
+    before the first yield, all 32 Gauss points after, the stress being uniform)."""
+    from voxflex.deform.plasticity import PlasticModel
+    from voxflex.deform.solvers import SolverOptions, solve
+
+    model, mat = _bar()
+    layer = PlasticModel(model)
+    eps_yield = 3 * MU * EPS_Y / E
+    eps_max = 3.0 * eps_yield
+    records = solve(layer, fixed=_supports() + [_end(eps_max)], options=SolverOptions(steps=4, tolerance=1e-10))
+    assert len(layer.history) == len(records)
+    for i, rec in enumerate(records[1:], start=1):
+        layer.use_state(i)  # the stresses of a step need its own plastic state
+        eps = rec.time * eps_max
+        assert _force(model, rec.q) == pytest.approx(_sigma_loading(eps), rel=1e-7), eps
+    layer.use_state(-1)
+    count, peak = layer.measures()
+    np.testing.assert_array_equal(count, [0, 0, 32, 32, 32])  # strains 0.75, 1.5, 2.25, 3 x the yield strain
+    # uniaxial stress: the equivalent plastic strain is the axial plastic strain eps - sigma / E
+    expected = eps_max - _sigma_loading(eps_max) / E
+    assert peak[-1] == pytest.approx(expected, rel=1e-7)
+    assert _force(model, records[-1].q) == pytest.approx(_sigma_loading(eps_max), rel=1e-7)
+
+
+def test_layer_refuses_models_it_cannot_track():
+    from voxflex.deform.plasticity import PlasticModel
+
+    base = material("hooke", young=E, poisson=NU, strain="linear")
+    image = LabelImage(np.ones((4, 1, 1), dtype=np.uint8))
+    with pytest.raises(InputError, match="no plastic material"):
+        PlasticModel(VoxelModel.from_image(image, {1: base}))
+    mat = PlasticMaterial(base, None, yield_strain=EPS_Y)
+    with pytest.raises(InputError, match="volumetric"):
+        PlasticModel(VoxelModel.from_image(image, {1: mat}, volumetric="reduced"))
+    mat = PlasticMaterial(base, None, yield_strain=EPS_Y)
+    PlasticModel(VoxelModel.from_image(image, {1: mat}))
+    assert mat.n_samples == 32  # sized by the layer: 4 voxels x 8 Gauss points
+    with pytest.raises(InputError, match="material of its own"):
+        PlasticModel(VoxelModel.from_image(LabelImage(np.ones((2, 1, 1), dtype=np.uint8)), {1: mat}))

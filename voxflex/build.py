@@ -114,7 +114,40 @@ def build_materials(scene: Scene, labels_present) -> dict:
     for label in present:
         spec = scene.material_for(label)
         out[label] = material(spec.model, **spec.material_kwargs(scene.elasticity.strain))
+        if spec.yield_strain is not None:
+            out[label] = _plastic(out[label], spec, label)
     return out
+
+
+def _plastic(base, spec, label):
+    """The plastic material of a ``[[material]]`` with ``yield_strain`` (sized later by its model)."""
+    from .deform.plasticity import PlasticMaterial
+
+    try:
+        return PlasticMaterial(base, None, yield_strain=spec.yield_strain, hardening=spec.hardening or 0.0)
+    except InputError as exc:
+        raise InputError(f"[[material]] label {label}: {exc}") from None
+
+
+_PLASTIC_SURFACE_FIELDS = ("stress", "von-mises", "energy-density")
+"""Result fields that evaluate the materials on the frames' surface layer, which has no plastic state."""
+
+
+def _with_plasticity(built, scene: Scene):
+    """``built`` wrapped in :class:`~voxflex.deform.plasticity.PlasticModel` when a label is plastic."""
+    from .deform.plasticity import with_plasticity
+
+    plastic = [m.label for m in scene.materials if m.yield_strain is not None]
+    if not plastic:
+        return built
+    if scene.nodes.kind == "rigid":
+        raise InputError('plasticity ([material] yield_strain) needs deformable nodes: use [nodes] kind = "affine" '
+                         'or "voxel"')
+    bad = [f for f in scene.output.fields if f in _PLASTIC_SURFACE_FIELDS]
+    if bad and scene.nodes.kind != "voxel":
+        raise InputError(f'[output] fields "{bad[0]}" with plasticity needs [nodes] kind = "voxel" (the frames\' '
+                         "surface layer carries no plastic state); remove it or use voxel nodes")
+    return with_plasticity(built)
 
 
 def _voxel_model(scene: Scene, image, materials):
@@ -452,4 +485,4 @@ def model(scene, *, image=None, cache: bool = True):
     # the collision layer is built only when the scene has obstacles, the cable layer when it has cables
     builder = MODEL_BUILDERS[scene.nodes.kind]
     built = builder(scene, image, materials, cache=cache) if builder in (_frame_model, _rigid_model) else builder(scene, image, materials)
-    return with_cables(with_contact(built, scene), scene)
+    return with_cables(with_contact(_with_plasticity(built, scene), scene), scene)

@@ -10,7 +10,9 @@ A picture is composed of two layers:
   leaves the picture and an animation does not jump;
 * the 2-D annotations, drawn with Pillow around it: the title and step above
   the plot area, for affine frame models the frames as small black dots
-  (visible even inside the object), the colour bar with its ticks on the right, and under it an
+  (visible even inside the object), the cables of a result that has them as
+  red polylines through their deformed eyelets (anchor first; also drawn over
+  the object), the colour bar with its ticks on the right, and under it an
   axes triad and a gravity arrow (when the scene has gravity) seen from the
   camera.  Text is measured before it is placed, so labels stay inside the
   picture at any window size.
@@ -228,6 +230,21 @@ def _frame_positions(result, step=None):
     return np.asarray(states[..., cols])
 
 
+CABLE_COLOUR = (214, 39, 40)
+"""RGB of the cable polylines (no colour map of the renders reaches it: red, far from viridis)."""
+
+
+def _cable_polylines(result, step=None) -> list:
+    """Each cable's polyline at ``step``: a list of ``(k, 3)`` world positions (anchor first), or of
+    ``(T, k, 3)`` over every state when ``step`` is None; [] when the result has no cable points."""
+    points = getattr(result, "cable_points", None)
+    owner = getattr(result, "cable_point_cable", None)
+    if points is None or owner is None or len(owner) == 0:
+        return []
+    states = points if step is None else points[step]
+    return [np.asarray(states[..., owner == c, :]) for c in np.unique(owner)]
+
+
 def _field_names(result) -> list[str]:
     fields = getattr(result, "fields", None)
     return sorted(str(k) for k in fields) if isinstance(fields, dict) else []
@@ -359,6 +376,7 @@ def render_frames(
     pts = [result.surface_rest, result.surface_positions.reshape(-1, 3)]
     if style.show_frames and _frame_positions(result, 0) is not None:
         pts.append(_frame_positions(result).reshape(-1, 3))
+    pts += [line.reshape(-1, 3) for line in _cable_polylines(result)]  # anchors outside the body stay in view
     pts = np.concatenate(pts)
     layout = _Layout.make(style, result, (lo, hi), bar_title, g is not None)
     faces = np.hstack([np.full((result.surface_faces.shape[0], 1), 3), result.surface_faces]).ravel()
@@ -397,7 +415,8 @@ def render_frames(
                 view_image[show] = silhouette[1][show]
             frame_pts = _frame_positions(result, s) if style.show_frames else None
             dots = None if frame_pts is None else to_pixels(frame_pts)
-            images.append(layout.compose(view_image, style, result, s, cmap_obj, (lo, hi), g, dots))
+            lines = [to_pixels(line) for line in _cable_polylines(result, s)]
+            images.append(layout.compose(view_image, style, result, s, cmap_obj, (lo, hi), g, dots, lines))
     finally:
         plotter.close()
     return images
@@ -524,13 +543,19 @@ class _Layout:
         return cls((W, H), f, title_h, band_x, band_w, bar, bar_title, triad, gravity)
 
     # -- drawing ----------------------------------------------------------
-    def compose(self, view_image, style: _Style, result, step: int, cmap, clim, gravity, dots=None) -> np.ndarray:
+    def compose(self, view_image, style: _Style, result, step: int, cmap, clim, gravity, dots=None,
+                cables=()) -> np.ndarray:
         from PIL import Image, ImageDraw
 
         W, H = self.window
         canvas = Image.new("RGB", (W, H), "white")
         canvas.paste(Image.fromarray(view_image), (0, self.title_h))
         draw = ImageDraw.Draw(canvas)
+        width = max(2, round(self.font / 6))
+        for line in cables:  # cables: polylines through the eyelets (pixels), always visible
+            xy = [(float(x), float(y) + self.title_h) for x, y in line]
+            if len(xy) >= 2:
+                draw.line(xy, fill=CABLE_COLOUR, width=width, joint="curve")
         if dots is not None:  # affine frames: always visible, even inside the object
             r = max(2.0, self.font / 4)
             for x, y in dots:

@@ -27,7 +27,13 @@ the group ``/model`` whose attributes describe the model (``node_kind``, ``count
 With obstacles, ``/contact/force`` (T, obstacles, 3): the total force (N) each
 obstacle exerts on the body at every state (absent without obstacles).
 With cables, ``/cable/tension`` (T, cables): the tension (N) of each ``[[cable]]``
-at every state, in the order of the scene's tables (absent without cables).
+at every state, in the order of the scene's tables (absent without cables), and
+``/cable/points`` (T, P, 3) with ``/cable/point_cable`` (P,): the world positions
+of every cable's polyline (its anchor first, then its points) at every state and
+the cable each point belongs to (renders draw them).
+With plasticity, ``/plasticity/yielded_samples`` (T,): how many samples have
+yielded so far, and ``/plasticity/max_strain`` (T,): the largest equivalent
+plastic strain ``sqrt(2/3) |e_p|`` at every state.
 Fields asked for by ``[output] fields``: ``/fields/NAME`` (T, C, ...) per cell
 (attr ``location``: ``"voxels"`` or ``"samples"``), ``/surface/fields/NAME``
 (T, F, ...) per surface triangle, ``/reactions/force`` (T, R, 3) per fixed region.
@@ -105,6 +111,12 @@ class Result:
         (``/contact/force``); None without obstacles.
     cable_tension : (T, c) float or None
         Tension (N) of each of the c cables at every state (``/cable/tension``); None without cables.
+    cable_points : (T, P, 3) float or None; cable_point_cable : (P,) int or None
+        World positions (m) of the cables' polyline points at every state (``/cable/points``; per
+        cable its anchor, if any, then its points) and the cable of each point (``/cable/point_cable``).
+    plastic_samples : (T,) int or None; plastic_strain_max : (T,) float or None
+        Samples that have yielded so far and the largest equivalent plastic strain at every state
+        (``/plasticity/yielded_samples``, ``/plasticity/max_strain``); None without plasticity.
     fields : dict name -> (T, F, ...) float
         Result fields on the surface triangles (``/surface/fields/NAME``): what renders colour by
         (names of :data:`voxflex.deform.fields.FIELD_NAMES`).
@@ -143,6 +155,10 @@ class Result:
     model: dict = field(default_factory=dict)
     contact_force: np.ndarray | None = None
     cable_tension: np.ndarray | None = None
+    cable_points: np.ndarray | None = None
+    cable_point_cable: np.ndarray | None = None
+    plastic_samples: np.ndarray | None = None
+    plastic_strain_max: np.ndarray | None = None
     fields: dict = field(default_factory=dict)
     cell_fields: dict = field(default_factory=dict)
     cell_location: str = ""
@@ -224,6 +240,26 @@ class Result:
             if ct.shape[0] != T:
                 raise InputError(f"Result.cable_tension must be ({T}, cables), got {ct.shape}")
             s(self, "cable_tension", ct)
+        if (self.cable_points is None) != (self.cable_point_cable is None):
+            raise InputError("Result.cable_points and cable_point_cable go together: give both or neither")
+        if self.cable_points is not None:
+            cp = _arr("cable_points", self.cable_points, 3, 3)
+            pc = _arr("cable_point_cable", self.cable_point_cable, 1, dtype=np.int64)
+            if cp.shape[0] != T or cp.shape[1] != len(pc):
+                raise InputError(f"Result.cable_points must be ({T}, {len(pc)}, 3) (one row per cable_point_cable "
+                                 f"entry), got {cp.shape}")
+            s(self, "cable_points", cp)
+            s(self, "cable_point_cable", pc)
+        if (self.plastic_samples is None) != (self.plastic_strain_max is None):
+            raise InputError("Result.plastic_samples and plastic_strain_max go together: give both or neither")
+        if self.plastic_samples is not None:
+            ps = _arr("plastic_samples", self.plastic_samples, 1, dtype=np.int64)
+            pm = _arr("plastic_strain_max", self.plastic_strain_max, 1)
+            if len(ps) != T or len(pm) != T:
+                raise InputError(f"Result.plastic_samples and plastic_strain_max must be ({T},), got "
+                                 f"{ps.shape} and {pm.shape}")
+            s(self, "plastic_samples", ps)
+            s(self, "plastic_strain_max", pm)
         F = self.surface_faces.shape[0]
         out = {}
         for name, values in dict(self.fields).items():
@@ -364,7 +400,15 @@ class Result:
                 if self.contact_force is not None:
                     put(f.create_group("contact"), "force", self.contact_force)
                 if self.cable_tension is not None:
-                    put(f.create_group("cable"), "tension", self.cable_tension)
+                    g = f.create_group("cable")
+                    put(g, "tension", self.cable_tension)
+                    if self.cable_points is not None:
+                        put(g, "points", self.cable_points)
+                        put(g, "point_cable", self.cable_point_cable)
+                if self.plastic_samples is not None:
+                    g = f.create_group("plasticity")
+                    put(g, "yielded_samples", self.plastic_samples)
+                    put(g, "max_strain", self.plastic_strain_max)
         return path
 
     @classmethod
@@ -424,6 +468,10 @@ class Result:
                        for k, v in (f["model"].attrs.items() if "model" in f else ())},
                 contact_force=get("contact/force"),
                 cable_tension=get("cable/tension"),
+                cable_points=get("cable/points"),
+                cable_point_cable=get("cable/point_cable"),
+                plastic_samples=get("plasticity/yielded_samples"),
+                plastic_strain_max=get("plasticity/max_strain"),
                 fields={k: v[()] for k, v in f["surface/fields"].items()} if "surface/fields" in f else {},
                 cell_fields={k: v[()] for k, v in f["fields"].items()} if "fields" in f else {},
                 cell_location=_text(next(iter(f["fields"].values())).attrs.get("location", ""))
@@ -595,6 +643,10 @@ def field_lines(r) -> list:
             lines.append(f"contact force of obstacle #{i} at the end: {_fmt(force)} N")
     if getattr(r, "cable_tension", None) is not None:
         lines.append(f"cable tensions at the end: {_fmt(r.cable_tension[-1])} N")
+    if getattr(r, "plastic_samples", None) is not None:
+        lines.append(f"plasticity: {int(r.plastic_samples[-1])} samples have yielded at the end; largest "
+                     f"equivalent plastic strain {float(r.plastic_strain_max.max()):.6g} "
+                     f"(at the end {float(r.plastic_strain_max[-1]):.6g})")
     if r.min_det_F is not None and r.inverted_samples is not None:
         worst = int(np.argmin(r.min_det_F))
         lines.append(f"inversion: {int(r.inverted_samples.max())} samples with det F <= 0 at worst; "

@@ -284,7 +284,9 @@ class MaterialSpec:
     ``young`` (Pa) and ``poisson`` in (-1, 0.5) for every isotropic model, or the
     model's own constants (``constants``, written as plain keys in TOML);
     ``density`` in kg/m^3; ``strain`` overrides ``[elasticity] strain`` for this
-    label.
+    label.  ``yield_strain`` makes the label plastic (von Mises on the strain,
+    :class:`~voxflex.deform.plasticity.PlasticMaterial`) with the linear
+    ``hardening`` modulus (dimensionless, default 0: perfectly plastic).
     """
 
     label: int = 1
@@ -293,6 +295,8 @@ class MaterialSpec:
     poisson: float | None = None
     density: float = 1000.0
     strain: str | None = None
+    yield_strain: float | None = None
+    hardening: float | None = None
     constants: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self):
@@ -313,6 +317,13 @@ class MaterialSpec:
         object.__setattr__(self, "density", _number(t, "density", self.density, positive=True))
         if self.strain is not None:
             _string(t, "strain", self.strain, STRAIN_NAMES)
+        if self.yield_strain is not None:
+            object.__setattr__(self, "yield_strain", _number(t, "yield_strain", self.yield_strain, positive=True))
+        if self.hardening is not None:
+            if self.yield_strain is None:
+                raise InputError("[material] hardening needs yield_strain (the label is elastic without it); "
+                                 "add yield_strain or remove hardening")
+            object.__setattr__(self, "hardening", _number(t, "hardening", self.hardening, nonnegative=True))
         constants = dict(self.constants)
         check_constants(self.model, sorted(constants))
         for name, value in constants.items():

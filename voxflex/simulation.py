@@ -218,7 +218,9 @@ def _make_result(scene, image, model, records, probe_map, *, fixed=(), forces=()
     states = np.stack([np.asarray(r.q, dtype=float) for r in records])  # (T, n, d)
     names = scene.output.fields
     inverted, min_det, cells, surface, location = [], [], [], [], ""
-    for q in states:
+    at_state, plastic = _plastic_states(model, len(records))
+    for t, q in enumerate(states):
+        at_state(t)  # plasticity: the stresses of each state with its own plastic state
         layer = model.sample_fields(q)
         det = np.linalg.det(layer["F"])
         inverted.append(int(np.count_nonzero(~(det > 0))))
@@ -230,7 +232,8 @@ def _make_result(scene, image, model, records, probe_map, *, fixed=(), forces=()
             location = layer["cell_kind"]
     reactions = None
     if "reaction" in names and fixed:
-        reactions = _reactions(model, records, scene, fixed, forces, densities, options)
+        reactions = _reactions(model, records, scene, fixed, forces, densities, options, at_state)
+    at_state(len(records) - 1)
     probes = {}
     if probe_map is not None:
         positions = np.stack([probe_map.apply(q) for q in states])  # (T, m, 3)
@@ -257,6 +260,9 @@ def _make_result(scene, image, model, records, probe_map, *, fixed=(), forces=()
         model=model.describe(),
         contact_force=_contact_forces(model, states, [r.time for r in records], scene),
         cable_tension=_cable_tensions(model, states, [r.time for r in records], scene),
+        **_cable_polylines(model, states),
+        plastic_samples=None if plastic is None else plastic[0],
+        plastic_strain_max=None if plastic is None else plastic[1],
         fields={k: np.stack([f[k] for f in surface]) for k in (surface[0] if surface else {})},
         cell_fields={k: np.stack([c[k] for c in cells]) for k in (cells[0] if cells else {})},
         cell_location=location,
@@ -268,7 +274,7 @@ def _make_result(scene, image, model, records, probe_map, *, fixed=(), forces=()
     )
 
 
-def _reactions(model, records, scene, fixed, forces, densities, options):
+def _reactions(model, records, scene, fixed, forces, densities, options, at_state=lambda t: None):
     """(T, R, 3): total force each fixed region exerts on the body at every state.
 
     At the held DOFs the support's force on the body balances the rest:
@@ -296,6 +302,7 @@ def _reactions(model, records, scene, fixed, forces, densities, options):
     out = np.zeros((len(records), len(fixed), 3))
     for t, rec in enumerate(records):
         q = np.asarray(rec.q, dtype=float)
+        at_state(t)
         g = model.gradient(q).ravel()
         if dynamic:
             g = g - f
@@ -324,6 +331,21 @@ def _layer(model, cls):
     return None
 
 
+def _plastic_states(model, n_states):
+    """(at_state(t), measures) for the run's n states: ``at_state`` sets the plastic state of state t
+    (a no-op without plasticity); measures are (yielded samples (T,), largest equivalent plastic strain
+    (T,)) or None.  The run's states are the last n entries of the layer's history (the rest state is
+    the state committed before the run)."""
+    from .deform.plasticity import PlasticModel
+
+    layer = _layer(model, PlasticModel)
+    if layer is None:
+        return (lambda t: None), None
+    first = len(layer.history) - n_states
+    count, peak = layer.measures()
+    return (lambda t: layer.use_state(first + t)), (count[first:], peak[first:])
+
+
 def _fractions(times, scene):
     """Run fraction of each recorded state: the load factor (statics) or t / t_end (implicit Euler)."""
     dynamic = scene.solver.kind == "implicit-euler"
@@ -349,3 +371,26 @@ def _cable_tensions(model, states, times, scene):
     if layer is None:
         return None
     return np.stack([layer.tensions(q, fraction=f) for q, f in zip(states, _fractions(times, scene))])
+
+
+def _cable_polylines(model, states) -> dict:
+    """``cable_points`` (T, P, 3): every cable's anchor (if any) then its points, mapped at every state, and
+    ``cable_point_cable`` (P,): the cable of each; {} without cables."""
+    from .deform.cables import CableModel
+
+    layer = _layer(model, CableModel)
+    if layer is None:
+        return {}
+    owner = np.repeat(np.arange(len(layer.cables)), [len(c.points) for c in layer.cables])
+    per_state, point_cable = [], []
+    for i, c in enumerate(layer.cables):
+        point_cable += [i] * (len(c.points) + (c.anchor is not None))
+    for q in states:
+        x = layer.mapping.apply(q)
+        rows = []
+        for i, c in enumerate(layer.cables):
+            if c.anchor is not None:
+                rows.append(np.asarray(c.anchor, dtype=float)[None])
+            rows.append(x[owner == i])
+        per_state.append(np.vstack(rows))
+    return {"cable_points": np.stack(per_state), "cable_point_cable": np.array(point_cable, dtype=np.int64)}

@@ -33,7 +33,8 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Model", "PointMap", "ModelLayer", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "moved_rest", "transform_at"]
+__all__ = ["Model", "PointMap", "ModelLayer", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "moved_rest", "transform_at",
+           "end_step", "END_STEP_PASSES"]
 
 NODE_KINDS = ("affine", "rigid", "voxel", "membrane")
 """``[nodes] kind`` values: affine frames (12 DOF), rigid frames (6 DOF), voxel-corner points (3 DOF),
@@ -98,6 +99,14 @@ class Model(Protocol):
 
     def advice(self) -> str:
         """A sentence of model-specific advice added to a solver failure, or ''."""
+
+    # Optional (not part of the structural check, so models without internal variables need not define
+    # it; call it through :func:`end_step`, whose default is the no-op):
+    #
+    # def end_step(self, q) -> bool:
+    #     """The step converged at the state q (n, d): update the internal variables (plastic strains,
+    #     a friction lag) from it.  True when they changed so that the step must be solved again with
+    #     them; False when they are settled, and then they are committed as the start of the next step."""
 
     def describe(self) -> dict:
         """Attributes written to the result file's ``/model`` group (node_kind, count, dofs, ...)."""
@@ -195,12 +204,33 @@ class ModelLayer:
         inner = self.inner.advice()
         return f"{inner}; {self.layer_advice}" if inner else self.layer_advice
 
+    def end_step(self, q) -> bool:
+        """Forward the post-convergence hook to the wrapped model (see :func:`end_step`)."""
+        return end_step(self.inner, q)
+
     def set_time(self, fraction: float) -> None:
         """Set the run fraction (0 at the start of the run, 1 at its end)."""
         f = float(fraction)
         if not np.isfinite(f):
             raise InputError(f"{self.layer} time fraction must be finite, got {fraction!r}")
         self.fraction = f
+
+
+END_STEP_PASSES = 100
+"""Re-solves of one step that :func:`~voxflex.deform.solvers.solve` allows while :func:`end_step` still
+reports changed internal variables, before it gives up with a ConvergenceError."""
+
+
+def end_step(model, q) -> bool:
+    """The post-convergence hook: ``model.end_step(q)`` when the model has one, else False (no internal variables).
+
+    The solvers call it after every converged step with the state ``q`` (n, d);
+    True means the model's internal variables (plastic strains, a friction lag)
+    changed and the step must be solved again with them (at most
+    :data:`END_STEP_PASSES` times); False means they are settled and committed.
+    """
+    hook = getattr(model, "end_step", None)
+    return bool(hook(q)) if callable(hook) else False
 
 
 RIGID_TRANSFORM_TOL = 1e-9

@@ -49,6 +49,7 @@ import scipy.sparse as sp
 
 from ..errors import ConvergenceError, InputError, check_choice
 from .boundary import FixedRegion, ForceRegion, fixed_dofs, prescribed_positions, region_forces
+from .model import END_STEP_PASSES, end_step
 from .supports import check_supports
 from .linear_solvers import METHODS, cg_on_free_dofs, choose_method, solve_linear, vdot, vnorm
 
@@ -926,6 +927,24 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
                 raise ConvergenceError(f"{label}: the state is not finite after {its} Newton iterations")
             if problem.negative_curvature or options.check_stability:
                 _check_stable(problem, x_new - x_start, free, reduce, label)
+        passes = 0
+        while end_step(model, x_new.reshape(shape)):  # internal variables (plasticity) changed: solve again
+            passes += 1
+            if passes > END_STEP_PASSES:
+                raise ConvergenceError(f"{label}: the model's internal variables still change after {END_STEP_PASSES} "
+                                       "re-solves of the step; use more, smaller steps")
+            if dynamic:
+                delta, its_p, rel, lin_p, solver_used, halv_p = _newton(
+                    problem, delta, free, dofs, x_fixed - x_start[dofs], options, near_null, label, reduce)
+                x_new = x_start + delta
+                cuts_p = 0
+            else:
+                x_new, its_p, rel, lin_p, solver_used, halv_p, cuts_p = _static_increment(
+                    model, f_full, x_new, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
+                    reduce, label, newton_callback, block)
+            if not np.all(np.isfinite(x_new)):
+                raise ConvergenceError(f"{label}: the state is not finite after re-solving the step")
+            its, lin_its, halvings, cuts = its + its_p, lin_its + lin_p, halvings + halv_p, cuts + cuts_p
         E = float(model.energy(x_new.reshape(shape)))
         kin = 0.0
         if dynamic:
