@@ -481,3 +481,51 @@ def test_plastic_bar_renders(tmp_path):
     result = vf.simulate(replace(scene, object=replace(scene.object, voxel_size=0.01)), progress=False)
     (image,) = render_frames(result, [-1], window_size=(480, 320), show_rest=False, view="front")
     assert _coloured(image).mean() > 0.02  # the bar: a thin strip across the picture
+
+
+def test_obstacles_are_drawn_where_the_scene_puts_them():
+    """The pushed-block example (coarse): the sphere drawn at each state is the obstacle moved by its
+    motion to that state's load factor (every vertex at the radius from the moved centre, 1e-9 m: the
+    mesh's float32-free vertices), and the rendered picture shows it, translucent brown, above the block
+    where the body is not (the picture's upper left, white without obstacles)."""
+    import voxflex as vf
+    from voxflex.rendering import OBSTACLE_COLOUR, _obstacle_meshes, render_frames
+    from voxflex.scene import Scene
+
+    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "pushed_block.toml")
+    scene = replace(scene, object=replace(scene.object, voxel_size=0.1), solver=replace(scene.solver, steps=2))
+    result = vf.simulate(scene, progress=False)
+    ob = scene.obstacles[0]
+    for step, fraction in ((0, 0.0), (2, 1.0)):
+        (sphere,) = _obstacle_meshes(result, step)
+        centre = np.array(ob.center) + fraction * np.array(ob.motion)[:, 3]
+        r = np.linalg.norm(np.asarray(sphere.points) - centre, axis=1)
+        assert np.abs(r - ob.radius).max() < 1e-6 * ob.radius  # pyvista stores float32 points
+    (image,) = render_frames(result, [-1], window_size=(480, 320), show_rest=False, axes=False, gravity=False)
+    corner = image[60:100, 10:60].reshape(-1, 3).astype(float)  # beside the block, under the sphere's cap
+    assert np.all(corner.mean(axis=0) < 250)  # not the white background
+    # a blend of the obstacle's brown with white: red >= green >= blue, as the colour
+    rgb = corner.mean(axis=0)
+    assert rgb[0] >= rgb[1] >= rgb[2] and OBSTACLE_COLOUR[0] > OBSTACLE_COLOUR[2]
+
+
+def test_a_plane_obstacle_is_a_patch_under_the_body():
+    """ball_on_plane (3 steps): the plane is drawn as a square in the obstacle's plane, centred on the
+    body's rest centre projected onto it, 1.5 times the body's extent."""
+    import voxflex as vf
+    from voxflex.rendering import _obstacle_meshes
+    from voxflex.scene import Scene
+
+    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "ball_on_plane.toml")
+    result = vf.simulate(replace(scene, solver=replace(scene.solver, steps=3)), progress=False)
+    (plane,) = _obstacle_meshes(result, 3)
+    ob = scene.obstacles[0]
+    pts = np.asarray(plane.points, dtype=float)
+    n = np.asarray(ob.normal, dtype=float) / np.linalg.norm(ob.normal)
+    assert np.abs((pts - np.asarray(ob.point)) @ n).max() < 1e-6
+    centre = result.surface_rest.mean(axis=0)
+    foot = centre - ((centre - np.asarray(ob.point)) @ n) * n
+    assert np.allclose(pts.mean(axis=0), foot, atol=1e-6)
+    every = np.concatenate([result.surface_rest, result.surface_positions.reshape(-1, 3)])
+    extent = (every.max(axis=0) - every.min(axis=0)).max()
+    assert np.ptp(pts, axis=0).max() == pytest.approx(1.5 * extent, rel=1e-6)

@@ -245,6 +245,53 @@ def _cable_polylines(result, step=None) -> list:
     return [np.asarray(states[..., owner == c, :]) for c in np.unique(owner)]
 
 
+OBSTACLE_COLOUR = (0.55, 0.50, 0.45)
+"""RGB (0..1) of the obstacles, drawn translucent (:data:`OBSTACLE_OPACITY`) so that they never hide the body."""
+OBSTACLE_OPACITY = 0.35
+
+
+def _run_fraction(result, step: int) -> float:
+    """The run fraction of state ``step`` that places moving obstacles: the load factor (statics) or
+    t / t_end (implicit Euler), as the solver used it."""
+    t = float(result.time[step])
+    solver = _scene_table(result).get("solver", {})
+    if solver.get("kind", "static") == "implicit-euler":
+        return t / (float(solver.get("steps", 1)) * float(solver.get("dt", 0.01)))
+    return t
+
+
+def _obstacle_meshes(result, step: int) -> list:
+    """The scene's obstacles at state ``step`` as pyvista meshes in world coordinates: planes as a
+    square patch under the body (1.5 times the body's largest extent over the run, centred on the
+    body's rest centre projected onto the plane), spheres and boxes as they are; [] without obstacles.
+    ``sdf`` obstacles are not drawn (their surface is an image's level set, not a shape here)."""
+    specs = [o for o in _scene_table(result).get("obstacle", []) if o.get("kind") in ("plane", "sphere", "box")]
+    if not specs:
+        return []
+    import pyvista as pv
+
+    from .deform.obstacles import obstacle
+
+    fraction = _run_fraction(result, step)
+    every = np.concatenate([result.surface_rest, result.surface_positions.reshape(-1, 3)])
+    size = 1.5 * float((every.max(axis=0) - every.min(axis=0)).max())
+    centre = result.surface_rest.mean(axis=0)
+    meshes = []
+    for spec in specs:
+        ob = obstacle(spec["kind"], **{k: v for k, v in spec.items() if k != "kind"})
+        if ob.kind == "plane":
+            foot = centre - float((centre - ob.point) @ ob.normal) * ob.normal
+            mesh = pv.Plane(center=foot, direction=ob.normal, i_size=size, j_size=size)
+        elif ob.kind == "sphere":
+            mesh = pv.Sphere(radius=ob.radius, center=ob.center, theta_resolution=64, phi_resolution=32)
+        else:
+            mesh = pv.Box(bounds=(ob.min[0], ob.max[0], ob.min[1], ob.max[1], ob.min[2], ob.max[2]))
+        R, t = ob.pose(fraction)
+        mesh.points = np.asarray(mesh.points) @ R.T + t
+        meshes.append(mesh)
+    return meshes
+
+
 def _field_names(result) -> list[str]:
     fields = getattr(result, "fields", None)
     return sorted(str(k) for k in fields) if isinstance(fields, dict) else []
@@ -407,6 +454,9 @@ def render_frames(
                                  smooth_shading=False, show_edges=False, nan_color="lightgray")
             else:
                 plotter.add_mesh(mesh, color=_ZERO_COLOUR, smooth_shading=False, show_edges=False)
+            for ob_mesh in _obstacle_meshes(result, s):  # not in the camera fit: a big obstacle is cut by the frame
+                plotter.add_mesh(ob_mesh, color=OBSTACLE_COLOUR, opacity=OBSTACLE_OPACITY, smooth_shading=True,
+                                 show_edges=False)
             to_pixels = _place_camera(plotter, cam, pts, layout.plot_size)
             view_image = np.asarray(plotter.screenshot(return_img=True))[..., :3].copy()
             if silhouette is not None:
