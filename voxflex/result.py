@@ -603,7 +603,7 @@ class ResultWriter:
     The static part (image, rest surface and nodes, scene, model) is written at
     once; every per-state dataset (:data:`SERIES`, :data:`SERIES_GROUPS`) is a
     resizable, chunked, gzip-compressed dataset to which :meth:`append` adds
-    one state (states are buffered up to about 4 MiB, then written).  The
+    one state (up to 64 states or about 4 MiB are buffered, then written).  The
     layout is the one :meth:`Result.save` writes (it uses this class) and
     :meth:`Result.load` reads.  The writer does not rename anything: give it
     the temporary path of :func:`voxflex._atomic.atomic_path`.
@@ -673,7 +673,7 @@ class ResultWriter:
         if self._keys is None:
             self._keys = tuple(row)
             nbytes = sum(np.asarray(v).nbytes for v in row.values()) or 1
-            self._block = int(max(1, min(256, _BLOCK_BYTES // nbytes)))
+            self._block = int(max(1, min(64, _BLOCK_BYTES // nbytes)))
         elif tuple(row) != self._keys:
             raise ValueError(f"state {self.states + len(self._buffer)} has datasets {sorted(row)}, "
                              f"the first had {sorted(self._keys)}")
