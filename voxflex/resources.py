@@ -59,7 +59,7 @@ FRAME_BYTES_PER_VOXEL_PARENT = 112.0
 FRAME_DENSE_COPIES = 3
 """Affine frames: dense (12 n)^2 matrices alive at once (Hessian, factor, work copy)."""
 STREAM_BYTES = 4 * 2**20 + 24 * 2**20
-"""Streaming a result file: the writer's buffer (4 MiB) and HDF5's chunk caches (1 MiB for each of up to 24 datasets)."""
+"""Streaming a result file: the writer's buffer (4 MiB) and HDF5's chunk caches (1 MiB for each of 24 datasets)."""
 FIELD_COMPONENTS = {"stress": 9, "strain": 9, "stretches": 3}
 """Numbers per cell of the ``[output] fields`` that are not scalars (docs/results.md)."""
 

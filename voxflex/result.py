@@ -34,7 +34,13 @@ Fields asked for by ``[output] fields``: ``/fields/NAME`` (T, C, ...) per cell
 Inversion: ``/stats/inverted_samples`` (T,) and ``/stats/min_det_F`` (T,).
 A run that failed after some steps is still written: root attrs ``complete``
 (False) and ``error`` (the message).
-Every dataset is gzip-compressed; the file is written atomically.
+Recorded steps: ``/stats/step`` (T,) the step number of each state (0 .. T-1
+unless the run recorded every k-th step), and the ``/stats`` attributes
+``steps``, ``newton_iterations``, ``step_seconds``, ``inverted_samples``,
+``min_det_F``, ``min_det_F_step``: totals over every step of the run.
+Every dataset is gzip-compressed; the per-state datasets are resizable and
+chunked along the states (:class:`ResultWriter` appends them state by state
+during a run); the file is written atomically.
 """
 
 from __future__ import annotations
@@ -48,7 +54,8 @@ from ._atomic import atomic_path
 from ._version import __version__
 from .errors import InputError
 
-__all__ = ["Result", "ResultWriter", "describe_result", "KEEP_CHOICES", "AUTO_KEEP_BYTES", "check_keep", "check_every", "TOTALS"]
+__all__ = ["Result", "ResultWriter", "describe_result", "KEEP_CHOICES", "AUTO_KEEP_BYTES", "check_keep",
+           "check_every", "TOTALS"]
 
 _FORMAT = "voxflex-result"
 

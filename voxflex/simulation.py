@@ -130,7 +130,10 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
         from .resources import check as check_resources
 
         # refuse a scene whose model, kept states or result file cannot fit, before building anything
-        check_resources(scene, output=target, keep=keep, every=every)
+        est = check_resources(scene, output=target, keep=keep, every=every)
+        # the estimate (memory, result file, time) before a long run, or always with verbose
+        _progress.announce((est.dofs, f"estimate: {est.summary()}"), force=verbose or (progress and est.seconds >= 60),
+                           quiet=not progress)
         image = build_image(scene)
         _progress.announce(_progress.image_estimate(image, scene.nodes.kind), force=verbose, quiet=not progress)
         t0 = time.perf_counter()

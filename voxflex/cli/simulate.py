@@ -34,8 +34,8 @@ Every output is checked before the run starts (folder exists and is writable,
 extension known); an existing file is replaced only when it is a voxflex result
 (for -o) or a picture of the same kind (for --render), and never when it is an
 input of the run (the scene, its mesh or image): --force lifts both refusals.
-SIGINT or SIGTERM during the save stops with exit status 130 and leaves the
-previous file as it was.
+SIGINT or SIGTERM during the run or the save stops it (within the step under
+way) with exit status 130 and leaves the previous file as it was.
 """
 
 
@@ -56,9 +56,9 @@ def register(sub) -> None:
     parser.add_argument("--every", metavar="K", type=_positive_int, default=1,
                         help="record every K-th step (and the rest state and the last step); default 1")
     parser.add_argument("--keep", metavar="all|last|N", type=_keep, default="auto",
-                        help="states held in memory during the run, for --render and --vtk (the file has every "
-                             "recorded state): all, last, or the last N; default: all while they need at most "
-                             "256 MiB, else last (--render and --vtk then read the file)")
+                        help="recorded states held in memory during the run (the file has them all): all, last, "
+                             "or the last N; default: all while they need at most 256 MiB, else last "
+                             "(--render and --vtk then read the file)")
     parser.add_argument(
         "--no-cache",
         action="store_true",
