@@ -71,9 +71,10 @@ def _scene(steps):
 
 
 @pytest.fixture(scope="module")
-def model():
+def model(tmp_path_factory):
     m = vf.model(_scene(10))
-    vf.simulate(_scene(5), progress=False, model=m)  # compile and warm every kernel outside the measurements
+    # compile every kernel and import every module (h5py's included) outside the measurements
+    vf.simulate(_scene(5), progress=False, model=m, output=tmp_path_factory.mktemp("warm") / "warm.h5")
     return m
 
 
