@@ -297,3 +297,16 @@ def test_resources_bound_streamed_runs_by_the_disk_not_the_steps(runs, tmp_path,
     with pytest.raises(InputError, match="--every"):
         vf.simulate(scene, progress=False, output=target)
     assert not target.exists()
+
+
+def test_a_failed_run_records_its_last_converged_step_whatever_every(tmp_path):
+    from test_partial_results import SCENE as SQUEEZE  # converges at steps 1 and 2 of 5, fails at step 3
+
+    out = tmp_path / "bar.h5"
+    with pytest.raises(vf.ConvergenceError, match="step 3/5"):
+        vf.simulate(Scene.from_toml_text(SQUEEZE), progress=False, output=out, every=3)
+    r = Result.load(out)
+    # every 3rd step would record none of the two converged steps: the last converged one is kept
+    assert not r.complete and r.step.tolist() == [0, 2] and r.n_steps == 2
+    np.testing.assert_allclose(r.probes["end"][:, 0], [2.0, 0.4], rtol=0, atol=1e-9)  # uniform squeeze, s = 0.4
+    assert r.run_totals()["steps"] == 2
