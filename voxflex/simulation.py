@@ -13,6 +13,11 @@ fields`` asks for (:mod:`voxflex.deform.fields`; reactions of the fixed
 regions).  A run whose later step fails still returns its converged steps:
 the result file is written marked incomplete and the error is raised after.
 
+The solver hands every step's record to a recorder (its ``sink``) instead of
+keeping it: the recorder computes the state's row, appends it to the result
+file (streamed into the atomic temporary, :class:`voxflex.result.ResultWriter`)
+and holds only what ``keep`` asks, so memory does not grow with the steps.
+
 Example
 -------
 >>> import voxflex as vf
@@ -117,10 +122,9 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
             raise InputError(f"simulate needs a Scene or a scene file path, got {type(scene).__name__}")
     from . import _progress
     from .build import build_image, model as build_model
+    from ._atomic import atomic_path
     from .deform.boundary import FixedRegion, ForceRegion
     from .deform.solvers import SolverOptions, solve
-
-    from ._atomic import atomic_path
     from .result import check_every, check_keep
 
     keep = check_keep(keep)
