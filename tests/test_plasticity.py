@@ -138,9 +138,10 @@ def test_bad_input():
 
 
 def test_load_ramp_in_one_solve_commits_each_step():
-    """solve() with 4 static steps: each record's end force is the closed form at its strain, and
-    PlasticModel.history holds one committed state per step (yield counts from the closed form: none
-    before the first yield, all 32 Gauss points after, the stress being uniform)."""
+    """solve() with 4 static steps: at each record (the solver's sink runs after the step's plastic state
+    is committed) the end force is the closed form at its strain, and the layer's measures are the
+    committed state's (yield counts from the closed form: none before the first yield, all 32 Gauss
+    points after, the stress being uniform)."""
     from voxflex.deform.plasticity import PlasticModel
     from voxflex.deform.solvers import SolverOptions, solve
 
@@ -148,18 +149,20 @@ def test_load_ramp_in_one_solve_commits_each_step():
     layer = PlasticModel(model)
     eps_yield = 3 * MU * EPS_Y / E
     eps_max = 3.0 * eps_yield
-    records = solve(layer, fixed=_supports() + [_end(eps_max)], options=SolverOptions(steps=4, tolerance=1e-10))
-    assert len(layer.history) == len(records)
-    for i, rec in enumerate(records[1:], start=1):
-        layer.use_state(i)  # the stresses of a step need its own plastic state
-        eps = rec.time * eps_max
-        assert _force(model, rec.q) == pytest.approx(_sigma_loading(eps), rel=1e-7), eps
-    layer.use_state(-1)
-    count, peak = layer.measures()
-    np.testing.assert_array_equal(count, [0, 0, 32, 32, 32])  # strains 0.75, 1.5, 2.25, 3 x the yield strain
+    seen = []
+
+    def sink(rec):
+        seen.append((rec.time, _force(model, rec.q), *layer.measure()))
+
+    records = solve(layer, fixed=_supports() + [_end(eps_max)], options=SolverOptions(steps=4, tolerance=1e-10),
+                    sink=sink)
+    assert len(seen) == 5 and len(layer.history) == 2  # the rest state and 4 steps; two committed states held
+    for t, force, _, _ in seen[1:]:
+        assert force == pytest.approx(_sigma_loading(t * eps_max), rel=1e-7), t
+    assert [c for *_, c, _ in seen] == [0, 0, 32, 32, 32]  # strains 0.75, 1.5, 2.25, 3 x the yield strain
     # uniaxial stress: the equivalent plastic strain is the axial plastic strain eps - sigma / E
     expected = eps_max - _sigma_loading(eps_max) / E
-    assert peak[-1] == pytest.approx(expected, rel=1e-7)
+    assert seen[-1][3] == pytest.approx(expected, rel=1e-7)
     assert _force(model, records[-1].q) == pytest.approx(_sigma_loading(eps_max), rel=1e-7)
 
 

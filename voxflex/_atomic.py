@@ -13,7 +13,9 @@ partial output behind:
   temporary file, which is then discarded.  A second signal raises at once
   (for a write that hangs).  The command line turns :class:`Interrupted` into
   exit status 130.  Outside a save the process's own signal handling applies
-  unchanged.
+  unchanged.  A long write inside the block (a result streamed over a whole
+  run) calls :func:`check_interrupted` between its parts, so the first signal
+  stops it there.
 
 :func:`check_output_path` validates a target before any work is done (the
 folder exists and is writable, the target is not a folder).
@@ -138,6 +140,19 @@ class _Guard:
         """Raise :class:`Interrupted` when a signal arrived during the save."""
         if cls.received is not None:
             raise Interrupted(cls.received, cls.path)
+
+
+def check_interrupted() -> None:
+    """Raise :class:`Interrupted` when SIGINT or SIGTERM arrived during the active save.
+
+    A writer that works for long inside :func:`atomic_path` (a result streamed
+    state by state over a whole run) calls this between states, so that the
+    first signal stops it within a state instead of at the end; the temporary
+    file is then removed and the old target kept.  Does nothing outside a save
+    or off the main thread.
+    """
+    if _Guard.depth and threading.current_thread() is threading.main_thread():
+        _Guard.check()
 
 
 def _pause(seconds: float, guarded: bool) -> None:

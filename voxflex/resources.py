@@ -4,10 +4,15 @@
 object: the voxel count of an image, the volume and bounds of a mesh, the
 size of a primitive) and returns an :class:`Estimate`: voxels, nodes, degrees
 of freedom, the model's memory, the memory of every stored state, and a rough
-time.  :func:`check` refuses a scene whose estimate exceeds the memory this
-machine has available (``/proc/meminfo`` and the cgroup limit; when neither
-can be read nothing is refused), naming what would fit: the voxel size, the
-frame count or the number of steps.
+time, and, when the run writes a result file, the file's size.  With a
+result file the states stream to it step by step (:func:`voxflex.simulate`),
+so memory holds only the states ``keep`` asks for, and the number of steps is
+bounded by the disk, not by memory.  :func:`check` refuses a scene whose
+estimate exceeds the memory this machine has available (``/proc/meminfo`` and
+the cgroup limit; when neither can be read nothing is refused) or, with a
+result file, the free space of its folder, naming what would fit: the voxel
+size, the frame count, the number of steps, a result file, ``keep`` or
+``every``.
 
 The constants are measured by ``benchmarks/bench_resources.py`` (peak
 resident memory of a static solve above the imports, per DOF, fitted over
@@ -27,6 +32,7 @@ from __future__ import annotations
 import functools
 import math
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +40,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["Estimate", "estimate", "check", "available_memory", "MEMORY_FRACTION"]
+__all__ = ["Estimate", "estimate", "check", "available_memory", "free_disk", "MEMORY_FRACTION", "STREAM_BYTES"]
 
 MEMORY_FRACTION = 0.8
 """Share of the available memory a run may plan to use (the rest: Python, the OS, other processes)."""
@@ -52,6 +58,10 @@ FRAME_BYTES_PER_VOXEL_PARENT = 112.0
 """Affine frames: shape-function values, gradients and Hessians (1 + 3 + 9 doubles) and an index per voxel and parent."""
 FRAME_DENSE_COPIES = 3
 """Affine frames: dense (12 n)^2 matrices alive at once (Hessian, factor, work copy)."""
+STREAM_BYTES = 4 * 2**20 + 24 * 2**20
+"""Streaming a result file: the writer's buffer (4 MiB) and HDF5's chunk caches (1 MiB for each of 24 datasets)."""
+FIELD_COMPONENTS = {"stress": 9, "strain": 9, "stretches": 3}
+"""Numbers per cell of the ``[output] fields`` that are not scalars (docs/results.md)."""
 
 
 @dataclass(frozen=True)
@@ -69,13 +79,23 @@ class Estimate:
     model_bytes : int
         Peak memory of building the model and solving one step (bytes).
     state_bytes : int
-        Memory kept per stored state (node state twice, surface, probes; bytes).
+        Memory per state held (node state twice, surface, probes, fields; bytes).
     states : int
-        Stored states: steps + 1 (the rest state).
+        Recorded states: the rest state and every ``every``-th step (and the last).
     seconds : float
         Rough solve time (order of magnitude) on a 2-core machine.
     voxel_size : float or None
         The object's voxel size (m), the largest spacing of an image.
+    kept_states : int or None
+        States held in memory (``keep``); None means all ``states``.
+    file_bytes : int
+        Size of the result file, uncompressed (an upper bound: the datasets are
+        gzip-compressed); 0 when no file is written.
+    row_bytes : int
+        Bytes of one recorded state in the file (uncompressed).
+    streamed : bool
+        A result file is written (states streamed to it; memory holds ``kept_states``
+        and :data:`STREAM_BYTES`).
     """
 
     node_kind: str
@@ -87,18 +107,30 @@ class Estimate:
     states: int
     seconds: float
     voxel_size: float | None = None
+    kept_states: int | None = None
+    file_bytes: int = 0
+    row_bytes: int = 0
+    streamed: bool = False
+
+    @property
+    def held_states(self) -> int:
+        """States held in memory."""
+        return int(self.states if self.kept_states is None else self.kept_states)
 
     @property
     def total_bytes(self) -> int:
-        """Model plus every stored state (bytes)."""
-        return int(self.model_bytes + self.states * self.state_bytes)
+        """Memory: the model, the states held and, when streaming, the writer (bytes)."""
+        return int(self.model_bytes + self.held_states * self.state_bytes + (STREAM_BYTES if self.streamed else 0))
 
     def summary(self) -> str:
-        """One line: sizes, memory and time."""
+        """One line: sizes, memory, the result file and time."""
         what = {"voxel": "nodes", "membrane": "vertices"}.get(self.node_kind, "frames")
-        return (f"about {self.voxels:,} voxels, {self.nodes:,} {what}, {self.dofs:,} DOF; memory ~{_human(self.total_bytes)} "
-                f"(model {_human(self.model_bytes)} + {self.states:,} states x {_human(self.state_bytes)}); "
-                f"time ~{_duration(self.seconds)} (rough)")
+        text = (f"about {self.voxels:,} voxels, {self.nodes:,} {what}, {self.dofs:,} DOF; memory ~{_human(self.total_bytes)} "
+                f"(model {_human(self.model_bytes)} + {self.held_states:,} states x {_human(self.state_bytes)}")
+        text += " + the file writer)" if self.streamed else ")"
+        if self.streamed:
+            text += f"; result file up to {_human(self.file_bytes)} ({self.states:,} states)"
+        return text + f"; time ~{_duration(self.seconds)} (rough)"
 
 
 def available_memory() -> int | None:
@@ -256,12 +288,18 @@ def _material_class(scene) -> str:
 # ----------------------------------------------------------------------------------------------
 # estimate and check
 # ----------------------------------------------------------------------------------------------
-def estimate(scene) -> Estimate:
-    """Voxels, DOF, memory and a rough time of ``scene``, before building anything.
+def estimate(scene, *, output=None, keep="auto", every: int = 1) -> Estimate:
+    """Voxels, DOF, memory, result file size and a rough time of ``scene``, before building anything.
 
     Parameters
     ----------
     scene : Scene
+    output : path, optional
+        The result file the run writes (its states are then streamed to it); None: none.
+    keep : "auto", "all", "last" or int >= 1
+        The states :func:`voxflex.simulate` holds in memory (see there).
+    every : int >= 1
+        Record every ``every``-th step.
 
     Returns
     -------
@@ -270,16 +308,17 @@ def estimate(scene) -> Estimate:
     Raises
     ------
     InputError
-        Not a Scene, or its object cannot be read (missing image or mesh file).
+        Not a Scene, a bad ``keep`` or ``every``, or its object cannot be read (missing image or mesh file).
     """
+    from .result import check_every, check_keep
     from .scene import Scene
 
     if not isinstance(scene, Scene):
         raise InputError(f"estimate needs a Scene (vf.Scene.from_toml(path)), got {type(scene).__name__}")
-    return _estimate(scene)
+    return _estimate(scene, output=output, keep=check_keep(keep), every=check_every(every))
 
 
-def _estimate(scene, size=None) -> Estimate:
+def _estimate(scene, size=None, *, output=None, keep="all", every=1) -> Estimate:
     voxels, corner_nodes, surface, h = size if size is not None else _object_size(scene.object)
     kind = scene.nodes.kind
     steps = int(scene.solver.steps)
@@ -297,34 +336,78 @@ def _estimate(scene, size=None) -> Estimate:
         model = (FRAME_BYTES_PER_VOXEL_PARENT * scene.nodes.parents + 64.0) * voxels \
             + FRAME_DENSE_COPIES * 8.0 * dofs**2
         seconds = steps * ITERATIONS_PER_STEP[cls] * (dofs**3 / 3 / 1e10 + 2e-6 * voxels)
-    # kept per state: the solver's record and the result's stack of the node state (+ velocity in dynamics),
-    # the surface positions, the probes
-    state = (3 if dynamic else 2) * 8 * dofs + 24 * surface + 24 * len(scene.probes) + 64
+    # one recorded state in the file: node state, surface positions (V ~ surface nodes), probes, ten scalars,
+    # fields per cell (C <= voxels) and per surface triangle (about 2 per surface vertex), reactions, contact, cables
+    names = tuple(scene.output.fields)
+    per_cell = sum(FIELD_COMPONENTS.get(n, 1) for n in names if n != "reaction")
+    row = 8 * dofs + 24 * surface + 24 * len(scene.probes) + 80 + 8 * per_cell * (voxels + 2 * surface) \
+        + 24 * ("reaction" in names) * len(scene.fixed) + 24 * len(scene.obstacles) \
+        + 8 * len(scene.cables)
+    # held in memory per state: that row, plus the solver's record of the node state (+ velocity in dynamics)
+    state = row + (2 if dynamic else 1) * 8 * dofs
+    every = max(int(every), 1)
+    recorded = steps // every + 1 + (1 if steps % every else 0)
+    streamed = output is not None
+    static = 8 * dofs + 48 * surface + voxels + 4096  # rest nodes, rest surface and its faces, the label image
+    file_bytes = static + recorded * row if streamed else 0
+    if keep == "auto":
+        keep = "all" if not streamed or recorded * row <= _auto_keep_bytes() else "last"
+    kept = recorded if keep == "all" else min(recorded, 1 + (1 if keep == "last" else int(keep)))
     return Estimate(node_kind=kind, voxels=int(voxels), nodes=int(nodes), dofs=int(dofs), model_bytes=int(model),
-                    state_bytes=int(state), states=steps + 1, seconds=float(seconds), voxel_size=h)
+                    state_bytes=int(state), states=int(recorded), seconds=float(seconds), voxel_size=h,
+                    kept_states=int(kept), file_bytes=int(file_bytes), row_bytes=int(row), streamed=streamed)
 
 
-def check(scene, *, available: int | None = None, fraction: float = MEMORY_FRACTION) -> Estimate:
-    """Refuse a scene that would not fit in memory; return its :class:`Estimate` otherwise.
+def _auto_keep_bytes() -> int:
+    from .result import AUTO_KEEP_BYTES
+
+    return AUTO_KEEP_BYTES
+
+
+def free_disk(path) -> int | None:
+    """Bytes free in the folder that would hold ``path`` (None when it cannot be read)."""
+    folder = Path(path).parent if str(Path(path).parent) else Path(".")
+    try:
+        return int(shutil.disk_usage(folder).free)
+    except OSError:
+        return None
+
+
+def check(scene, *, available: int | None = None, fraction: float = MEMORY_FRACTION, output=None,
+          keep="auto", every: int = 1, disk: int | None = None) -> Estimate:
+    """Refuse a scene that would not fit in memory or on disk; return its :class:`Estimate` otherwise.
 
     Parameters
     ----------
     scene : Scene
     available : int, optional
-        Bytes available (default :func:`available_memory`; when that is
-        unknown nothing is refused).
+        Bytes of memory available (default :func:`available_memory`; when that is
+        unknown nothing is refused for memory).
     fraction : float in (0, 1]
         Share of ``available`` the run may plan to use.
+    output : path, optional
+        The result file the run writes (its states stream to it); None: none.
+    keep, every
+        As for :func:`voxflex.simulate`.
+    disk : int, optional
+        Bytes free for ``output`` (default :func:`free_disk` of its folder; when
+        unknown nothing is refused for disk).
 
     Raises
     ------
     InputError
-        One line: what the scene needs, what is available, and what would
-        fit (``[object] voxel_size``, ``[nodes] count`` or ``[solver] steps``).
+        One line: what the scene needs, what is available, and what would fit
+        (``[object] voxel_size``, ``[nodes] count``, ``[solver] steps``, a result
+        file, ``keep`` or ``every``).
     """
     if not (isinstance(fraction, (int, float)) and 0 < fraction <= 1):
         raise InputError(f"fraction must be in (0, 1], got {fraction!r}")
-    est = estimate(scene)
+    est = estimate(scene, output=output, keep=keep, every=every)
+    if output is not None:
+        if disk is None:
+            disk = free_disk(output)
+        if disk is not None:
+            _check_disk(scene, est, output, disk, every)
     if available is None:
         available = available_memory()
     if available is None:
@@ -336,16 +419,41 @@ def check(scene, *, available: int | None = None, fraction: float = MEMORY_FRACT
         return est
     need = f"the scene needs about {_human(est.total_bytes)} ({est.summary().split('; memory')[0]}) but " \
            f"{_human(budget)} is available"
-    if est.model_bytes > budget:
-        raise InputError(f"{need}; {_model_fix(scene, est, budget)}")
-    fit = int((budget - est.model_bytes) // est.state_bytes) - 1
+    fixed = est.total_bytes - est.held_states * est.state_bytes
+    if fixed > budget or est.held_states <= 2:
+        raise InputError(f"{need}; {_model_fix(scene, est, budget, output=output, keep=keep, every=every)}")
+    fit = int((budget - fixed) // est.state_bytes) - 1
+    if output is None:
+        raise InputError(
+            f"{need}: {est.held_states:,} stored states of {_human(est.state_bytes)} each; write a result file "
+            f"(voxflex simulate -o FILE, simulate(output=...)) so that the states stream to disk, pass keep=\"last\" "
+            f"(--keep last), or use [solver] steps <= {max(fit * every, 0):,}"
+            + (" (or fewer, longer steps)" if scene.solver.kind != "static" else "")
+        )
     raise InputError(
-        f"{need}: {est.states:,} stored states of {_human(est.state_bytes)} each; use [solver] steps <= {max(fit, 0):,}"
-        + (" (or fewer, longer steps)" if scene.solver.kind != "static" else "")
+        f"{need}: {est.held_states:,} states held in memory of {_human(est.state_bytes)} each beside the result "
+        f"file; pass keep=\"last\" (--keep last) or keep <= {max(fit - 1, 1):,}: the file has every state"
     )
 
 
-def _model_fix(scene, est: Estimate, budget: float) -> str:
+def _check_disk(scene, est: Estimate, output, free: int, every: int) -> None:
+    """Refuse a result file larger (uncompressed) than the free space of its folder, naming the ``every`` that fits."""
+    if est.file_bytes <= free:
+        return
+    static = est.file_bytes - est.states * est.row_bytes
+    room = free - static - 2 * est.row_bytes  # the rest state and the last step are always recorded
+    folder = Path(output).parent if str(Path(output).parent) else Path(".")
+    what = (f"the result file '{output}' needs up to {_human(est.file_bytes)} ({est.states:,} states of "
+            f"{_human(est.row_bytes)}, uncompressed) but {_human(free)} is free in '{folder}'")
+    steps = int(scene.solver.steps)
+    if room <= 0:
+        raise InputError(f"{what}; free space there or choose another folder for the result file")
+    k = max(every + 1, math.ceil(steps / (room // est.row_bytes)) if room >= est.row_bytes else steps)
+    raise InputError(f"{what}; record fewer states (every = {k:,}: voxflex simulate --every {k}), free space, "
+                     "or choose another folder")
+
+
+def _model_fix(scene, est: Estimate, budget: float, **run) -> str:
     """What would fit: a coarser voxel size (shape, mesh, image) or fewer frames."""
     obj = scene.object
     if est.node_kind != "voxel":
@@ -358,7 +466,7 @@ def _model_fix(scene, est: Estimate, budget: float) -> str:
     fit = h
     for _ in range(400):  # coarsen until the estimate fits (memory ~ h^-3)
         fit *= 1.05
-        if _estimate(scene, _object_size(obj, fit)).total_bytes <= budget:
+        if _estimate(scene, _object_size(obj, fit), **run).total_bytes <= budget:
             break
     if obj.image is not None:
         return f"downsample the image to a voxel size of at least {_fmt_up(fit)} m (now {h:.4g} m)"

@@ -40,7 +40,13 @@ Fields asked for by ``[output] fields``: ``/fields/NAME`` (T, C, ...) per cell
 Inversion: ``/stats/inverted_samples`` (T,) and ``/stats/min_det_F`` (T,).
 A run that failed after some steps is still written: root attrs ``complete``
 (False) and ``error`` (the message).
-Every dataset is gzip-compressed; the file is written atomically.
+Recorded steps: ``/stats/step`` (T,) the step number of each state (0 .. T-1
+unless the run recorded every k-th step), and the ``/stats`` attributes
+``steps``, ``newton_iterations``, ``step_seconds``, ``inverted_samples``,
+``min_det_F``, ``min_det_F_step``: totals over every step of the run.
+Every dataset is gzip-compressed; the per-state datasets are resizable and
+chunked along the states (:class:`ResultWriter` appends them state by state
+during a run); the file is written atomically.
 """
 
 from __future__ import annotations
@@ -54,9 +60,84 @@ from ._atomic import atomic_path
 from ._version import __version__
 from .errors import InputError
 
-__all__ = ["Result", "describe_result"]
+__all__ = ["Result", "ResultWriter", "describe_result", "KEEP_CHOICES", "AUTO_KEEP_BYTES", "check_keep",
+           "check_every", "TOTALS"]
 
 _FORMAT = "voxflex-result"
+
+KEEP_CHOICES = ("auto", "all", "last")
+"""Named values of ``keep`` (which recorded states a run holds in memory); an integer N >= 1 also works."""
+
+TOTALS = {"steps": int, "newton_iterations": int, "step_seconds": float, "inverted_samples": int,
+          "min_det_F": float, "min_det_F_step": int}
+"""Keys (and types) of :attr:`Result.totals`, the ``/stats`` attributes of a result file."""
+
+SERIES = (
+    ("time", "time"),
+    ("surface_positions", "surface/positions"),
+    ("nodes_state", "nodes/state"),
+    ("energy_elastic", "energy/elastic"),
+    ("energy_kinetic", "energy/kinetic"),
+    ("newton_iterations", "stats/newton_iterations"),
+    ("step_seconds", "stats/step_seconds"),
+    ("step", "stats/step"),
+    ("inverted_samples", "stats/inverted_samples"),
+    ("min_det_F", "stats/min_det_F"),
+    ("reactions", "reactions/force"),
+    ("contact_force", "contact/force"),
+    ("cable_tension", "cable/tension"),
+    ("cable_points", "cable/points"),
+    ("plastic_samples", "plasticity/yielded_samples"),
+    ("plastic_strain_max", "plasticity/max_strain"),
+)
+"""(Result attribute, file path) of every per-state dataset (T, ...) that is not a named group."""
+
+SERIES_GROUPS = (("probes", "probes/"), ("fields", "surface/fields/"), ("cell_fields", "fields/"))
+"""(Result attribute, path prefix) of the per-state datasets held in named groups (one per name)."""
+
+AUTO_KEEP_BYTES = 256 << 20
+"""``keep = "auto"`` with a result file holds every recorded state in memory while they need at most this
+many bytes (estimated from the rest state), otherwise the rest state and the last one."""
+
+_INT_SERIES = frozenset({"stats/newton_iterations", "stats/inverted_samples", "stats/step",
+                         "plasticity/yielded_samples"})
+_CHUNK_BYTES = 1 << 20  # about 1 MiB per compressed chunk (HDF5's chunk cache holds one per dataset)
+_BLOCK_BYTES = 4 << 20  # states buffered before a write
+
+
+def check_keep(keep, where: str = "keep"):
+    """Validate ``keep``: ``"auto"``, ``"all"``, ``"last"`` or an integer N >= 1; returns it.
+
+    Raises
+    ------
+    InputError
+        Anything else (the message lists the valid values).
+    """
+    if isinstance(keep, str):
+        from .errors import check_choice
+
+        return check_choice(where, keep, KEEP_CHOICES)
+    if isinstance(keep, (int, np.integer)) and not isinstance(keep, bool) and keep >= 1:
+        return int(keep)
+    raise InputError(f"{where} must be \"auto\", \"all\", \"last\" or a number of states >= 1, got {keep!r}")
+
+
+def check_every(every, where: str = "every") -> int:
+    """Validate ``every`` (record every k-th step): an integer >= 1; returns it."""
+    if isinstance(every, (int, np.integer)) and not isinstance(every, bool) and every >= 1:
+        return int(every)
+    raise InputError(f"{where} must be an integer >= 1 (record every k-th step), got {every!r}")
+
+
+def series_of(rows) -> dict:
+    """Result keyword arguments of the per-state datasets ``rows`` (file path -> (T, ...) array)."""
+    out = {}
+    for attr, path in SERIES:
+        if path in rows:
+            out[attr] = rows[path]
+    for attr, prefix in SERIES_GROUPS:
+        out[attr] = {k[len(prefix):]: v for k, v in rows.items() if k.startswith(prefix)}
+    return out
 
 
 def _arr(name, value, ndim, last=None, dtype=float) -> np.ndarray:
@@ -132,6 +213,16 @@ class Result:
     complete : bool
         False when the run failed after the recorded steps; ``error`` then holds the message.
     error : str
+    step : (T,) int, optional
+        The step number of each state held (``/stats/step``): 0 for the rest state, k after the
+        k-th step.  Default ``0 .. T-1`` (every step recorded and held).  A run recording every
+        k-th step, or a :func:`~voxflex.simulate` result that holds only the last states
+        (``keep``), has gaps.
+    totals : dict
+        Totals over every step of the run, recorded or not (``/stats`` attributes): ``steps``,
+        ``newton_iterations``, ``step_seconds``, ``inverted_samples`` (the most at one step),
+        ``min_det_F`` and ``min_det_F_step``.  Missing keys are computed from the states held;
+        :meth:`run_totals` gives them all.
     """
 
     time: np.ndarray
@@ -167,6 +258,8 @@ class Result:
     min_det_F: np.ndarray | None = None
     complete: bool = True
     error: str = ""
+    step: np.ndarray | None = None
+    totals: dict = field(default_factory=dict)
 
     def __post_init__(self):
         s = object.__setattr__
@@ -292,12 +385,43 @@ class Result:
                 s(self, name, a)
         s(self, "complete", bool(self.complete))
         s(self, "error", str(self.error))
+        step = np.arange(T, dtype=np.int64) if self.step is None else _arr("step", self.step, 1, dtype=np.int64)
+        if step.shape != (T,) or step[0] < 0 or np.any(np.diff(step) <= 0):
+            raise InputError(f"Result.step must be ({T},) increasing step numbers from 0, got {step.tolist()[:8]}")
+        s(self, "step", step)
+        totals = {}
+        for key, value in dict(self.totals).items():
+            if key not in TOTALS:
+                raise InputError(f"Result.totals has an unknown key '{key}'; valid: {', '.join(TOTALS)}")
+            totals[key] = TOTALS[key](np.asarray(value).item())
+        s(self, "totals", totals)
 
     # -- conveniences -----------------------------------------------------
     @property
     def n_steps(self) -> int:
-        """Number of steps recorded: T - 1 (the rest state is state 0, not a step)."""
-        return int(self.time.shape[0]) - 1
+        """Number of steps the run made up to the last state held (T - 1 when every step is recorded and held)."""
+        return int(self.step[-1])
+
+    def run_totals(self) -> dict:
+        """Totals over every step of the run: :attr:`totals`, completed from the states held.
+
+        Returns
+        -------
+        dict
+            ``steps`` (int), ``newton_iterations`` (int), ``step_seconds`` (float, s),
+            ``inverted_samples`` (int, the most at one state, or None), ``min_det_F`` (float or
+            None) and ``min_det_F_step`` (int, the step where it occurred, or None).
+        """
+        out = {"steps": self.n_steps, "newton_iterations": int(self.newton_iterations.sum()),
+               "step_seconds": float(self.step_seconds.sum()), "inverted_samples": None, "min_det_F": None,
+               "min_det_F_step": None}
+        if self.inverted_samples is not None:
+            out["inverted_samples"] = int(self.inverted_samples.max())
+        if self.min_det_F is not None:
+            worst = int(np.argmin(self.min_det_F))
+            out["min_det_F"], out["min_det_F_step"] = float(self.min_det_F[worst]), int(self.step[worst])
+        out.update(self.totals)
+        return out
 
     @property
     def n_states(self) -> int:
@@ -335,81 +459,27 @@ class Result:
     # -- HDF5 -------------------------------------------------------------
     def save(self, path) -> Path:
         """Write the result file (HDF5, the SPEC layout), atomically; returns the path."""
-        import h5py
-
         path = Path(path)
-        comp = dict(compression="gzip", compression_opts=4, shuffle=True)
-
-        def put(group, name, data):
-            data = np.asarray(data)
-            if data.size == 0:
-                return group.create_dataset(name, data=data)
-            return group.create_dataset(name, data=data, chunks=True, **comp)
-
         with atomic_path(path) as tmp:
-            with h5py.File(tmp, "w") as f:
-                f.attrs["voxflex_version"] = self.version
-                f.attrs["scene"] = self.scene
-                f.attrs["format"] = _FORMAT
-                f.attrs["node_kind"] = self.node_kind
-                f.attrs["complete"] = self.complete
-                if self.error:
-                    f.attrs["error"] = self.error
-                put(f, "time", self.time)
-                g = f.create_group("model")
-                for key, value in self.model.items():
-                    g.attrs[key] = value
-                g = f.create_group("probes")
-                for name, pos in self.probes.items():
-                    put(g, name, pos)
-                g = f.create_group("surface")
-                put(g, "rest", self.surface_rest)
-                put(g, "faces", self.surface_faces)
-                put(g, "positions", self.surface_positions)
-                g = f.create_group("nodes")
-                put(g, "rest", self.nodes_rest)
-                put(g, "state", self.nodes_state)
-                g = f.create_group("energy")
-                put(g, "elastic", self.energy_elastic)
-                put(g, "kinetic", self.energy_kinetic)
-                g = f.create_group("stats")
-                put(g, "newton_iterations", self.newton_iterations)
-                put(g, "step_seconds", self.step_seconds)
-                if self.inverted_samples is not None:
-                    put(g, "inverted_samples", self.inverted_samples)
-                if self.min_det_F is not None:
-                    put(g, "min_det_F", self.min_det_F)
-                if self.cell_fields:
-                    g = f.create_group("fields")
-                    for name, values in self.cell_fields.items():
-                        put(g, name, values).attrs["location"] = self.cell_location
-                if self.fields:
-                    g = f["surface"].create_group("fields")
-                    for name, values in self.fields.items():
-                        put(g, name, values)
-                if self.reactions is not None:
-                    put(f.create_group("reactions"), "force", self.reactions)
-                g = f.create_group("image")
-                d = put(g, "labels", self.image_labels)
-                d.attrs["spacing"] = self.image_spacing
-                d.attrs["origin"] = self.image_origin
-                d.attrs["direction"] = self.image_direction
-                g.attrs["spacing"] = self.image_spacing
-                g.attrs["origin"] = self.image_origin
-                g.attrs["direction"] = self.image_direction
-                if self.contact_force is not None:
-                    put(f.create_group("contact"), "force", self.contact_force)
-                if self.cable_tension is not None:
-                    g = f.create_group("cable")
-                    put(g, "tension", self.cable_tension)
-                    if self.cable_points is not None:
-                        put(g, "points", self.cable_points)
-                        put(g, "point_cable", self.cable_point_cable)
-                if self.plastic_samples is not None:
-                    g = f.create_group("plasticity")
-                    put(g, "yielded_samples", self.plastic_samples)
-                    put(g, "max_strain", self.plastic_strain_max)
+            writer = ResultWriter(tmp, self)
+            try:
+                writer.append_block(self.rows())
+                writer.close(complete=self.complete, error=self.error, totals=self.run_totals())
+            finally:
+                writer.abort()
         return path
+
+    def rows(self) -> dict:
+        """The per-state datasets by file path: {path: (T, ...) array} (what :class:`ResultWriter` appends)."""
+        out = {}
+        for attr, path in SERIES:
+            value = getattr(self, attr)
+            if value is not None:
+                out[path] = value
+        for attr, prefix in SERIES_GROUPS:
+            for name, value in getattr(self, attr).items():
+                out[prefix + name] = value
+        return out
 
     @classmethod
     def load(cls, path) -> Result:
@@ -481,6 +551,8 @@ class Result:
                 min_det_F=get("stats/min_det_F"),
                 complete=bool(f.attrs.get("complete", True)),
                 error=_text(f.attrs.get("error", "")),
+                step=get("stats/step"),
+                totals={k: v for k, v in (f["stats"].attrs.items() if "stats" in f else ()) if k in TOTALS},
             )
 
     # -- ParaView ---------------------------------------------------------
@@ -571,6 +643,174 @@ class Result:
         return pvd
 
 
+STATIC = ("version", "scene", "node_kind", "model", "surface_rest", "surface_faces", "nodes_rest", "image_labels",
+          "image_spacing", "image_origin", "image_direction", "cell_location", "cable_point_cable")
+"""The parts of a result that do not change over the states (written once, before any state)."""
+
+
+class ResultWriter:
+    """Write a result file state by state, with memory bounded whatever the number of states.
+
+    The static part (image, rest surface and nodes, scene, model) is written at
+    once; every per-state dataset (:data:`SERIES`, :data:`SERIES_GROUPS`) is a
+    resizable, chunked, gzip-compressed dataset to which :meth:`append` adds
+    one state (up to 64 states or about 4 MiB are buffered, then written).  The
+    layout is the one :meth:`Result.save` writes (it uses this class) and
+    :meth:`Result.load` reads.  The writer does not rename anything: give it
+    the temporary path of :func:`voxflex._atomic.atomic_path`.
+
+    Parameters
+    ----------
+    path : path
+        The file to create (replaced when it exists).
+    static : Result or mapping
+        Holds the :data:`STATIC` values (attributes of a Result or keys of a mapping).
+
+    Examples
+    --------
+    >>> writer = ResultWriter(tmp, result)                     # doctest: +SKIP
+    >>> writer.append({"time": 0.0, "nodes/state": q0, ...})   # doctest: +SKIP
+    >>> writer.close(complete=True, totals={"steps": 1})       # doctest: +SKIP
+    """
+
+    def __init__(self, path, static):
+        import h5py
+
+        get = static.get if isinstance(static, dict) else static.__getattribute__
+        head = {k: get(k) for k in STATIC}
+        self.states = 0
+        self._datasets = {}
+        self._buffer = []
+        self._block = None
+        self._keys = None
+        self._location = str(head["cell_location"])
+        self._f = h5py.File(path, "w")
+        f = self._f
+        comp = dict(compression="gzip", compression_opts=4, shuffle=True)
+
+        def put(group, name, data):
+            data = np.asarray(data)
+            if data.size == 0:
+                return group.create_dataset(name, data=data)
+            return group.create_dataset(name, data=data, chunks=True, **comp)
+
+        f.attrs["voxflex_version"] = str(head["version"])
+        f.attrs["scene"] = str(head["scene"])
+        f.attrs["format"] = _FORMAT
+        f.attrs["node_kind"] = str(head["node_kind"])
+        f.attrs["complete"] = False  # until close() says otherwise
+        g = f.create_group("model")
+        for key, value in dict(head["model"]).items():
+            g.attrs[key] = value
+        for name in ("probes", "energy", "stats"):
+            f.create_group(name)
+        g = f.create_group("surface")
+        put(g, "rest", np.asarray(head["surface_rest"], dtype=float))
+        put(g, "faces", np.asarray(head["surface_faces"], dtype=np.int64))
+        put(f.create_group("nodes"), "rest", np.asarray(head["nodes_rest"], dtype=float))
+        if head["cable_point_cable"] is not None:  # the cable of each row of /cable/points
+            put(f.require_group("cable"), "point_cable", np.asarray(head["cable_point_cable"], dtype=np.int64))
+        g = f.create_group("image")
+        d = put(g, "labels", np.asarray(head["image_labels"]))
+        for key in ("spacing", "origin", "direction"):
+            value = np.asarray(head[f"image_{key}"], dtype=float)
+            d.attrs[key] = value
+            g.attrs[key] = value
+
+    # -- states -----------------------------------------------------------
+    def append(self, row) -> None:
+        """Add one state: ``row`` maps file paths (``"time"``, ``"nodes/state"``, ``"probes/tip"`` ...) to its values.
+
+        Every state must carry the same paths as the first one.
+        """
+        if self._keys is None:
+            self._keys = tuple(row)
+            nbytes = sum(np.asarray(v).nbytes for v in row.values()) or 1
+            self._block = int(max(1, min(64, _BLOCK_BYTES // nbytes)))
+        elif tuple(row) != self._keys:
+            raise ValueError(f"state {self.states + len(self._buffer)} has datasets {sorted(row)}, "
+                             f"the first had {sorted(self._keys)}")
+        self._buffer.append(row)
+        if len(self._buffer) >= self._block:
+            self.flush()
+
+    def append_block(self, rows) -> None:
+        """Add several states at once: ``rows`` maps file paths to arrays (T, ...) with the same T."""
+        self.flush()
+        if self._keys is None:
+            self._keys = tuple(rows)
+            self._block = 1
+        elif tuple(rows) != self._keys:
+            raise ValueError(f"block has datasets {sorted(rows)}, the first state had {sorted(self._keys)}")
+        lengths = {np.shape(v)[0] for v in rows.values()}
+        if len(lengths) != 1:
+            raise ValueError(f"a block's datasets differ in their number of states: {sorted(lengths)}")
+        self._write({k: np.asarray(v) for k, v in rows.items()}, lengths.pop())
+
+    def flush(self) -> None:
+        """Write the buffered states."""
+        if not self._buffer:
+            return
+        rows = self._buffer
+        self._buffer = []
+        self._write({k: np.stack([np.asarray(r[k]) for r in rows]) for k in self._keys}, len(rows))
+
+    def _write(self, block, count) -> None:
+        for path, values in block.items():
+            d = self._datasets.get(path)
+            if d is None:
+                d = self._create(path, values)
+            values = values.astype(d.dtype, copy=False)
+            d.resize(self.states + count, axis=0)
+            d[self.states:] = values
+        self.states += count
+
+    def _create(self, path, values):
+        dtype = np.int64 if path in _INT_SERIES else float
+        tail = values.shape[1:]
+        row = int(np.prod(tail, dtype=np.int64)) * 8
+        kw = {}
+        if row:
+            # chunks of about _CHUNK_BYTES: several states of a small row, or one state split along axis 1
+            t = int(max(1, min(4096, _CHUNK_BYTES // row)))
+            chunks = (t, *tail)
+            if row > _CHUNK_BYTES and tail:
+                per = row // tail[0]
+                chunks = (1, int(max(1, min(tail[0], _CHUNK_BYTES // max(per, 1)))), *tail[1:])
+            kw = dict(chunks=chunks, compression="gzip", compression_opts=4, shuffle=True)
+        else:
+            kw = dict(chunks=tuple(max(1, n) for n in (64, *tail)))
+        group, _, name = path.rpartition("/")
+        parent = self._f.require_group(group) if group else self._f
+        d = parent.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail) if row else (None,) * (1 + len(tail)),
+                                  dtype=dtype, **kw)
+        if path.startswith("fields/"):
+            d.attrs["location"] = self._location
+        self._datasets[path] = d
+        return d
+
+    # -- end --------------------------------------------------------------
+    def close(self, *, complete: bool = True, error: str = "", totals=None) -> None:
+        """Write the buffered states, the ``complete`` / ``error`` attributes and the run's ``totals``, and close."""
+        self.flush()
+        f = self._f
+        lengths = {p: d.shape[0] for p, d in self._datasets.items()}
+        if not self.states or any(n != self.states for n in lengths.values()):
+            raise ValueError(f"a result file needs the same number (>= 1) of states in every dataset, got {lengths}")
+        f.attrs["complete"] = bool(complete)
+        if error:
+            f.attrs["error"] = str(error)
+        for key, value in dict(totals or {}).items():
+            if value is not None:
+                f["stats"].attrs[key] = TOTALS[key](value)
+        f.close()
+
+    def abort(self) -> None:
+        """Close the file as it is (after a failure; the caller discards it).  Safe to call after :meth:`close`."""
+        if self._f.id.valid:
+            self._f.close()
+
+
 def _vtk_components(values) -> np.ndarray:
     """Cell values (C, ...) as VTK arrays: scalars (C,), vectors (C, 3), tensors (C, 9)."""
     values = np.asarray(values, dtype=float)
@@ -601,14 +841,15 @@ def describe_result(path) -> str:
     """A short human-readable summary of a result file (used by ``voxflex info``)."""
     r = Result.load(path)
     T = r.n_states
+    totals = r.run_totals()
     labels, counts = np.unique(r.image_labels[r.image_labels > 0], return_counts=True)
     lines = [
         f"result: {path} (voxflex {r.version})",
         f"  image: {' x '.join(map(str, r.image_labels.shape))} voxels, spacing {r.image_spacing.tolist()} m, "
         f"{r.n_voxels} occupied ({', '.join(f'label {a}: {b}' for a, b in zip(labels, counts))})",
         f"  model: {_model_text(r)}; surface {r.surface_rest.shape[0]} vertices, {r.surface_faces.shape[0]} triangles",
-        f"  states: {T} (the rest state and {r.n_steps} steps; time {r.time[0]:g} .. {r.time[-1]:g}); "
-        f"Newton iterations {int(r.newton_iterations.sum())}, solve time {r.step_seconds.sum():.3g} s",
+        f"  states: {T} ({_states_text(r)}; time {r.time[0]:g} .. {r.time[-1]:g}); "
+        f"Newton iterations {totals['newton_iterations']}, solve time {totals['step_seconds']:.3g} s",
         f"  energy at the end: elastic {r.energy_elastic[-1]:.6g} J, kinetic {r.energy_kinetic[-1]:.6g} J",
         f"  max surface displacement at the end: {np.linalg.norm(r.displacement(-1), axis=1).max():.6g} m",
     ]
@@ -648,10 +889,26 @@ def field_lines(r) -> list:
                      f"equivalent plastic strain {float(r.plastic_strain_max.max()):.6g} "
                      f"(at the end {float(r.plastic_strain_max[-1]):.6g})")
     if r.min_det_F is not None and r.inverted_samples is not None:
-        worst = int(np.argmin(r.min_det_F))
-        lines.append(f"inversion: {int(r.inverted_samples.max())} samples with det F <= 0 at worst; "
-                     f"min det F {float(r.min_det_F.min()):.6g} (state {worst})")
+        totals = r.run_totals()
+        lines.append(f"inversion: {totals['inverted_samples']} samples with det F <= 0 at worst; "
+                     f"min det F {totals['min_det_F']:.6g} (step {totals['min_det_F_step']})")
     return lines
+
+
+def _states_text(r) -> str:
+    """'the rest state and N steps', or which steps the states are when some are not held."""
+    if r.n_states - 1 == r.n_steps:
+        return f"the rest state and {r.n_steps} steps"
+    return f"the rest state and {r.n_states - 1} of {r.n_steps} steps: {_steps_list(r.step[1:])}"
+
+
+def _steps_list(steps) -> str:
+    steps = [int(k) for k in steps]
+    if len(steps) <= 4:
+        return "steps " + ", ".join(map(str, steps))
+    stride = np.unique(np.diff(steps[:-1]))
+    every = f"every {int(stride[0])} steps, " if len(stride) == 1 else ""
+    return f"steps {steps[0]}, {steps[1]} .. {steps[-1]} ({every}{len(steps)} states)"
 
 
 def _model_text(r) -> str:

@@ -13,6 +13,11 @@ fields`` asks for (:mod:`voxflex.deform.fields`; reactions of the fixed
 regions).  A run whose later step fails still returns its converged steps:
 the result file is written marked incomplete and the error is raised after.
 
+The solver hands every step's record to a recorder (its ``sink``) instead of
+keeping it: the recorder computes the state's row, appends it to the result
+file (streamed into the atomic temporary, :class:`voxflex.result.ResultWriter`)
+and holds only what ``keep`` asks, so memory does not grow with the steps.
+
 Example
 -------
 >>> import voxflex as vf
@@ -31,10 +36,10 @@ import numpy as np
 
 from ._version import __version__
 from .errors import ConvergenceError, InputError
-from .result import Result
+from .result import AUTO_KEEP_BYTES, Result
 from .scene import Scene
 
-__all__ = ["simulate", "InversionWarning", "CANNOT_RECOVER"]
+__all__ = ["simulate", "InversionWarning", "CANNOT_RECOVER", "AUTO_KEEP_BYTES"]
 
 
 class InversionWarning(UserWarning):
@@ -54,7 +59,7 @@ def _cannot_recover(material) -> bool:
 
 
 def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: bool = False,
-             cache: bool = True) -> Result:
+             cache: bool = True, keep="auto", every: int = 1) -> Result:
     """Run a scene and return its :class:`~voxflex.result.Result`.
 
     Parameters
@@ -63,8 +68,21 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     progress : bool
         Show a progress bar on stderr for the solver steps (see ``voxflex._progress``).
     output : path, optional
-        Where to write the result file (atomically); defaults to the scene's
-        ``[output] file`` when it has one, otherwise nothing is written.
+        Where to write the result file; defaults to the scene's ``[output] file``
+        when it has one, otherwise nothing is written.  The states are streamed to
+        a temporary file beside it step by step (memory does not grow with the
+        steps), which replaces ``output`` only when the run ends: an interrupted or
+        failed run leaves an existing file as it was.
+    keep : "auto", "all", "last" or int N >= 1
+        Which recorded states the returned Result holds in memory (the file always
+        has all of them): ``"all"``; ``"last"``, the rest state and the last state;
+        N, the rest state and the last N states.  ``"auto"`` (default) is ``"all"``
+        without a result file, and with one ``"all"`` while they need at most
+        :data:`AUTO_KEEP_BYTES`, else ``"last"``.
+    every : int >= 1
+        Record every ``every``-th step (and the rest state and the last step), in
+        the file and in memory; the effort datasets (Newton iterations, seconds) of
+        a recorded state sum the steps since the previous one.
     model : Model, optional
         A model built beforehand (any implementation of the model protocol);
         default: ``voxflex.build.model(scene)``, the model the scene asks for.
@@ -79,7 +97,8 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     -------
     Result
         Times, probe positions, surface and node states, energies and solver
-        statistics for the rest state and every step.
+        statistics for the rest state and every recorded step that ``keep`` holds
+        (:attr:`Result.step` numbers them; :meth:`Result.run_totals` sums the whole run).
 
     Raises
     ------
@@ -103,13 +122,22 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
             raise InputError(f"simulate needs a Scene or a scene file path, got {type(scene).__name__}")
     from . import _progress
     from .build import build_image, model as build_model
+    from ._atomic import atomic_path
     from .deform.boundary import FixedRegion, ForceRegion
     from .deform.solvers import SolverOptions, solve
+    from .result import check_every, check_keep
 
+    keep = check_keep(keep)
+    every = check_every(every)
+    target = output if output is not None else scene.output.file
     if model is None:
         from .resources import check as check_resources
 
-        check_resources(scene)  # refuse a scene that cannot fit in memory before building anything
+        # refuse a scene whose model, kept states or result file cannot fit, before building anything
+        est = check_resources(scene, output=target, keep=keep, every=every)
+        # the estimate (memory, result file, time) before a long run, or always with verbose
+        _progress.announce((est.dofs, f"estimate: {est.summary()}"), force=verbose or (progress and est.seconds >= 60),
+                           quiet=not progress)
         image = build_image(scene)
         _progress.announce(_progress.image_estimate(image, scene.nodes.kind), force=verbose, quiet=not progress)
         t0 = time.perf_counter()
@@ -145,7 +173,8 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
         points = np.array([p.point for p in scene.probes], dtype=float)
         probe_map = model.point_mapping(points)
 
-    bar = _progress.progress(total=s.steps, desc="simulate", unit="step") if progress else None
+    recorder = _Recorder(scene, image, model, probe_map, fixed=fixed, forces=forces, densities=densities,
+                         options=options, keep=keep, every=every, streamed=target is not None)
 
     def callback(record):
         if bar is not None:
@@ -158,124 +187,270 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
         if verbose:
             _progress.log(_progress.newton_line(info))
 
-    target = output if output is not None else scene.output.file
-    failure = None
+    def run():
+        """Solve, the recorder taking every record; the failure (advice added) or None."""
+        try:
+            solve(
+                model,
+                fixed=fixed,
+                forces=forces,
+                gravity=None if gravity is None else np.array(gravity),
+                densities=densities,
+                options=options,
+                callback=callback,
+                newton_callback=newton_callback if (bar is not None or verbose) else None,
+                sink=recorder,
+            )
+        except ConvergenceError as exc:
+            advice = model.advice()
+            failure = ConvergenceError(f"{exc}; note: {advice}" if advice else str(exc))
+            if recorder.steps_done < 1 or target is None:
+                raise failure from None
+            return failure
+        return None
+
+    bar = _progress.progress(total=s.steps, desc="simulate", unit="step") if progress else None
     try:
-        records = solve(
-            model,
-            fixed=fixed,
-            forces=forces,
-            gravity=None if gravity is None else np.array(gravity),
-            densities=densities,
-            options=options,
-            callback=callback,
-            newton_callback=newton_callback if (bar is not None or verbose) else None,
-        )
-    except ConvergenceError as exc:
-        advice = model.advice()
-        failure = ConvergenceError(f"{exc}; note: {advice}" if advice else str(exc))
-        records = getattr(exc, "records", None)
-        if not records or len(records) < 2 or target is None:
-            raise failure from None
+        if target is None:
+            failure = run()
+            recorder.finish()
+        else:
+            # the states go to a temporary file beside the target as they come; it replaces the target
+            # only at the end (an exception, SIGINT or SIGTERM removes it and keeps the old file)
+            with atomic_path(target) as tmp:
+                recorder.open(tmp)
+                try:
+                    failure = run()
+                    recorder.finish()
+                    recorder.close(error=None if failure is None else str(failure))
+                finally:
+                    recorder.abort()
     finally:
         if bar is not None:
             bar.close()
 
-    result = _make_result(scene, image, model, records, probe_map, fixed=fixed, forces=forces,
-                          densities=densities, options=options,
-                          error=None if failure is None else str(failure))
-    if target is not None:
-        result.save(target)
+    result = recorder.result(error=None if failure is None else str(failure))
     if failure is not None:
-        raise ConvergenceError(f"{failure}; the {result.n_steps} step(s) that converged were written to "
+        raise ConvergenceError(f"{failure}; the {recorder.steps_done} step(s) that converged were written to "
                                f"'{target}', marked incomplete") from None
-    _warn_inversion(model, result)
+    _warn_inversion(model, recorder)
     return result
 
 
-def _warn_inversion(model, result) -> None:
-    """InversionWarning when a material that cannot recover has inverted samples at some state."""
-    if result.inverted_samples is None or not np.any(result.inverted_samples > 0):
+def _warn_inversion(model, recorder) -> None:
+    """InversionWarning when a material that cannot recover had inverted samples after some step."""
+    if recorder.first_inverted is None:
         return
     bad = sorted({m.name for m in model.materials.values() if _cannot_recover(m)})
     if not bad:
         return
-    state = int(np.flatnonzero(result.inverted_samples > 0)[0])
+    step, count = recorder.first_inverted
     warnings.warn(
-        f"{int(result.inverted_samples[state])} samples inverted (det F <= 0; min det F "
-        f"{float(result.min_det_F.min()):.3g}) from step {state} on, with {', '.join(bad)}, a material that "
-        "cannot recover from inversion; use model = \"stable-neo-hookean\" or strain = \"corotational-svd\"",
+        f"{count} samples inverted (det F <= 0; min det F {recorder.totals['min_det_F']:.3g}) from step {step} on, "
+        f"with {', '.join(bad)}, a material that cannot recover from inversion; use model = \"stable-neo-hookean\" "
+        "or strain = \"corotational-svd\"",
         InversionWarning,
         stacklevel=3,
     )
 
 
-def _make_result(scene, image, model, records, probe_map, *, fixed=(), forces=(), densities=None, options=None,
-                 error=None) -> Result:
-    from .deform.fields import model_fields
+class _Recorder:
+    """The solver's sink: turns every StepRecord into the result's per-state rows.
 
-    surf_rest, faces, surf_map = model.boundary_surface()
-    states = np.stack([np.asarray(r.q, dtype=float) for r in records])  # (T, n, d)
-    names = scene.output.fields
-    inverted, min_det, cells, surface, location = [], [], [], [], ""
-    at_state, plastic = _plastic_states(model, len(records))
-    for t, q in enumerate(states):
-        at_state(t)  # plasticity: the stresses of each state with its own plastic state
-        layer = model.sample_fields(q)
+    Per step it updates the run's totals (Newton iterations, seconds, inversion) and,
+    for a recorded step (the rest state, every ``every``-th step, the last one),
+    computes the row (time, probes, surface and node state, energies, effort since
+    the previous recorded state, inversion, fields, reactions, contact forces,
+    cable tensions), appends it to the result file when one is open and holds it
+    when ``keep`` asks.  Memory held whatever the number of steps: the previous
+    record (the reactions' inertia term), the latest unrecorded one, the rest row,
+    the rows ``keep`` holds, the file writer's buffer (about 4 MiB) and the totals.
+    """
+
+    def __init__(self, scene, image, model, probe_map, *, fixed, forces, densities, options, keep, every,
+                 streamed):
+        from .deform.cables import CableModel
+        from .deform.contact import ContactModel
+        from .deform.plasticity import PlasticModel
+
+        self.scene, self.image, self.model, self.probe_map = scene, image, model, probe_map
+        self.surf_rest, self.faces, self.surf_map = model.boundary_surface()
+        names = scene.output.fields
+        self.names = names
+        self.cell_fields = any(n != "reaction" for n in names)
+        self.reactions = _Reactions(model, scene, fixed, forces, densities, options) \
+            if "reaction" in names and fixed else None
+        self.contact = _layer(model, ContactModel)
+        self.cables = _layer(model, CableModel)
+        self.plastic = _layer(model, PlasticModel)
+        self.steps = int(options.steps)
+        self.every = int(every)
+        self.keep = keep
+        self.streamed = bool(streamed)
+        self.location = ""
+        self.writer = None
+        self.path = None
+        self.rest_row = None
+        self.kept = None
+        self.count = 0  # records seen (the rest state is record 0)
+        self.prev = None  # the previous step's record
+        self.held = None  # the latest step's (step, record, previous record, inversion) when it was not recorded
+        self.effort = [0, 0.0]  # Newton iterations and seconds since the last recorded state
+        self.totals = {"steps": 0, "newton_iterations": 0, "step_seconds": 0.0, "inverted_samples": 0,
+                       "min_det_F": float("inf"), "min_det_F_step": 0}
+        self.first_inverted = None  # (step, count) of the first step with inverted samples
+
+    @property
+    def steps_done(self) -> int:
+        """Steps converged so far."""
+        return max(self.count - 1, 0)
+
+    # -- the sink ---------------------------------------------------------
+    def __call__(self, rec) -> None:
+        from ._atomic import check_interrupted
+
+        k = self.count
+        self.count += 1
+        inversion, location = self._inversion(rec.q)
+        self.location = location
+        t = self.totals
+        t["steps"] = k
+        t["newton_iterations"] += int(rec.newton_iterations)
+        t["step_seconds"] += float(rec.seconds)
+        t["inverted_samples"] = max(t["inverted_samples"], inversion[0])
+        if inversion[1] < t["min_det_F"]:
+            t["min_det_F"], t["min_det_F_step"] = inversion[1], k
+        if inversion[0] > 0 and self.first_inverted is None:
+            self.first_inverted = (k, inversion[0])
+        self.effort[0] += int(rec.newton_iterations)
+        self.effort[1] += float(rec.seconds)
+        if k == 0 or k % self.every == 0 or k == self.steps:
+            self._record(k, rec, self.prev, inversion)
+            self.held = None
+        else:
+            self.held = (k, rec, self.prev, inversion)
+        self.prev = rec
+        check_interrupted()  # SIGINT / SIGTERM during a streamed run: stop after this step, file discarded
+
+    def finish(self) -> None:
+        """Record the last converged step when ``every`` skipped it (a run that stopped early)."""
+        if self.held is not None:
+            self._record(*self.held)
+            self.held = None
+
+    # -- the file ---------------------------------------------------------
+    def open(self, path) -> None:
+        """Stream the rows to ``path`` (a temporary file; the writer is created at the first row)."""
+        self.path = path
+
+    def close(self, *, error=None) -> None:
+        """Finish the file: the buffered rows, ``complete`` / ``error`` and the totals."""
+        if self.writer is not None:
+            self.writer.close(complete=error is None, error=error or "", totals=self._totals())
+
+    def abort(self) -> None:
+        if self.writer is not None:
+            self.writer.abort()
+
+    # -- rows -------------------------------------------------------------
+    def _inversion(self, q):
+        """((samples with det F <= 0, smallest det F), cell kind) at state ``q``."""
+        layer = self.model.sample_fields(q)
         det = np.linalg.det(layer["F"])
-        inverted.append(int(np.count_nonzero(~(det > 0))))
-        min_det.append(float(np.min(det)) if len(det) else 1.0)
-        if any(n != "reaction" for n in names):
-            c, f = model_fields(model, q, names)
-            cells.append(c)
-            surface.append(f)
-            location = layer["cell_kind"]
-    reactions = None
-    if "reaction" in names and fixed:
-        reactions = _reactions(model, records, scene, fixed, forces, densities, options, at_state)
-    at_state(len(records) - 1)
-    probes = {}
-    if probe_map is not None:
-        positions = np.stack([probe_map.apply(q) for q in states])  # (T, m, 3)
-        probes = {p.name: positions[:, i, :] for i, p in enumerate(scene.probes)}
-    return Result(
-        time=np.array([r.time for r in records], dtype=float),
-        probes=probes,
-        surface_rest=surf_rest,
-        surface_faces=faces,
-        surface_positions=np.stack([surf_map.apply(q) for q in states]),
-        nodes_rest=np.asarray(model.rest, dtype=float),
-        nodes_state=states,
-        energy_elastic=np.array([r.elastic_energy for r in records], dtype=float),
-        energy_kinetic=np.array([r.kinetic_energy for r in records], dtype=float),
-        newton_iterations=np.array([r.newton_iterations for r in records], dtype=np.int64),
-        step_seconds=np.array([r.seconds for r in records], dtype=float),
-        image_labels=image.labels,
-        image_spacing=image.spacing,
-        image_origin=image.origin,
-        image_direction=image.direction,
-        scene=scene.to_toml(),
-        version=__version__,
-        node_kind=model.node_kind,
-        model=model.describe(),
-        contact_force=_contact_forces(model, states, [r.time for r in records], scene),
-        cable_tension=_cable_tensions(model, states, [r.time for r in records], scene),
-        **_cable_polylines(model, states),
-        plastic_samples=None if plastic is None else plastic[0],
-        plastic_strain_max=None if plastic is None else plastic[1],
-        fields={k: np.stack([f[k] for f in surface]) for k in (surface[0] if surface else {})},
-        cell_fields={k: np.stack([c[k] for c in cells]) for k in (cells[0] if cells else {})},
-        cell_location=location,
-        reactions=reactions,
-        inverted_samples=np.array(inverted, dtype=np.int64),
-        min_det_F=np.array(min_det),
-        complete=error is None,
-        error=error or "",
-    )
+        return (int(np.count_nonzero(~(det > 0))), float(np.min(det)) if len(det) else 1.0), layer["cell_kind"]
+
+    def _fraction(self, t):
+        """Run fraction of a state: the load factor (statics) or t / t_end (implicit Euler)."""
+        s = self.scene.solver
+        return t / (s.steps * s.dt) if s.kind == "implicit-euler" else t
+
+    def _row(self, k, rec, prev, inversion) -> dict:
+        from .deform.fields import model_fields
+
+        q = np.asarray(rec.q, dtype=float)
+        row = {"time": float(rec.time)}
+        if self.probe_map is not None:
+            positions = self.probe_map.apply(q)
+            for i, p in enumerate(self.scene.probes):
+                row[f"probes/{p.name}"] = positions[i]
+        row["surface/positions"] = self.surf_map.apply(q)
+        row["nodes/state"] = q
+        row["energy/elastic"] = float(rec.elastic_energy)
+        row["energy/kinetic"] = float(rec.kinetic_energy)
+        row["stats/newton_iterations"] = self.effort[0]
+        row["stats/step_seconds"] = self.effort[1]
+        row["stats/step"] = k
+        row["stats/inverted_samples"], row["stats/min_det_F"] = inversion
+        if self.cell_fields:
+            cells, surface = model_fields(self.model, q, self.names)
+            row.update({f"fields/{name}": v for name, v in cells.items()})
+            row.update({f"surface/fields/{name}": v for name, v in surface.items()})
+        if self.reactions is not None:
+            row["reactions/force"] = self.reactions(rec, prev)
+        fraction = self._fraction(float(rec.time))
+        if self.contact is not None:
+            row["contact/force"] = self.contact.contact_forces(q, fraction=fraction)
+        if self.cables is not None:
+            row["cable/tension"] = self.cables.tensions(q, fraction=fraction)
+            row["cable/points"] = _cable_points(self.cables, q)
+        if self.plastic is not None:  # the sink runs after the step's plastic state is committed: it is this state's
+            row["plasticity/yielded_samples"], row["plasticity/max_strain"] = self.plastic.measure()
+        return row
+
+    def _record(self, k, rec, prev, inversion) -> None:
+        row = self._row(k, rec, prev, inversion)
+        self.effort = [0, 0.0]
+        if self.rest_row is None:
+            self.rest_row = row
+            self._start(row)
+        elif self.kept is not None:
+            self.kept.append(row)
+        if self.path is not None:
+            if self.writer is None:
+                from .result import ResultWriter
+
+                self.writer = ResultWriter(self.path, self._static())
+            self.writer.append(row)
+
+    def _start(self, row) -> None:
+        """Decide what the rest of the run holds in memory (``keep``), from the size of the rest state's row."""
+        from collections import deque
+
+        keep = self.keep
+        if keep == "auto":
+            nbytes = sum(np.asarray(v).nbytes for v in row.values())
+            recorded = self.steps // self.every + 1
+            keep = "all" if not self.streamed or recorded * nbytes <= AUTO_KEEP_BYTES else "last"
+        self.kept = [] if keep == "all" else deque(maxlen=1 if keep == "last" else int(keep))
+
+    def _static(self) -> dict:
+        image, model = self.image, self.model
+        return dict(
+            version=__version__, scene=self.scene.to_toml(), node_kind=model.node_kind, model=model.describe(),
+            surface_rest=self.surf_rest, surface_faces=self.faces, nodes_rest=np.asarray(model.rest, dtype=float),
+            image_labels=image.labels, image_spacing=image.spacing, image_origin=image.origin,
+            image_direction=image.direction, cell_location=self.location if self.cell_fields else "",
+            cable_point_cable=None if self.cables is None else _cable_point_owner(self.cables),
+        )
+
+    def _totals(self) -> dict:
+        t = dict(self.totals)
+        if not np.isfinite(t["min_det_F"]):
+            t["min_det_F"] = 1.0
+        return t
+
+    def result(self, *, error=None) -> Result:
+        """The Result of the rows held (the rest state and what ``keep`` kept)."""
+        from .result import series_of
+
+        rows = [self.rest_row, *(self.kept or ())]
+        stacked = {key: np.stack([np.asarray(r[key]) for r in rows]) for key in rows[0]}
+        return Result(**self._static(), **series_of(stacked), totals=self._totals(),
+                      complete=error is None, error=error or "")
 
 
-def _reactions(model, records, scene, fixed, forces, densities, options, at_state=lambda t: None):
-    """(T, R, 3): total force each fixed region exerts on the body at every state.
+class _Reactions:
+    """Total force each fixed region exerts on the body at a state (R, 3).
 
     At the held DOFs the support's force on the body balances the rest:
     ``R = dE/dq - f`` (statics, ``f`` at the state's load factor) plus the
@@ -284,42 +459,48 @@ def _reactions(model, records, scene, fixed, forces, densities, options, at_stat
     virtual work of R on its DOFs under a unit translation of the body, so
     affine frames count their translation DOFs.
     """
-    from .deform.boundary import fixed_dofs, region_forces
 
-    dofs, owner = fixed_dofs(model, fixed)
-    rest = np.asarray(model.rest, dtype=float)
-    N = rest.size
-    f = region_forces(model, forces).ravel() if forces else np.zeros(N)
-    if scene.gravity is not None:
-        f = f + model.gravity_force(densities, np.array(scene.gravity)).ravel()
-    modes = []
-    for k in range(3):
-        T = np.hstack([np.eye(3), np.eye(3)[:, [k]]])
-        modes.append((model.moved_state(T) - rest).ravel()[dofs])
-    modes = np.stack(modes, axis=1)  # (k, 3)
-    dynamic = scene.solver.kind == "implicit-euler"
-    M = model.mass_matrix(densities, lumped=options.mass == "lumped") if dynamic else None
-    out = np.zeros((len(records), len(fixed), 3))
-    for t, rec in enumerate(records):
+    def __init__(self, model, scene, fixed, forces, densities, options):
+        from .deform.boundary import fixed_dofs, region_forces
+
+        self.model, self.options, self.n = model, options, len(fixed)
+        self.dofs, self.owner = fixed_dofs(model, fixed)
+        rest = np.asarray(model.rest, dtype=float)
+        N = rest.size
+        f = region_forces(model, forces).ravel() if forces else np.zeros(N)
+        if scene.gravity is not None:
+            f = f + model.gravity_force(densities, np.array(scene.gravity)).ravel()
+        self.f = f
+        modes = []
+        for k in range(3):
+            T = np.hstack([np.eye(3), np.eye(3)[:, [k]]])
+            modes.append((model.moved_state(T) - rest).ravel()[self.dofs])
+        self.modes = np.stack(modes, axis=1)  # (k, 3)
+        self.dynamic = scene.solver.kind == "implicit-euler"
+        self.M = model.mass_matrix(densities, lumped=options.mass == "lumped") if self.dynamic else None
+
+    def __call__(self, rec, prev) -> np.ndarray:
+        """(R, 3) at the state of ``rec``; ``prev`` is the previous step's record (None at the rest state)."""
+        options, M = self.options, self.M
         q = np.asarray(rec.q, dtype=float)
-        at_state(t)
-        g = model.gradient(q).ravel()
-        if dynamic:
-            g = g - f
-            if t > 0:
-                v1, v0 = np.ravel(rec.v), np.ravel(records[t - 1].v)
+        g = self.model.gradient(q).ravel()
+        if self.dynamic:
+            g = g - self.f
+            if prev is not None:
+                v1, v0 = np.ravel(rec.v), np.ravel(prev.v)
                 g = g + M @ ((v1 - v0) / options.dt)
                 if options.rayleigh_mass or options.rayleigh_stiffness:
                     g = g + options.rayleigh_mass * (M @ v1)
                     if options.rayleigh_stiffness:
-                        K0 = model.hessian(np.asarray(records[t - 1].q, dtype=float))
+                        K0 = self.model.hessian(np.asarray(prev.q, dtype=float))
                         g = g + options.rayleigh_stiffness * (K0 @ v1)
         else:
-            g = g - rec.time * f
-        work = g[dofs, None] * modes
-        for r in range(len(fixed)):
-            out[t, r] = work[owner == r].sum(axis=0)
-    return out
+            g = g - rec.time * self.f
+        work = g[self.dofs, None] * self.modes
+        out = np.zeros((self.n, 3))
+        for r in range(self.n):
+            out[r] = work[self.owner == r].sum(axis=0)
+        return out
 
 
 def _layer(model, cls):
@@ -331,66 +512,21 @@ def _layer(model, cls):
     return None
 
 
-def _plastic_states(model, n_states):
-    """(at_state(t), measures) for the run's n states: ``at_state`` sets the plastic state of state t
-    (a no-op without plasticity); measures are (yielded samples (T,), largest equivalent plastic strain
-    (T,)) or None.  The run's states are the last n entries of the layer's history (the rest state is
-    the state committed before the run)."""
-    from .deform.plasticity import PlasticModel
-
-    layer = _layer(model, PlasticModel)
-    if layer is None:
-        return (lambda t: None), None
-    first = len(layer.history) - n_states
-    count, peak = layer.measures()
-    return (lambda t: layer.use_state(first + t)), (count[first:], peak[first:])
-
-
-def _fractions(times, scene):
-    """Run fraction of each recorded state: the load factor (statics) or t / t_end (implicit Euler)."""
-    dynamic = scene.solver.kind == "implicit-euler"
-    t_end = scene.solver.steps * scene.solver.dt
-    return [t / t_end if dynamic else t for t in times]
-
-
-def _contact_forces(model, states, times, scene):
-    """(T, obstacles, 3) forces of the obstacles on the body at every state, or None without contact."""
-    from .deform.contact import ContactModel
-
-    layer = _layer(model, ContactModel)
-    if layer is None:
-        return None
-    return np.stack([layer.contact_forces(q, fraction=f) for q, f in zip(states, _fractions(times, scene))])
-
-
-def _cable_tensions(model, states, times, scene):
-    """(T, cables) tension (N) of every cable at every state, or None without cables."""
-    from .deform.cables import CableModel
-
-    layer = _layer(model, CableModel)
-    if layer is None:
-        return None
-    return np.stack([layer.tensions(q, fraction=f) for q, f in zip(states, _fractions(times, scene))])
-
-
-def _cable_polylines(model, states) -> dict:
-    """``cable_points`` (T, P, 3): every cable's anchor (if any) then its points, mapped at every state, and
-    ``cable_point_cable`` (P,): the cable of each; {} without cables."""
-    from .deform.cables import CableModel
-
-    layer = _layer(model, CableModel)
-    if layer is None:
-        return {}
-    owner = np.repeat(np.arange(len(layer.cables)), [len(c.points) for c in layer.cables])
-    per_state, point_cable = [], []
+def _cable_point_owner(layer) -> np.ndarray:
+    """(P,) the cable of each row of :func:`_cable_points`: every cable's anchor (if any), then its points."""
+    owner = []
     for i, c in enumerate(layer.cables):
-        point_cable += [i] * (len(c.points) + (c.anchor is not None))
-    for q in states:
-        x = layer.mapping.apply(q)
-        rows = []
-        for i, c in enumerate(layer.cables):
-            if c.anchor is not None:
-                rows.append(np.asarray(c.anchor, dtype=float)[None])
-            rows.append(x[owner == i])
-        per_state.append(np.vstack(rows))
-    return {"cable_points": np.stack(per_state), "cable_point_cable": np.array(point_cable, dtype=np.int64)}
+        owner += [i] * (len(c.points) + (c.anchor is not None))
+    return np.array(owner, dtype=np.int64)
+
+
+def _cable_points(layer, q) -> np.ndarray:
+    """(P, 3) every cable's anchor (if any) then its points mapped at state q: the polylines renders draw."""
+    owner = np.repeat(np.arange(len(layer.cables)), [len(c.points) for c in layer.cables])
+    x = layer.mapping.apply(q)
+    rows = []
+    for i, c in enumerate(layer.cables):
+        if c.anchor is not None:
+            rows.append(np.asarray(c.anchor, dtype=float)[None])
+        rows.append(x[owner == i])
+    return np.vstack(rows)

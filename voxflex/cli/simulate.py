@@ -24,12 +24,18 @@ and reactions are written when the scene asks: [output] fields = ["von-mises", .
 When a later step fails, the steps that converged are still written (the file
 marked incomplete) and the exit status is 2.
 
+The states are written to the result file step by step (memory does not grow
+with the steps); --every K records every K-th step only, for long runs.  The
+file replaces an existing one only when the run ends.  Before the run, the
+model's memory and the result file's size are estimated; a run that would not
+fit in memory or on the disk is refused with what would fit.
+
 Every output is checked before the run starts (folder exists and is writable,
 extension known); an existing file is replaced only when it is a voxflex result
 (for -o) or a picture of the same kind (for --render), and never when it is an
 input of the run (the scene, its mesh or image): --force lifts both refusals.
-SIGINT or SIGTERM during the save stops with exit status 130 and leaves the
-previous file as it was.
+SIGINT or SIGTERM during the run or the save stops it (within the step under
+way) with exit status 130 and leaves the previous file as it was.
 """
 
 
@@ -47,6 +53,12 @@ def register(sub) -> None:
     parser.add_argument("--render", metavar="OUT.png", help="also render the final state (.png, folder, .gif)")
     parser.add_argument("--vtk", metavar="FOLDER", help="also export a ParaView time series (.vtp + .pvd)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+    parser.add_argument("--every", metavar="K", type=_positive_int, default=1,
+                        help="record every K-th step (and the rest state and the last step); default 1")
+    parser.add_argument("--keep", metavar="all|last|N", type=_keep, default="auto",
+                        help="recorded states held in memory during the run (the file has them all): all, last, "
+                             "or the last N; default: all while they need at most 256 MiB, else last "
+                             "(--render and --vtk then read the file)")
     parser.add_argument(
         "--no-cache",
         action="store_true",
@@ -78,25 +90,60 @@ def run(args) -> int:
     t0 = time.perf_counter()
     try:
         result = simulate(scene, progress=not args.quiet, output=output, verbose=args.verbose,
-                          cache=not args.no_cache)
+                          cache=not args.no_cache, keep=args.keep, every=args.every)
     except NotImplementedError as exc:
         from ..errors import VoxflexError
 
         raise VoxflexError(str(exc)) from None
     wall = time.perf_counter() - t0
+    if args.vtk or args.render:
+        full = _every_state(result, output)
     if args.vtk:
-        result.export_vtk(args.vtk)
+        full.export_vtk(args.vtk)
     if args.render:
         from ..errors import VoxflexError
         from ..rendering import render
 
         try:
-            render(result, args.render)
+            render(full, args.render)
         except VoxflexError as exc:
             raise VoxflexError(f"{exc} (the result itself was saved to {output})") from None
     if not args.quiet:
         print(summary(result, scene_path=path, output=output, wall=wall, extras=[args.render, args.vtk]))
     return 0
+
+
+def _positive_int(text):
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
+def _keep(text):
+    if text in ("auto", "all", "last"):
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected all, last or a number of states >= 1, got {text!r}")
+    return value
+
+
+def _every_state(result, output):
+    """The result with every recorded state: ``result`` when it holds them all, else the file read back."""
+    import h5py
+
+    from ..result import Result
+
+    with h5py.File(output, "r") as f:
+        recorded = f["time"].shape[0]
+    return result if recorded == result.n_states else Result.load(output)
 
 
 def check_outputs(args, scene, scene_path, output) -> None:
@@ -116,11 +163,11 @@ def summary(result, *, scene_path, output, wall, extras=()) -> str:
     """The short report printed after a run."""
     from ..result import field_lines
 
-    steps = result.n_steps
+    totals = result.run_totals()
     lines = [
         f"scene: {scene_path}",
         f"model: {result.n_nodes} nodes, {result.n_dofs} DOF, {result.n_voxels} voxels",
-        f"steps: {steps}, Newton iterations: {int(result.newton_iterations.sum())}, wall time: {wall:.2f} s",
+        f"steps: {totals['steps']}, Newton iterations: {totals['newton_iterations']}, wall time: {wall:.2f} s",
     ]
     for name, pos in result.probes.items():
         u = pos[-1] - pos[0]

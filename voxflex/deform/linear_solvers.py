@@ -56,6 +56,7 @@ OpenBLAS dot products stall on a busy 2-core machine.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,10 +216,14 @@ def _dense(A, b):
             x = _mixed_cholesky(Ad, b)
             if x is not None:
                 return x, ""
-        c, info = sla.lapack.dpotrf(Ad.T, lower=1, clean=0)  # Ad is symmetric: Ad.T is its Fortran-ordered view
-        if info == 0:
-            return sla.lapack.dpotrs(c, b, lower=1)[0], ""
-        return sla.solve(Ad, b, assume_a="sym", check_finite=False), "not positive definite: symmetric LDL^T solve"
+        try:
+            c = sla.cho_factor(Ad, lower=True, check_finite=False)
+            return sla.cho_solve(c, b, check_finite=False), ""
+        except np.linalg.LinAlgError:
+            pass
+        with warnings.catch_warnings():  # an ill-conditioned tangent is said by the note and judged by the residual
+            warnings.simplefilter("ignore", sla.LinAlgWarning)
+            return sla.solve(Ad, b, assume_a="sym", check_finite=False), "not positive definite: symmetric LDL^T solve"
 
 
 def _mixed_cholesky(A, b, max_refine: int = 6):
@@ -240,7 +245,7 @@ def _mixed_cholesky(A, b, max_refine: int = 6):
     Factor + solve at 552 / 1000 unknowns (cond 6e3, one thread, min of 3x20):
     cho_factor/cho_solve 3.38 / 12.3 ms, dpotrf/dpotrs 3.08 / 15.7 ms, this 2.60 / 11.0 ms.
     """
-    c, info = sla.lapack.spotrf(A.T.astype(np.float32), lower=1, clean=0, overwrite_a=1)
+    c, info = sla.lapack.spotrf(A.T.astype(np.float32), lower=0, clean=0, overwrite_a=1)  # A's lower triangle
     if info != 0:
         return None
     target = MIXED_RTOL * vnorm(b)
@@ -248,7 +253,7 @@ def _mixed_cholesky(A, b, max_refine: int = 6):
     x = np.zeros_like(b)
     r, rn = b, np.inf
     for _ in range(max_refine):
-        dx, info = sla.lapack.spotrs(c, r.astype(np.float32), lower=1)
+        dx, info = sla.lapack.spotrs(c, r.astype(np.float32), lower=0)
         if info != 0 or not np.all(np.isfinite(dx)):
             return None
         x += dx

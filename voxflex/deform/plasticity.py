@@ -61,6 +61,8 @@ True
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from ..errors import InputError
@@ -294,8 +296,10 @@ class PlasticModel(ModelLayer):
     ----------
     plastic : dict label -> (PlasticMaterial, (s_l,) int)
         Each plastic label's material and the indices of its samples among the model's samples.
-    history : list of dict label -> (plastic strain (s_l, 6), alpha (s_l,))
-        The committed state at the start and after every settled step (``history[0]`` at creation).
+    history : deque of dict label -> (plastic strain (s_l, 6), alpha (s_l,))
+        The last two committed states (at creation, then after every settled step): bounded, so a
+        run of any length holds two copies of the plastic state.  Results record each step's
+        measures as the step ends (:meth:`measure`).
 
     Raises
     ------
@@ -341,7 +345,7 @@ class PlasticModel(ModelLayer):
                                      f"supported (label {lab} has {per}); use coarser voxels or affine frames")
             mat.size(len(ids))
             self.plastic[lab] = (mat, ids)
-        self.history = [self._snapshot()]
+        self.history = deque([self._snapshot()], maxlen=2)
 
     def _snapshot(self) -> dict:
         return {lab: (m.plastic_strain.copy(), m.alpha.copy()) for lab, (m, _) in self.plastic.items()}
@@ -409,21 +413,13 @@ class PlasticModel(ModelLayer):
         gamma = np.linalg.lstsq(dF, f[-1], rcond=1e-12)[0]
         return g - dG @ gamma
 
-    def use_state(self, index: int) -> None:
-        """Set the plastic state to ``history[index]`` (results evaluate stresses and reactions of each
-        step with its own state; ``use_state(-1)`` goes back to the latest)."""
-        state = self.history[index]
-        for lab, (mat, _) in self.plastic.items():
-            mat.plastic_strain[:], mat.alpha[:] = state[lab]
-
-    def measures(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per entry of :attr:`history`: the number of samples that have yielded (alpha > 0) ``(T,)`` int
-        and the largest equivalent plastic strain ``sqrt(2/3) |e_p|`` ``(T,)`` (dimensionless)."""
-        count, peak = [], []
-        for state in self.history:
-            count.append(sum(int(np.count_nonzero(a > 0)) for _, a in state.values()))
-            peak.append(max(float(np.max(von_mises_strain(ep), initial=0.0)) for ep, _ in state.values()))
-        return np.array(count, dtype=np.int64), np.array(peak)
+    def measure(self) -> tuple[int, float]:
+        """The committed state's number of yielded samples (alpha > 0) and largest equivalent plastic
+        strain ``sqrt(2/3) |e_p|`` (dimensionless)."""
+        state = self.history[-1]
+        count = sum(int(np.count_nonzero(a > 0)) for _, a in state.values())
+        peak = max(float(np.max(von_mises_strain(ep), initial=0.0)) for ep, _ in state.values())
+        return count, peak
 
 
 def with_plasticity(model):

@@ -785,6 +785,7 @@ def solve(
     q0=None,
     v0=None,
     newton_callback: Callable | None = None,
+    sink: Callable | None = None,
 ) -> list[StepRecord]:
     """Run a static (load-stepped) or implicit-Euler simulation of ``model``.
 
@@ -810,10 +811,15 @@ def solve(
     q0, v0 : (n, d) float, optional
         Initial state (default: rest) and its velocity (implicit Euler; default 0).
         Fixed DOFs still follow their regions.
+    sink : callable(StepRecord), optional
+        Receives every record in order, the rest state first (before ``callback`` for a step).
+        With a sink the returned list (and a ConvergenceError's ``records``) holds only the rest
+        state and the latest record, so that memory does not grow with the steps.
 
     Returns
     -------
-    list of StepRecord, ``steps + 1`` long (the rest state first).
+    list of StepRecord, ``steps + 1`` long (the rest state first); with a ``sink``, the rest
+    state and the last record only.
 
     Raises
     ------
@@ -874,9 +880,11 @@ def solve(
     kin0 = 0.5 * vdot(v, M @ v) if dynamic else 0.0
     records = [StepRecord(0.0, x.reshape(shape).copy(), None if v is None else v.reshape(shape).copy(), 0, 0.0,
                           float(model.energy(x.reshape(shape))), kin0, 0.0)]
+    if sink is not None:
+        sink(records[0])
     try:
         _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
-               callback, newton_callback, block)
+               callback, newton_callback, block, sink)
     except ConvergenceError as exc:
         exc.records = records  # the converged steps survive a later failure (partial results)
         raise
@@ -884,8 +892,9 @@ def solve(
 
 
 def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
-           callback, newton_callback, block=None):
-    """The loop over the steps of :func:`solve`, appending a StepRecord per converged step."""
+           callback, newton_callback, block=None, sink=None):
+    """The loop over the steps of :func:`solve`, appending a StepRecord per converged step
+    (with a ``sink``: handing it each record and keeping only the rest state and the latest)."""
     dynamic = options.kind == "implicit-euler"
     adder = _PatternAdd()  # H + M/h^2 + D/h positions found once for all steps
     N = x.size
@@ -959,6 +968,9 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
             float(t), x.reshape(shape).copy(), None if v is None else v.reshape(shape).copy(), int(its),
             time.perf_counter() - t0, E, kin, float(rel), int(lin_its), solver_used, int(halvings), int(cuts),
         )
+        if sink is not None:
+            sink(rec)
+            del records[1:]  # the sink has it: keep the rest state and the latest record only
         records.append(rec)
         if callback is not None:
             callback(rec)
