@@ -310,3 +310,30 @@ def test_a_failed_run_records_its_last_converged_step_whatever_every(tmp_path):
     assert not r.complete and r.step.tolist() == [0, 2] and r.n_steps == 2
     np.testing.assert_allclose(r.probes["end"][:, 0], [2.0, 0.4], rtol=0, atol=1e-9)  # uniform squeeze, s = 0.4
     assert r.run_totals()["steps"] == 2
+
+
+def test_output_every_and_keep_are_scene_keys_the_call_overrides(tmp_path):
+    """[output] every / keep in a scene: validated with one-line errors, written back by to_toml, used by
+    simulate() unless its keep= / every= say otherwise."""
+    from dataclasses import replace
+
+    import voxflex as vf
+    from voxflex.errors import InputError
+    from voxflex.scene import OutputSpec, Scene, default_scene_path
+
+    for bad, match in (({"every": 0}, "every"), ({"every": 1.5}, "every"), ({"keep": "some"}, "keep"),
+                       ({"keep": 0}, "keep"), ({"keep": True}, "keep")):
+        with pytest.raises(InputError, match=match):
+            OutputSpec(**bad)
+    scene = Scene.from_toml(default_scene_path())
+    scene = replace(scene, object=replace(scene.object, voxel_size=0.002), nodes=replace(scene.nodes, count=6),
+                    elasticity=replace(scene.elasticity, samples=120), solver=replace(scene.solver, steps=4),
+                    output=OutputSpec(every=2, keep="last"))
+    back = Scene.from_toml_text(scene.to_toml())
+    assert (back.output.every, back.output.keep) == (2, "last")
+    r = vf.simulate(scene, progress=False)
+    assert list(r.step) == [0, 4]  # every 2 records 0, 2, 4; keep "last" holds the rest state and the last
+    r = vf.simulate(scene, progress=False, keep="all")
+    assert list(r.step) == [0, 2, 4]
+    r = vf.simulate(scene, progress=False, keep="all", every=1)
+    assert list(r.step) == [0, 1, 2, 3, 4]

@@ -627,7 +627,8 @@ class _Layout:
             when = f"load factor {result.time[step]:.4g}"
         else:
             when = f"t = {result.time[step]:.4g} s"
-        lines = [style.title, f"step {step}/{result.n_steps}, {when}"]
+        number = int(result.step[step]) if getattr(result, "step", None) is not None else step  # --every skips steps
+        lines = [style.title, f"step {number}/{result.n_steps}, {when}"]
         y = pad
         for text, size in zip(lines, (self.font + 1, self.font - 1)):
             font, text = _fit_text(text, size, W - 2 * pad)

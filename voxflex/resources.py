@@ -310,7 +310,7 @@ def estimate(scene, *, output=None, keep="auto", every: int = 1) -> Estimate:
     InputError
         Not a Scene, a bad ``keep`` or ``every``, or its object cannot be read (missing image or mesh file).
     """
-    from .result import check_every, check_keep
+    from .scene import check_every, check_keep
     from .scene import Scene
 
     if not isinstance(scene, Scene):

@@ -60,13 +60,9 @@ from ._atomic import atomic_path
 from ._version import __version__
 from .errors import InputError
 
-__all__ = ["Result", "ResultWriter", "describe_result", "KEEP_CHOICES", "AUTO_KEEP_BYTES", "check_keep",
-           "check_every", "TOTALS"]
+__all__ = ["Result", "ResultWriter", "describe_result", "AUTO_KEEP_BYTES", "TOTALS"]
 
 _FORMAT = "voxflex-result"
-
-KEEP_CHOICES = ("auto", "all", "last")
-"""Named values of ``keep`` (which recorded states a run holds in memory); an integer N >= 1 also works."""
 
 TOTALS = {"steps": int, "newton_iterations": int, "step_seconds": float, "inverted_samples": int,
           "min_det_F": float, "min_det_F_step": int}
@@ -103,30 +99,6 @@ _INT_SERIES = frozenset({"stats/newton_iterations", "stats/inverted_samples", "s
                          "plasticity/yielded_samples"})
 _CHUNK_BYTES = 1 << 20  # about 1 MiB per compressed chunk (HDF5's chunk cache holds one per dataset)
 _BLOCK_BYTES = 4 << 20  # states buffered before a write
-
-
-def check_keep(keep, where: str = "keep"):
-    """Validate ``keep``: ``"auto"``, ``"all"``, ``"last"`` or an integer N >= 1; returns it.
-
-    Raises
-    ------
-    InputError
-        Anything else (the message lists the valid values).
-    """
-    if isinstance(keep, str):
-        from .errors import check_choice
-
-        return check_choice(where, keep, KEEP_CHOICES)
-    if isinstance(keep, (int, np.integer)) and not isinstance(keep, bool) and keep >= 1:
-        return int(keep)
-    raise InputError(f"{where} must be \"auto\", \"all\", \"last\" or a number of states >= 1, got {keep!r}")
-
-
-def check_every(every, where: str = "every") -> int:
-    """Validate ``every`` (record every k-th step): an integer >= 1; returns it."""
-    if isinstance(every, (int, np.integer)) and not isinstance(every, bool) and every >= 1:
-        return int(every)
-    raise InputError(f"{where} must be an integer >= 1 (record every k-th step), got {every!r}")
 
 
 def series_of(rows) -> dict:

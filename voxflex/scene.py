@@ -30,6 +30,7 @@ axis`` for cylinders; ``[[material]]`` model constants and a per-material
 from __future__ import annotations
 
 import math
+import numbers
 import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -46,7 +47,7 @@ from .deform.membrane_model import MEMBRANE_NODE_KIND, MEMBRANE_SHAPES, RIMS as 
 from .deform.solvers import KINDS as SOLVER_KINDS, MASS_KINDS
 from .deform.strains import STRAINS
 from .deform.voxel_model import HOURGLASS, VOLUMETRIC
-from .errors import InputError, did_you_mean
+from .errors import InputError, check_choice, did_you_mean
 from .rasterize.primitives import PRIMITIVES
 from .sampling.quadrature import QUADRATURES
 from .voronoi.shape_functions import SHAPE_FUNCTION_KINDS, VOXEL_SHAPE_FUNCTIONS
@@ -559,18 +560,50 @@ class ProbeSpec:
         object.__setattr__(self, "point", _vector("probe", "point", self.point))
 
 
+KEEP_CHOICES = ("auto", "all", "last")
+"""Named values of ``keep`` (which recorded states a run holds in memory); an integer N >= 1 also works."""
+
+def check_keep(keep, where: str = "keep"):
+    """Validate ``keep``: ``"auto"``, ``"all"``, ``"last"`` or an integer N >= 1; returns it.
+
+    Raises
+    ------
+    InputError
+        Anything else (the message lists the valid values).
+    """
+    if isinstance(keep, str):
+        return check_choice(where, keep, KEEP_CHOICES)
+    if isinstance(keep, numbers.Integral) and not isinstance(keep, bool) and keep >= 1:
+        return int(keep)
+    raise InputError(f"{where} must be \"auto\", \"all\", \"last\" or a number of states >= 1, got {keep!r}")
+
+
+def check_every(every, where: str = "every") -> int:
+    """Validate ``every`` (record every k-th step): an integer >= 1; returns it."""
+    if isinstance(every, numbers.Integral) and not isinstance(every, bool) and every >= 1:
+        return int(every)
+    raise InputError(f"{where} must be an integer >= 1 (record every k-th step), got {every!r}")
+
+
 @dataclass(frozen=True)
 class OutputSpec:
     """``[output]``: ``file`` — the result file (.h5) written after the run (resolved like mesh paths);
-    ``fields`` — the result fields computed at every state (names of :data:`voxflex.deform.fields.FIELD_NAMES`)."""
+    ``fields`` — the result fields computed at every state (names of :data:`voxflex.deform.fields.FIELD_NAMES`);
+    ``every`` — record every k-th step (and the rest state and the last step); ``keep`` — which recorded
+    states the returned result holds in memory (``"auto"``, ``"all"``, ``"last"`` or a number N; the file
+    has every recorded state).  The command line's ``--every`` / ``--keep`` override the last two."""
 
     file: str | None = None
     fields: tuple[str, ...] = ()
+    every: int = 1
+    keep: str | int = "auto"
 
     def __post_init__(self):
         if self.file is not None:
             _string("output", "file", self.file)
         object.__setattr__(self, "fields", check_field_names(self.fields, where="[output] fields"))
+        object.__setattr__(self, "every", check_every(self.every, where="[output] every"))
+        object.__setattr__(self, "keep", check_keep(self.keep, where="[output] keep"))
 
 
 _OBSTACLE_KEYS = {

@@ -59,7 +59,7 @@ def _cannot_recover(material) -> bool:
 
 
 def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: bool = False,
-             cache: bool = True, keep="auto", every: int = 1) -> Result:
+             cache: bool = True, keep=None, every=None) -> Result:
     """Run a scene and return its :class:`~voxflex.result.Result`.
 
     Parameters
@@ -73,14 +73,14 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
         a temporary file beside it step by step (memory does not grow with the
         steps), which replaces ``output`` only when the run ends: an interrupted or
         failed run leaves an existing file as it was.
-    keep : "auto", "all", "last" or int N >= 1
-        Which recorded states the returned Result holds in memory (the file always
+    keep : "auto", "all", "last" or int N >= 1, optional
+        Default: the scene's ``[output] keep`` ("auto" unless set).  Which recorded states the returned Result holds in memory (the file always
         has all of them): ``"all"``; ``"last"``, the rest state and the last state;
         N, the rest state and the last N states.  ``"auto"`` (default) is ``"all"``
         without a result file, and with one ``"all"`` while they need at most
         :data:`AUTO_KEEP_BYTES`, else ``"last"``.
-    every : int >= 1
-        Record every ``every``-th step (and the rest state and the last step), in
+    every : int >= 1, optional
+        Default: the scene's ``[output] every`` (1 unless set).  Record every ``every``-th step (and the rest state and the last step), in
         the file and in memory; the effort datasets (Newton iterations, seconds) of
         a recorded state sum the steps since the previous one.
     model : Model, optional
@@ -125,10 +125,10 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     from ._atomic import atomic_path
     from .deform.boundary import FixedRegion, ForceRegion
     from .deform.solvers import SolverOptions, solve
-    from .result import check_every, check_keep
+    from .scene import check_every, check_keep
 
-    keep = check_keep(keep)
-    every = check_every(every)
+    keep = scene.output.keep if keep is None else check_keep(keep)
+    every = scene.output.every if every is None else check_every(every)
     target = output if output is not None else scene.output.file
     if model is None:
         from .resources import check as check_resources

@@ -53,11 +53,13 @@ def register(sub) -> None:
     parser.add_argument("--render", metavar="OUT.png", help="also render the final state (.png, folder, .gif)")
     parser.add_argument("--vtk", metavar="FOLDER", help="also export a ParaView time series (.vtp + .pvd)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
-    parser.add_argument("--every", metavar="K", type=_positive_int, default=1,
-                        help="record every K-th step (and the rest state and the last step); default 1")
-    parser.add_argument("--keep", metavar="all|last|N", type=_keep, default="auto",
+    parser.add_argument("--every", metavar="K", type=_positive_int, default=None,
+                        help="record every K-th step (and the rest state and the last step); default: the scene's "
+                             "[output] every, else 1")
+    parser.add_argument("--keep", metavar="all|last|N", type=_keep, default=None,
                         help="recorded states held in memory during the run (the file has them all): all, last, "
-                             "or the last N; default: all while they need at most 256 MiB, else last "
+                             "or the last N; default: the scene's [output] keep, else all while they need at most "
+                             "256 MiB, else last "
                              "(--render and --vtk then read the file)")
     parser.add_argument(
         "--no-cache",
