@@ -54,6 +54,9 @@ from .linear_solvers import METHODS, cg_on_free_dofs, choose_method, solve_linea
 
 KINDS = ("static", "implicit-euler")
 MASS_KINDS = ("lumped", "consistent")
+TANGENT_PROJECTIONS = ("auto", "always", "never")
+"""``tangent_projection`` choices: per-sample tangents projected to positive semi-definite far from
+equilibrium and exact in Newton's local regime (``auto``), at every iterate, or never."""
 ARMIJO = 1e-4
 MAX_HALVINGS = 30
 DENSE_AUTO_MAX = 6000  # unknowns up to which a nearly dense Hessian goes to dense Cholesky under "auto"
@@ -90,6 +93,13 @@ class SolverOptions:
     check_stability : bool
         Check every converged state for a negative eigenvalue of the free
         tangent (always done when Newton met negative curvature).
+    tangent_projection : {"auto", "always", "never"}
+        Hessians built from per-sample tangents dP/dF projected to positive
+        semi-definite (negative eigenvalues set to 0; the assembled Hessian is
+        then PSD and every Newton direction descends): ``auto`` projects until
+        Newton reaches its local regime (a full step that halved the residual)
+        and uses the exact tangent from there (quadratic convergence kept);
+        models without projection (rigid frames, F-bar labels) stay exact.
     """
 
     kind: str = "static"
@@ -103,9 +113,11 @@ class SolverOptions:
     rayleigh_stiffness: float = 0.0
     mass: str = "lumped"
     check_stability: bool = False
+    tangent_projection: str = "auto"
 
     def __post_init__(self):
         check_choice("solver kind", self.kind, KINDS)
+        check_choice("tangent projection", self.tangent_projection, TANGENT_PROJECTIONS)
         check_choice("linear solver", self.linear_solver, METHODS)
         check_choice("mass", self.mass, MASS_KINDS)
         if int(self.steps) != self.steps or self.steps < 1:
@@ -189,15 +201,24 @@ class _Problem:
         self.hessians = 0
         self.solves = 0
         self.hessian_misses = 0
+        self.projected = 0  # Hessians built from projected tangents
 
-    def __call__(self, delta, hessian=True, gradient=True):
+    def __call__(self, delta, hessian=True, gradient=True, project=False):
         q = (self.base + delta).reshape(self.shape)
         hessian = hessian and self.block is None
         self.evaluations += 1
         self.hessians += bool(hessian and gradient)
         self.energy_only += not gradient
-        E, g, H = self.model.energy_gradient_hessian(q, hessian=hessian) if gradient else (
-            self.model.energy(q), None, None)
+        setter = getattr(self.model, "set_tangent_projection", None) if project and hessian and gradient else None
+        if setter is not None:
+            self.projected += bool(setter(True))
+            try:
+                E, g, H = self.model.energy_gradient_hessian(q, hessian=True)
+            finally:
+                setter(False)  # the model's Hessians stay exact outside this call (stability check, damping)
+        else:
+            E, g, H = self.model.energy_gradient_hessian(q, hessian=hessian) if gradient else (
+                self.model.energy(q), None, None)
         work = self.work0 + vdot(self.f, delta)
         pot = E - work
         mag = abs(E) + abs(work)
@@ -301,6 +322,19 @@ def _predict_converged(rn, rn_last, target, floor) -> bool:
     if rn_last is None or not rn < 0.5 * rn_last:
         return False
     return rn * (rn / rn_last) <= max(target, floor)
+
+
+def _project_tangents(mode, step_length, history) -> bool:
+    """Whether the next Hessian is built from tangents projected to PSD (:data:`TANGENT_PROJECTIONS`).
+
+    ``auto``: projected until Newton is in its local regime, told by the last
+    step: a full step (no line-search cut) that at least halved the residual;
+    from there the exact tangent keeps Newton's quadratic rate, and a later cut
+    step (or a residual that stops halving) switches the projection back on.
+    """
+    if mode != "auto":
+        return mode == "always"
+    return not (len(history) >= 2 and step_length == 1.0 and history[-1] <= 0.5 * history[-2])
 
 
 def _forcing(rn, rn_prev, eta_prev, scale):
@@ -485,10 +519,11 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         # (built below after all when the iterate does not converge)
         skip = len(history) >= 2 and step_length == 1.0 and _predict_converged(
             history[-1], history[-2], tol * scale, floor)
+        project = not moving and _project_tangents(options.tangent_projection, step_length, history)
         if cached is not None and cached[0] is x:
             pot, E, g, H, mag = cached[1]
         else:
-            pot, E, g, H, mag = problem(x, hessian=not skip)
+            pot, E, g, H, mag = problem(x, hessian=not skip, project=project)
         cached = None
         if not np.isfinite(pot) or not np.all(np.isfinite(g)):
             raise ConvergenceError(f"{label}: the energy is not finite at iteration {it} (inverted material?)")
@@ -517,7 +552,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         if H is None and not lean:
             # the Hessian was skipped (Newton predicted convergence here) or not built by the line search
             problem.hessian_misses += skip
-            pot, E, g, H, mag = problem(x, hessian=True)
+            pot, E, g, H, mag = problem(x, hessian=True, project=project)
         rhs = -r
         if moving:
             if lean:
