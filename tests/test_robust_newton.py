@@ -204,3 +204,34 @@ def test_projection_on_demand_saves_iterations_on_a_buckling_column():
     assert out["auto"][0] < out["never"][0]
     for mode in ("auto", "always"):
         assert np.allclose(out[mode][1], out["never"][1], rtol=0, atol=1e-6)
+
+
+def test_the_projected_hessian_of_an_affine_frame_model_is_psd():
+    """Affine frames (F linear in the frames' 12 DOFs): the model squeezed as in the voxel test has
+    a Hessian with negative eigenvalues; projected, every eigenvalue is >= -1e-10 of the largest."""
+    from voxflex.deform.frame_model import FrameModel
+    from voxflex.voronoi.shape_functions import shepard
+
+    image = LabelImage(np.ones((6, 2, 2), dtype=np.uint8), spacing=(0.5, 0.5, 0.5))
+    frames = np.array([[0.25, 0.5, 0.5], [1.5, 0.25, 0.25], [1.5, 0.75, 0.75], [2.75, 0.5, 0.5]])
+
+    class SF:
+        kind = "shepard"
+
+        def __init__(self):
+            self.image, self.frames = image, frames
+
+        def __call__(self, points):
+            return shepard(np.asarray(points, dtype=float), frames, n_parents=4)
+
+        def voxel_values(self):
+            return self(image.index_to_world(np.argwhere(image.labels > 0) + 0.5))
+
+    model = FrameModel.from_image(image, frames, SF(), {1: material("neo-hookean", young=1e3, poisson=0.3)})
+    q = model.moved_state([[0.4, 0, 0, 0], [0.3, 1.0, 0, 0], [0, 0, 1.05, 0]])
+    exact = np.linalg.eigvalsh(model.hessian(q))
+    assert exact.min() < -1e-3 * exact.max()
+    assert model.set_tangent_projection(True)
+    proj = np.linalg.eigvalsh(model.hessian(q))
+    model.set_tangent_projection(False)
+    assert proj.min() >= -1e-10 * proj.max()
