@@ -156,6 +156,13 @@ def test_psd_projection_against_an_eigen_decomposition(backend):
     other = project_psd(A, backend="numpy" if backend == "numba" else "numba")
     assert np.allclose(P, other, rtol=0, atol=1e-12 * scale)
     assert project_psd(A.reshape(40, 3, 3, 3, 3), backend=backend).shape == (40, 3, 3, 3, 3)
+    # the material's fused pass projects the same way (a squeezed, sheared neo-Hooke sample: not PSD)
+    mat = material("neo-hookean", young=1e3, poisson=0.3)
+    F = np.array([[[0.4, 0.3, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.05]]])
+    exact = mat.evaluate(F, backend=backend)[2]
+    assert np.linalg.eigvalsh(exact.reshape(1, 9, 9)).min() < 0
+    assert np.allclose(mat.evaluate(F, backend=backend, project=True)[2], project_psd(exact, backend="numpy"),
+                       rtol=0, atol=1e-12 * np.abs(exact).max())
 
 
 def test_the_projected_hessian_is_psd_where_the_exact_one_is_not():

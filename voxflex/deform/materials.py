@@ -31,7 +31,8 @@ from .._jit import njit
 from ..errors import InputError, check_choice, did_you_mean
 from . import laws as _laws
 
-__all__ = ["Material", "MATERIALS", "shifted_invariants", "project_psd", "MODEL_CONSTANTS", "POISSON_RANGE", "material", "lame", "strain_kind", "check_constants"]
+__all__ = ["Material", "MATERIALS", "shifted_invariants", "project_psd", "MODEL_CONSTANTS", "POISSON_RANGE",
+           "material", "lame", "strain_kind", "check_constants"]
 
 def strain_kind(strain) -> str:
     """The kind of strain vector a Strain produces (``"tensor"``, ``"invariant"``, ...).
