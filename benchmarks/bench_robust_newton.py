@@ -42,14 +42,15 @@ the soft half's energy change near the solution fell below it and the line searc
 W is now computed from ``H = F - I`` (:func:`voxflex.deform.materials.shifted_invariants`):
 the same beam under 1e-3 g converges (it failed after 8 cuts).  (2) The iteration count itself
 is set by the stiff half turning as a rigid body: Newton's update is linear, so a turn by
-``d theta`` stretches the stiff half by ``d theta^2 / 2``, which costs ``k_stiff d theta^4``
-against a gain ``k_soft d theta``; the usable turn per iteration scales like
-``contrast^(-1/3)`` and the iterations like ``contrast^(1/3)`` (483 -> 1022 from 1e5 to 1e6,
-ratio 2.1 against 10^(1/3) = 2.15).  Neither the projection (not engaged: the tangent stays
-positive along the steps), a derivative-based line search (the failures left are iteration
-limits, not line-search failures) nor diagonal scaling (sparse LU is not sensitive to it)
-changes that; chord corrections with the same Hessian after each step (tried, not kept) cut
-1e5 from 809 to 561 iterations at the same run time.
+``d theta`` stretches the stiff half by about ``d theta^2 / 2``, which costs ``k_stiff d theta^4``
+against a gain ``k_soft d theta``.  This rough balance suggests a usable turn per iteration
+like ``contrast^(-1/3)`` and iterations like ``contrast^(1/3)``: measured 483 -> 1022 from 1e5
+to 1e6 (ratio 2.1; 10^(1/3) = 2.15).  None of these changes that: the projection (not
+engaged: the tangent stays positive along the steps), a derivative-based line search (the
+failures left are iteration limits, not line-search failures), symmetric Jacobi scaling of
+the LU solve (tried: 1e3 122 -> 122, 1e4 275 -> 274 iterations; not kept), chord corrections
+with the same Hessian after each step (tried: 1e5 809 -> 561 iterations at the same run
+time; not kept).
 
 Projection (``--cases cantilever,buckling --repeat 3``):
 
