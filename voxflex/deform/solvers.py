@@ -55,8 +55,9 @@ from .linear_solvers import METHODS, cg_on_free_dofs, choose_method, solve_linea
 KINDS = ("static", "implicit-euler")
 MASS_KINDS = ("lumped", "consistent")
 TANGENT_PROJECTIONS = ("auto", "always", "never")
-"""``tangent_projection`` choices: per-sample tangents projected to positive semi-definite far from
-equilibrium and exact in Newton's local regime (``auto``), at every iterate, or never."""
+"""``tangent_projection`` choices: per-sample tangents projected to positive semi-definite after the
+exact tangent was indefinite along a Newton step, until a full step (``auto``, see
+:func:`_project_tangents`), at every iterate, or never."""
 ARMIJO = 1e-4
 MAX_HALVINGS = 30
 DENSE_AUTO_MAX = 6000  # unknowns up to which a nearly dense Hessian goes to dense Cholesky under "auto"
