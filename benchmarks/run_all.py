@@ -49,6 +49,7 @@ QUICK = {
     "locking": ["--quick"],
     "resources": ["--quick"],
     "contact": ["--quick"],
+    "robust_newton": ["--contrasts", "1e2,1e3", "--repeat", "1"],
 }
 
 

@@ -44,7 +44,7 @@ from .deform.contact import POINT_RULES as CONTACT_POINT_RULES
 from .deform.cables import Cable
 from .deform.fields import check_field_names
 from .deform.membrane_model import MEMBRANE_NODE_KIND, MEMBRANE_SHAPES, RIMS as MEMBRANE_RIMS
-from .deform.solvers import KINDS as SOLVER_KINDS, MASS_KINDS
+from .deform.solvers import KINDS as SOLVER_KINDS, MASS_KINDS, TANGENT_PROJECTIONS
 from .deform.strains import STRAINS
 from .deform.voxel_model import HOURGLASS, VOLUMETRIC
 from .errors import InputError, check_choice, did_you_mean
@@ -512,7 +512,8 @@ class SolverSpec:
     (``steps`` time steps of ``dt`` seconds), Newton ``tolerance`` (relative
     residual), ``max_iterations``, ``line_search``, ``linear_solver``, Rayleigh damping,
     ``mass`` (``lumped`` or ``consistent``, implicit Euler), ``check_stability``
-    (test every converged state for a negative tangent eigenvalue).  The keys mirror
+    (test every converged state for a negative tangent eigenvalue), ``tangent_projection``
+    (per-sample tangents projected to positive semi-definite far from equilibrium).  The keys mirror
     :class:`voxflex.deform.solvers.SolverOptions` one for one."""
 
     kind: str = "static"
@@ -526,6 +527,7 @@ class SolverSpec:
     rayleigh_stiffness: float = 0.0
     mass: str = "lumped"
     check_stability: bool = False
+    tangent_projection: str = "auto"
 
     def __post_init__(self):
         t = "solver"
@@ -544,6 +546,7 @@ class SolverSpec:
             self, "rayleigh_stiffness", _number(t, "rayleigh_stiffness", self.rayleigh_stiffness, nonnegative=True)
         )
         _string(t, "mass", self.mass, MASS_KINDS)
+        _string(t, "tangent_projection", self.tangent_projection, TANGENT_PROJECTIONS)
 
 
 @dataclass(frozen=True)

@@ -82,6 +82,7 @@ from ..voronoi.trilinear import TrilinearGrid
 from . import _frame_kernels as K
 from ._frame_kernels import frame_tables
 from .linear_solvers import vdot
+from .materials import project_psd
 from .mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping, PointMapping
 from .nodes import AffineFrames
 from .voxel_model import VOLUMETRIC, boundary_quads, nearly_incompressible, triangulate
@@ -190,6 +191,7 @@ class FrameModel:
         self._surface = None
         self._mass_map_cache = None
         self._mass_points_cache = None
+        self._project = False  # per-sample tangents projected to PSD in the Hessians (set_tangent_projection)
 
     # -- construction -------------------------------------------------------
     @classmethod
@@ -305,6 +307,17 @@ class FrameModel:
         """d2E/dq2 (12n, 12n): dense ndarray (point samples) or CSR (elastons)."""
         return self.energy_gradient_hessian(q)[2]
 
+    def set_tangent_projection(self, on: bool) -> bool:
+        """Project the per-sample tangents dP/dF to positive semi-definite in later Hessians (``on``), or not.
+
+        F is linear in the affine frames' DOFs, so the Hessian is then positive
+        semi-definite.  Point samples with every volumetric term in full only: elastons
+        and reduced (F-bar) volumetric labels keep their exact Hessian.  Returns whether
+        the tangents are projected.
+        """
+        self._project = bool(on) and not self.elaston and not any(self.volumetric.values())
+        return self._project and not self.constant_tangent
+
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
         """Energy (J), gradient (n, 12) and Hessian (12n, 12n) in one pass over the samples.
 
@@ -323,6 +336,8 @@ class FrameModel:
             label = self._groups[0][0]
             W, P, A = self.materials[label].evaluate(F, tangent=hessian)
             energy = vdot(vol, W)
+            if hessian and self._project and not self.constant_tangent:
+                A = project_psd(A)
         else:
             energy = 0.0
             P = np.empty((m, 3, 3))
@@ -331,7 +346,7 @@ class FrameModel:
                 Wg, P[ids], Ag = self.materials[label].evaluate(F[ids], tangent=hessian)
                 energy += vdot(vol[ids], Wg)
                 if hessian:
-                    A[ids] = Ag
+                    A[ids] = project_psd(Ag) if self._project and not self.materials[label].constant_tangent else Ag
         grad = None
         if gradient:
             grad = np.zeros((self.n_nodes, 12))

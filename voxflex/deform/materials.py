@@ -31,7 +31,8 @@ from .._jit import njit
 from ..errors import InputError, check_choice, did_you_mean
 from . import laws as _laws
 
-__all__ = ["Material", "MATERIALS", "MODEL_CONSTANTS", "POISSON_RANGE", "material", "lame", "strain_kind", "check_constants"]
+__all__ = ["Material", "MATERIALS", "shifted_invariants", "project_psd", "MODEL_CONSTANTS", "POISSON_RANGE",
+           "material", "lame", "strain_kind", "check_constants"]
 
 def strain_kind(strain) -> str:
     """The kind of strain vector a Strain produces (``"tensor"``, ``"invariant"``, ...).
@@ -98,6 +99,93 @@ def _chain_numpy(jac, s, K, geo, with_tangent):
     return P, A
 
 
+# ----------------------------------------------------------------------------------------------
+# projection of per-sample tangents to positive semi-definite, and its numpy twin
+# ----------------------------------------------------------------------------------------------
+@njit
+def _project_psd_kernel(A):  # pragma: no cover - compiled
+    """Clamp the negative eigenvalues of each symmetric A[q] (n, 9, 9) to 0, in place; returns how many changed.
+
+    A Cholesky attempt first (81 multiply-adds, no LAPACK call): a tangent it factors is
+    positive definite and stays exactly as it is; the others get ``V max(lambda, 0) V^T``.
+    """
+    n = A.shape[0]
+    L = np.empty((9, 9))
+    changed = 0
+    for q in range(n):
+        pd = True
+        for i in range(9):
+            for j in range(i + 1):
+                acc = A[q, i, j]
+                for k in range(j):
+                    acc -= L[i, k] * L[j, k]
+                if i == j:
+                    if not acc > 0.0:  # NaN too: left to the eigen branch, which keeps NaN
+                        pd = False
+                        break
+                    L[i, i] = np.sqrt(acc)
+                else:
+                    L[i, j] = acc / L[j, j]
+            if not pd:
+                break
+        if pd:
+            continue
+        S = np.empty((9, 9))
+        for i in range(9):
+            for j in range(9):
+                S[i, j] = 0.5 * (A[q, i, j] + A[q, j, i])
+        if not np.all(np.isfinite(S)):
+            continue
+        lam, V = np.linalg.eigh(S)
+        for i in range(9):
+            for j in range(9):
+                acc = 0.0
+                for k in range(9):
+                    if lam[k] > 0.0:
+                        acc += V[i, k] * lam[k] * V[j, k]
+                A[q, i, j] = acc
+        changed += 1
+    return changed
+
+
+def _project_psd_numpy(A):
+    """Numpy twin of :func:`_project_psd_kernel` (eigen-decomposition of every sample); returns (A, changed)."""
+    S = 0.5 * (A + np.swapaxes(A, 1, 2))
+    lam, V = np.linalg.eigh(S)
+    neg = np.any(lam < 0, axis=1)
+    out = A.copy()
+    out[neg] = np.einsum("nik,nk,njk->nij", V[neg], np.maximum(lam[neg], 0.0), V[neg])
+    return out, int(np.count_nonzero(neg))
+
+
+def project_psd(A, *, backend: str = "numba"):
+    """Per-sample tangents projected to positive semi-definite: negative eigenvalues set to 0.
+
+    Parameters
+    ----------
+    A : array (n, 3, 3, 3, 3) or (n, 9, 9)
+        Symmetric tangents dP/dF [Pa] (not modified).
+    backend : {"numba", "numpy"}
+
+    Returns
+    -------
+    array like A: unchanged where A is positive definite, ``V max(lambda, 0) V^T`` elsewhere.
+    With a deformation gradient linear in the node state (voxels, affine frames) the
+    assembled Hessian ``sum J^T A J`` is then positive semi-definite.
+    """
+    check_choice("backend", backend, _laws.BACKENDS)
+    A = np.asarray(A, dtype=np.float64)
+    shape = A.shape
+    if A.ndim not in (3, 5) or A.shape[1:] not in ((9, 9), (3, 3, 3, 3)):
+        raise InputError(f"tangents must have shape (n, 9, 9) or (n, 3, 3, 3, 3), got {A.shape}")
+    flat = np.ascontiguousarray(A.reshape(-1, 9, 9))
+    if backend == "numpy":
+        return _project_psd_numpy(flat)[0].reshape(shape)
+    out = flat.copy()
+    _project_psd_kernel(out)
+    return out.reshape(shape)
+
+
 COINCIDENT_GAP = 1e-8
 """Relative gap ``(sig_p - sig_q) / sig_1`` under which two principal stretches count as equal."""
 
@@ -136,6 +224,23 @@ def _stretch_tangent(F, e, s, K, divided=True):
             A += c[:, None, None, None, None] * np.einsum("nij,nkl->nijkl", S, S)
             A += d[:, None, None, None, None] * np.einsum("nij,nkl->nijkl", N, N)
     return A
+
+
+def shifted_invariants(F):
+    """``I1 - 3`` and ``J - 1`` (n,) of ``C = F^T F`` from ``H = F - I``, without cancellation.
+
+    ``I1 - 3 = 2 tr H + |H|^2`` and ``J - 1 = tr H + i2(H) + det H`` with
+    ``i2 = ((tr H)^2 - tr(H H)) / 2``: each is a sum of small terms, so near rest
+    their error is round-off relative to the strain, not to 3 or 1 (numpy).
+    """
+    H = F - np.eye(3)
+    tr = H[:, 0, 0] + H[:, 1, 1] + H[:, 2, 2]
+    i1 = 2.0 * tr + np.einsum("nij,nij->n", H, H)
+    i2 = 0.5 * (tr * tr - np.einsum("nij,nji->n", H, H))
+    det = (H[:, 0, 0] * (H[:, 1, 1] * H[:, 2, 2] - H[:, 1, 2] * H[:, 2, 1])
+           - H[:, 0, 1] * (H[:, 1, 0] * H[:, 2, 2] - H[:, 1, 2] * H[:, 2, 0])
+           + H[:, 0, 2] * (H[:, 1, 0] * H[:, 2, 1] - H[:, 1, 1] * H[:, 2, 0]))
+    return i1, tr + i2 + det
 
 
 def _check_F(F) -> np.ndarray:
@@ -186,9 +291,18 @@ class Material:
         """Whether dP/dF does not depend on F: a quadratic law over a strain affine in F."""
         return bool(self.law.quadratic and getattr(self.strain, "constant_jacobian", False))
 
+    @property
+    def _shifted(self) -> bool:
+        """Whether W is evaluated from ``H = F - I`` without cancellation (the law's ``shifted_energy``
+        over the ``invariant`` strain): the energy a line search compares stays exact to round-off
+        relative to itself near rest, not to the moduli (stiffness contrast 1e6)."""
+        return self.law.shifted_energy is not None and getattr(self.strain, "name", None) == "invariant"
+
     def energy(self, F) -> np.ndarray:
         """Energy density W (n,) [Pa] of deformation gradients F (n, 3, 3)."""
         F = _check_F(F)
+        if self._shifted:
+            return self.law.shifted_energy(*shifted_invariants(F))
         e = np.ascontiguousarray(self.strain.apply(F), dtype=np.float64)
         return self.law._evaluate(e, False, "numba")[0]
 
@@ -200,7 +314,7 @@ class Material:
         """Tangent A[n, i, j, k, l] = dP_ij/dF_kl (n, 3, 3, 3, 3) [Pa]."""
         return self.evaluate(F, tangent=True)[2]
 
-    def evaluate(self, F, *, tangent: bool = True, backend: str = "numba"):
+    def evaluate(self, F, *, tangent: bool = True, backend: str = "numba", project: bool = False):
         """Energy, stress and tangent in one fused pass (what the solvers call).
 
         Parameters
@@ -211,6 +325,9 @@ class Material:
             Also compute the tangent (else the third result is None).
         backend : {"numba", "numpy"}
             Compiled kernels or their numpy twins (same results to round-off).
+        project : bool
+            Return the tangent projected to positive semi-definite per sample
+            (:func:`project_psd`; skipped for a constant tangent, PSD already).
 
         Returns
         -------
@@ -251,6 +368,13 @@ class Material:
             )
             if not tangent:
                 A = None
+        if project and A is not None and not self.constant_tangent:
+            if numpy:
+                A = _project_psd_numpy(A)[0]
+            else:
+                _project_psd_kernel(A)
+        if self._shifted:
+            W = self.law.shifted_energy(*shifted_invariants(F))  # the same W as :meth:`energy`
         P = P.reshape(n, 3, 3)
         A = None if A is None else A.reshape(n, 3, 3, 3, 3)
         return W, P, A

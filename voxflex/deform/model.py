@@ -123,6 +123,11 @@ class Model(Protocol):
     def hessian(self, q):
         """d²E/dq² (nd, nd): sparse, or a dense ndarray (see :meth:`energy_gradient_hessian`)."""
 
+    # optional: set_tangent_projection(on: bool) -> bool
+    #     Later Hessians built from per-sample tangents dP/dF projected to positive semi-definite
+    #     (on) or exact (off, the default); returns whether any tangent is projected.  Models
+    #     without it (rigid frames, whose mapping has its own geometric stiffness) stay exact.
+
     def mass_matrix(self, densities: Mapping[int, float], *, lumped: bool = True):
         """Mass matrix (nd, nd) in the DOFs from mapped mass points (kg, kg m, kg m²)."""
 
@@ -199,6 +204,11 @@ class ModelLayer:
         if name == "inner":  # not set yet (during construction or unpickling)
             raise AttributeError(name)
         return getattr(self.inner, name)
+
+    def set_tangent_projection(self, on: bool) -> bool:
+        """Forwarded to the wrapped model (the layer's own Hessian stays exact); False when it has none."""
+        setter = getattr(self.inner, "set_tangent_projection", None)
+        return bool(setter(on)) if setter is not None else False
 
     def advice(self) -> str:
         inner = self.inner.advice()

@@ -55,6 +55,10 @@ from .linear_solvers import METHODS, cg_on_free_dofs, choose_method, solve_linea
 
 KINDS = ("static", "implicit-euler")
 MASS_KINDS = ("lumped", "consistent")
+TANGENT_PROJECTIONS = ("auto", "always", "never")
+"""``tangent_projection`` choices: per-sample tangents projected to positive semi-definite after the
+exact tangent was indefinite along a Newton step, until a full step (``auto``, see
+:func:`_project_tangents`), at every iterate, or never."""
 ARMIJO = 1e-4
 MAX_HALVINGS = 30
 DENSE_AUTO_MAX = 6000  # unknowns up to which a nearly dense Hessian goes to dense Cholesky under "auto"
@@ -91,6 +95,14 @@ class SolverOptions:
     check_stability : bool
         Check every converged state for a negative eigenvalue of the free
         tangent (always done when Newton met negative curvature).
+    tangent_projection : {"auto", "always", "never"}
+        Hessians built from per-sample tangents dP/dF projected to positive
+        semi-definite (negative eigenvalues set to 0; the assembled Hessian is
+        then PSD and every Newton direction descends): ``auto`` uses the exact
+        tangent until it is indefinite along a Newton step, then the projected
+        one until a step is accepted in full (the exact tangent near the
+        solution keeps quadratic convergence); models or labels without
+        projection (rigid frames, F-bar labels, elastons) stay exact.
     """
 
     kind: str = "static"
@@ -104,9 +116,11 @@ class SolverOptions:
     rayleigh_stiffness: float = 0.0
     mass: str = "lumped"
     check_stability: bool = False
+    tangent_projection: str = "auto"
 
     def __post_init__(self):
         check_choice("solver kind", self.kind, KINDS)
+        check_choice("tangent projection", self.tangent_projection, TANGENT_PROJECTIONS)
         check_choice("linear solver", self.linear_solver, METHODS)
         check_choice("mass", self.mass, MASS_KINDS)
         if int(self.steps) != self.steps or self.steps < 1:
@@ -190,15 +204,24 @@ class _Problem:
         self.hessians = 0
         self.solves = 0
         self.hessian_misses = 0
+        self.projected = 0  # Hessians built from projected tangents
 
-    def __call__(self, delta, hessian=True, gradient=True):
+    def __call__(self, delta, hessian=True, gradient=True, project=False):
         q = (self.base + delta).reshape(self.shape)
         hessian = hessian and self.block is None
         self.evaluations += 1
         self.hessians += bool(hessian and gradient)
         self.energy_only += not gradient
-        E, g, H = self.model.energy_gradient_hessian(q, hessian=hessian) if gradient else (
-            self.model.energy(q), None, None)
+        setter = getattr(self.model, "set_tangent_projection", None) if project and hessian and gradient else None
+        if setter is not None:
+            self.projected += bool(setter(True))
+            try:
+                E, g, H = self.model.energy_gradient_hessian(q, hessian=True)
+            finally:
+                setter(False)  # the model's Hessians stay exact outside this call (stability check, damping)
+        else:
+            E, g, H = self.model.energy_gradient_hessian(q, hessian=hessian) if gradient else (
+                self.model.energy(q), None, None)
         work = self.work0 + vdot(self.f, delta)
         pot = E - work
         mag = abs(E) + abs(work)
@@ -302,6 +325,24 @@ def _predict_converged(rn, rn_last, target, floor) -> bool:
     if rn_last is None or not rn < 0.5 * rn_last:
         return False
     return rn * (rn / rn_last) <= max(target, floor)
+
+
+def _project_tangents(mode, step_length, indefinite, projected) -> bool:
+    """Whether the next Hessian is built from tangents projected to PSD (:data:`TANGENT_PROJECTIONS`).
+
+    ``auto``: the exact tangent, unless the last exact one was indefinite along
+    Newton's step (negative curvature, or not a descent direction); then the
+    projected one until a step is accepted in full (no line-search cut), where
+    the exact tangent takes over again and keeps Newton's quadratic rate.
+    Measured (``benchmarks/bench_robust_newton.py``): projecting from the
+    start of every step until a full step halved the residual cost 13 % more
+    iterations on the neo-Hooke cantilever and 29 % (with 3 load cuts) on a
+    buckling column; projecting always, 2.6 times as many on the cantilever
+    and no convergence on the column (linear rate near the solution).
+    """
+    if mode != "auto":
+        return mode == "always"
+    return indefinite or (projected and step_length < 1.0)
 
 
 def _forcing(rn, rn_prev, eta_prev, scale):
@@ -481,15 +522,17 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
     step_length, last_lin, t_last = 0.0, 0, time.perf_counter()
     lean = problem.block is not None
     history = []  # residuals of the iterates so far (Newton's rate)
+    indefinite = project = False  # the last tangent was indefinite along the step / was projected
     for it in range(options.max_iterations + 1):
         # the Hessian of an iterate where Newton's rate predicts convergence would never be solved: skip it
         # (built below after all when the iterate does not converge)
         skip = len(history) >= 2 and step_length == 1.0 and _predict_converged(
             history[-1], history[-2], tol * scale, floor)
+        project = not moving and _project_tangents(options.tangent_projection, step_length, indefinite, project)
         if cached is not None and cached[0] is x:
             pot, E, g, H, mag = cached[1]
         else:
-            pot, E, g, H, mag = problem(x, hessian=not skip)
+            pot, E, g, H, mag = problem(x, hessian=not skip, project=project)
         cached = None
         if not np.isfinite(pot) or not np.all(np.isfinite(g)):
             raise ConvergenceError(f"{label}: the energy is not finite at iteration {it} (inverted material?)")
@@ -518,7 +561,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         if H is None and not lean:
             # the Hessian was skipped (Newton predicted convergence here) or not built by the line search
             problem.hessian_misses += skip
-            pot, E, g, H, mag = problem(x, hessian=True)
+            pot, E, g, H, mag = problem(x, hessian=True, project=project)
         rhs = -r
         if moving:
             if lean:
@@ -577,8 +620,10 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             dfull = np.zeros(len(x))
             dfull[free] = d
             curvature = vdot(d, (H @ dfull)[free])
+        indefinite = False
         if curvature < 0:
             problem.negative_curvature = True
+            indefinite = True
         if slope >= 0:
             # not a descent direction (indefinite tangent): regularise with a scaled identity, direct solve
             Hff = reduce(H) if Hff is None else Hff
@@ -594,6 +639,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             else:
                 raise ConvergenceError(f"{label}: no descent direction found at iteration {it} (tangent indefinite)")
             solver_used = "direct (shifted: tangent indefinite)"
+            indefinite = True
         if not options.line_search:
             x = x.copy()
             x[free] += d

@@ -82,6 +82,7 @@ from . import _voxel_kernels as kern
 from ..voronoi.shape_functions import ShapeValues
 from .linear_solvers import vdot
 from .mappings import PointMapping
+from .materials import project_psd
 from .nodes import Points
 
 CHUNK_ELEMENTS = 16384
@@ -379,6 +380,7 @@ class VoxelModel:
         # quadratic stabilisation of the mid-point rule on the nonlinear labels (constant ones fold it into their unit)
         self._stabilised = {label for label, _, const in self._groups
                             if quadrature == "midpoint" and hourglass == "stiffness" and not const}
+        self._project = False  # per-sample tangents projected to PSD in the Hessians (set_tangent_projection)
 
     # -- construction -------------------------------------------------------
     @classmethod
@@ -585,6 +587,18 @@ class VoxelModel:
             H = sp.csr_matrix((data, indices, indptr), shape=(3 * n, 3 * n))
         return energy, grad, H
 
+    def set_tangent_projection(self, on: bool) -> bool:
+        """Project the per-sample tangents dP/dF to positive semi-definite in later Hessians (``on``), or not.
+
+        F is linear in the node positions, so the assembled Hessian is then positive
+        semi-definite (the solvers use it far from equilibrium, see
+        :class:`~voxflex.deform.solvers.SolverOptions`).  F-bar labels keep their exact
+        stiffness (their F-bar map is not linear in the nodes).  Returns whether any label's
+        tangent is projected (False for an all-constant or all-F-bar model).
+        """
+        self._project = bool(on)
+        return self._project and any(not const and not self._fbar(label) for label, _, const in self._groups)
+
     def _sample_pass(self, q, grad, data, *, only_variable=False, only_constant=False):
         """Energy of the selected groups from their samples; adds their gradient into ``grad``
         (n, 3) and their stiffness into the CSR ``data`` when those are not None."""
@@ -604,6 +618,8 @@ class VoxelModel:
                 W = _energy_density(mat, F)  # energy only (line-search trials)
             else:
                 W, P, A = mat.evaluate(F, tangent=need_tangent)
+                if need_tangent and self._project and not const:
+                    A = project_psd(A)
             energy += vdot(vol, W)
             if grad is not None:
                 VP = (P * vol[:, None, None]).reshape(-1, len(self._qweights), 3, 3)
