@@ -30,7 +30,17 @@ contrast rows, min / median of 3 for the others).  Contrast beam, 5 steps, defau
 | 1e5 | 213 184 167 148 97 (809), 18 cuts | same, 83.9 s | same, 95.2 s | (-0.92377, -2.53224) |
 | 1e6 | fails: line search at round-off, load 0.0047 | fails: 50 iterations, load 0.0875 | same | |
 
-With ``--max-iterations 400`` (no load cut is needed): 1e5 118 110 98 84 73 (483, 19.3 s);
+Then static attempts that run out of iterations after lowering the potential continue from their
+last iterate (``solvers.MAX_CONTINUATIONS``, up to 8 attempts) instead of cutting the increment;
+same command, load average 1.5-2.2, single runs:
+
+| contrast | iterations per step (sum), cuts | time |
+|---|---|---|
+| 1e4 | 57 54 47 42 37 (237), 0 cuts (before: 256, 1 cut) | 5.1 s (6.1 s) |
+| 1e5 | 118 110 98 84 73 (483), 0 cuts (before: 796, 17 cuts) | 11.1 s (36.5 s) |
+| 1e6 | 248 232 207 180 155 (1022), 0 cuts (before: failed after 8 cuts) | 21.2 s |
+
+tip (-0.92377, -2.53224) at 1e5 and 1e6.  Before that change, with ``--max-iterations 400`` (no load cut is needed): 1e5 118 110 98 84 73 (483, 19.3 s);
 1e6 248 232 207 180 155 (1022, 29.6 s), tip (-0.92377, -2.53224), on the trend of the lower
 contrasts (u_z - u_inf ~ 1/contrast); the code before this change does the same there (1022
 iterations): no cut, no small load.  With 20 load steps and 50 iterations 1e6 converges now

@@ -21,10 +21,14 @@ def _beam(nx=8, n=2, E=1e3):
     return VoxelModel.from_image(image, {1: material("neo-hookean", young=E, poisson=0.3)})
 
 
-def test_a_failed_load_step_is_cut_and_reaches_the_same_equilibrium():
+def test_a_failed_load_step_is_cut_and_reaches_the_same_equilibrium(monkeypatch):
     """Large-deflection neo-Hooke cantilever (tip drop ~ 2.5 m on 4 m) in one load step with only 6
-    Newton iterations per attempt: the first attempt fails, the cut increments converge, and the
-    answer equals five well-resolved load steps to the solver tolerance (1e-6 relative)."""
+    Newton iterations per attempt and no continuation of an attempt: the first attempt fails, the cut
+    increments converge, and the answer equals five well-resolved load steps to the solver tolerance
+    (1e-6 relative)."""
+    import voxflex.deform.solvers as S
+
+    monkeypatch.setattr(S, "MAX_CONTINUATIONS", 0)
     model = _beam()
     kw = dict(fixed=[CLAMP], gravity=[0, 0, -9.81], densities={1: 1.0})
     with pytest.raises(ConvergenceError):
@@ -37,6 +41,33 @@ def test_a_failed_load_step_is_cut_and_reaches_the_same_equilibrium():
     u_ref = tip.apply(ref[-1].q) - TIP
     assert u_ref[0, 2] < -2.0
     assert np.allclose(u_cut, u_ref, rtol=0, atol=1e-6 * np.abs(u_ref).max())
+
+
+def test_an_attempt_out_of_iterations_continues_from_its_last_iterate():
+    """The 8x2x2 beam whose tip half is 1e6 times stiffer, under full gravity in one load step: its
+    stiff half turns by linear Newton updates, ~520 iterations.  With max_iterations = 100 the attempts
+    continue from their last iterates (no load cut) and reach the answer of one long attempt
+    (max_iterations = 800) to the solver tolerance; without continuation they are cut, and the cut
+    increments (smaller loads, the same rotation-bound count) run out of cuts."""
+    import voxflex.deform.solvers as S
+
+    kw = dict(fixed=[CLAMP], gravity=[0, 0, -9.81], densities={1: 1.0, 2: 1.0})
+    model = _two_part_beam(1e6)
+    one = solve(model, **kw, options=SolverOptions(steps=1, linear_solver="direct", max_iterations=800))
+    its = one[-1].newton_iterations
+    assert 100 < its <= 8 * 100  # needs continuing, and fits in MAX_CONTINUATIONS + 1 attempts
+    cont = solve(model, **kw, options=SolverOptions(steps=1, linear_solver="direct", max_iterations=100))
+    assert cont[-1].load_cuts == 0
+    tip = model.point_mapping(TIP)
+    u_one, u_cont = tip.apply(one[-1].q) - TIP, tip.apply(cont[-1].q) - TIP
+    assert np.allclose(u_cont, u_one, rtol=0, atol=1e-6 * np.abs(u_one).max())
+    S_before = S.MAX_CONTINUATIONS
+    try:
+        S.MAX_CONTINUATIONS = 0
+        with pytest.raises(ConvergenceError, match="cutting the load increment"):
+            solve(model, **kw, options=SolverOptions(steps=1, linear_solver="direct", max_iterations=100))
+    finally:
+        S.MAX_CONTINUATIONS = S_before
 
 
 def test_a_buckled_column_is_reported_as_unstable_not_returned_as_equilibrium():

@@ -276,7 +276,11 @@ def _direct(A, b):
     is the cost, not the ordering.
     """
     A = sp.csc_matrix(A)
-    lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
+    try:
+        lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
+    except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
+        raise ConvergenceError(f"sparse LU of {A.shape[0]} unknowns failed ({exc}): the tangent is singular "
+                               "(a mechanism, zero-energy modes or an unsupported part)") from None
     return lu.solve(b)
 
 
