@@ -30,6 +30,11 @@ imports).  ``--bytecode cached`` unsets it and points ``PYTHONPYCACHEPREFIX``
 into ``--cache-dir``: every module's bytecode is cached, as after a normal
 install.  ``--bytecode both`` runs the two.
 
+A last row, "floor", times a process that only imports the third-party
+modules the run needs (numpy, scipy's sparse, linalg and ndimage, numba, h5py,
+threadpoolctl) and calls one cached numba kernel: what the run pays before any
+of voxflex's own code, the limit of what import work in voxflex can reach.
+
 The answer must not change: the final node states of the two versions'
 result files are compared bitwise (printed as "same answer").
 
@@ -113,6 +118,22 @@ print(json.dumps({"rc": rc, "inside": t_out - t_in, "imports": acc["imports"],
 """
 
 
+# The floor under any change to voxflex's own start-up: the third-party modules the default scene's run
+# imports (numpy; scipy.sparse, .linalg and .ndimage; numba; h5py; threadpoolctl) and numba's first call
+# of one cached kernel (its compiler's set-up), in a fresh process, without voxflex.
+_FLOOR = r"""
+import numpy, scipy.sparse, scipy.sparse.linalg, scipy.linalg, scipy.ndimage, numba, h5py, threadpoolctl, tomllib
+
+
+@numba.njit(cache=True)
+def one(x):
+    return x + 1.0
+
+
+one(1.0)
+"""
+
+
 def _env(root: Path, bytecode: str, cache_dir: Path) -> dict:
     env = dict(os.environ)
     env["PYTHONPATH"] = str(root)  # this version's voxflex before the installed (editable) one
@@ -154,6 +175,15 @@ def _before_tree(before: str, after: Path, cache_dir: Path) -> Path:
         archive = subprocess.run(["git", "-C", str(after), "archive", rev], capture_output=True, check=True).stdout
         subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
     return tree
+
+
+def _run_floor(script: Path, env: dict, work: Path) -> float:
+    t = time.perf_counter()
+    proc = subprocess.run([sys.executable, str(script)], env=env, cwd=work, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    if proc.returncode != 0:
+        raise SystemExit(f"the floor script failed:\n{proc.stderr[-2000:]}")
+    return wall
 
 
 def _states(path: Path):
@@ -228,22 +258,27 @@ def main(argv=None) -> int:
         work = Path(tmp)
         driver = work / "driver.py"
         driver.write_text(_DRIVER)
+        floor = work / "floor.py"
+        floor.write_text(_FLOOR)
         for mode in modes:
             envs = {label: _env(root, mode, cache_dir) for label, root in versions}
             for label, root in versions:  # warm-up: fills numba's, the bytecode's and the precompute's caches
                 _run(root, envs[label], work / f"{label}.h5", work, None)
+            _run_floor(floor, envs[versions[-1][0]], work)
             walls = {label: [] for label, _ in versions}
             splits = {label: [] for label, _ in versions}
+            floors = []
             for _ in range(args.repeat):  # interleaved, so that both versions share the machine's noise
                 for label, root in versions:
                     walls[label].append(_run(root, envs[label], work / f"{label}.h5", work, None)[0])
+                floors.append(_run_floor(floor, envs[versions[-1][0]], work))
                 for label, root in versions:
                     wall, split = _run(root, envs[label], work / f"{label}-split.h5", work, driver)
                     split["start"] = wall - split["inside"]
                     split["wall"] = wall
                     splits[label].append(split)
-            print(f"\n## bytecode: {mode} ({'as this environment runs' if mode == 'env' else 'cached, as after an install'})"
-                  f"; {args.repeat} runs; {_load()} at end\n")
+            what = "as this environment runs" if mode == "env" else "cached, as after an install"
+            print(f"\n## bytecode: {mode} ({what}); {args.repeat} runs; {_load()} at end\n")
             print("| version | end to end (min median) s | start | imports | numba kernel loads | compute "
                   "| pyvista/vtk/tqdm imported |")
             print("|---|---|---|---|---|---|---|")
@@ -254,6 +289,7 @@ def main(argv=None) -> int:
                 print(f"| {label} | {_fmt(walls[label])} | {_fmt([x['start'] for x in s])} | "
                       f"{_fmt([x['imports'] for x in s])} | {_fmt([x['numba'] for x in s])} | {_fmt(compute)} | "
                       f"{heavy} |")
+            print(f"| floor: the third-party imports and numba's set-up alone | {_fmt(floors)} | | | | | |")
             if len(versions) == 2:
                 a, b = (_states(work / f"{label}.h5") for label, _ in versions)
                 same = a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
