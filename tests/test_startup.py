@@ -191,3 +191,60 @@ def test_other_stl_files_still_go_through_vtk(tmp_path):
     for path in (ascii_stl, solid_header, truncated, nan):
         assert _read_binary_stl(path) is None, path.name
     assert _read_binary_stl(BAR) is not None
+
+
+def _program(args, code=None, tmp_path=None):
+    """Run the voxflex program (``python -m voxflex ARGS``, or ``code`` that ends by calling
+    ``voxflex.cli.entry()``) in a fresh interpreter with stdout and stderr on pipes."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    cmd = [sys.executable, "-m", "voxflex", *args] if code is None else [sys.executable, "-c", code]
+    return subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tmp_path or ROOT, timeout=120)
+
+
+def test_program_exit_status_output_and_files(tmp_path):
+    """entry() ends the process without the interpreter's teardown: the status, the buffered
+    output on a pipe and the written file must be those of an ordinary exit."""
+    from voxflex.image import LabelImage
+
+    out = tmp_path / "box.npz"
+    ok = _program(["voxelize", "box:1,1,1", "-o", str(out), "--voxel-size", "0.5"], tmp_path=tmp_path)
+    assert ok.returncode == 0, ok.stderr
+    assert ok.stdout.startswith(f"wrote {out}: 2x2x2 voxels") and ok.stdout.endswith("\n")
+    assert LabelImage.load(out).shape == (2, 2, 2)
+    bad = _program(["simulate", str(tmp_path / "missing.toml")], tmp_path=tmp_path)
+    assert bad.returncode == 2 and bad.stdout == ""
+    assert bad.stderr.count("\n") == 1 and "not found" in bad.stderr
+    assert _program(["--version"]).stdout.startswith("voxflex ")  # argparse's SystemExit: the usual exit
+
+
+def test_program_runs_atexit_handlers_and_waits_for_threads(tmp_path):
+    out = tmp_path / "box.npz"
+    argv = ["voxflex", "voxelize", "box:1,1,1", "-o", str(out), "--voxel-size", "0.5"]
+    code = (
+        "import atexit, sys, threading, time\n"
+        "import voxflex.cli\n"
+        "atexit.register(lambda: print('atexit handler ran'))\n"
+        "{thread}"
+        f"sys.argv = {argv!r}\n"
+        "print('printed before the command')\n"
+        "voxflex.cli.entry()\n"
+    )
+    plain = _program(None, code.format(thread=""), tmp_path)
+    assert plain.returncode == 0, plain.stderr
+    lines = plain.stdout.splitlines()
+    assert lines[0] == "printed before the command" and lines[1].startswith("wrote ")
+    assert lines[-1] == "atexit handler ran"
+    # a non-daemon thread still running when the command returns (it waits for the command's file,
+    # then 0.5 s more): the interpreter's own exit, which waits for the thread
+    thread = (
+        "def _late():\n"
+        f"    while not __import__('os').path.exists({str(out)!r}):\n"
+        "        time.sleep(0.01)\n"
+        "    time.sleep(0.5)\n"
+        "    print('thread finished')\n"
+        "threading.Thread(target=_late).start()\n"
+    )
+    out.unlink()
+    waited = _program(None, code.format(thread=thread), tmp_path)
+    assert waited.returncode == 0, waited.stderr
+    assert "thread finished" in waited.stdout and waited.stdout.rstrip().endswith("atexit handler ran")
