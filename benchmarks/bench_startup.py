@@ -19,8 +19,9 @@ Two measures, min and median of ``--repeat`` (>= 5) runs each:
   inside the process, the time spent in imports (outermost imports only,
   including the ones numba makes when it loads its first kernel), in numba's
   loading of cached kernels (less the imports inside it) and in the rest (the
-  computation, voxelizing to writing the file); "start" is the rest of the
-  wall-clock time (interpreter start-up and ``site``).
+  computation, voxelizing to writing the file); "start + exit" is the rest of
+  the wall-clock time: interpreter start-up and ``site``, and the end of the
+  process (the interpreter's teardown, or the program's quick exit).
 
 Two bytecode settings: ``--bytecode env`` (default) runs with this process's
 environment; where ``PYTHONDONTWRITEBYTECODE`` is set (as on the project's
@@ -124,13 +125,26 @@ def _find_and_load(name, import_):
 
 
 _b._find_and_load = _find_and_load
-from voxflex.cli import main
 
-rc = main(sys.argv[1:])
-t_out = time.perf_counter()
-heavy = sorted({m.split(".")[0] for m in sys.modules} & {"pyvista", "vtkmodules", "vtk", "tqdm", "matplotlib"})
-print(json.dumps({"rc": rc, "inside": t_out - t_in, "imports": acc["imports"],
-                  "numba": acc["numba"] - acc["numba_imports"], "heavy_modules": heavy}))
+
+def _report():
+    # run as an atexit handler: after the command, before the process ends (either way it ends)
+    inside = time.perf_counter() - t_in
+    heavy = sorted({m.split(".")[0] for m in sys.modules} & {"pyvista", "vtkmodules", "vtk", "tqdm", "matplotlib"})
+    print(json.dumps({"inside": inside, "imports": acc["imports"], "numba": acc["numba"] - acc["numba_imports"],
+                      "heavy_modules": heavy}), flush=True)
+
+
+import atexit
+
+atexit.register(_report)
+import voxflex.cli
+
+sys.argv = ["voxflex", *sys.argv[1:]]
+if hasattr(voxflex.cli, "entry"):
+    voxflex.cli.entry()  # what `voxflex` and `python -m voxflex` run
+else:
+    raise SystemExit(voxflex.cli.main())
 """
 
 
@@ -295,7 +309,7 @@ def main(argv=None) -> int:
                     splits[label].append(split)
             what = "as this environment runs" if mode == "env" else "cached, as after an install"
             print(f"\n## bytecode: {mode} ({what}); {args.repeat} runs; {_load()} at end\n")
-            print("| version | end to end (min median) s | start | imports | numba kernel loads | compute "
+            print("| version | end to end (min median) s | start + exit | imports | numba kernel loads | compute "
                   "| pyvista/vtk/tqdm imported |")
             print("|---|---|---|---|---|---|---|")
             for label, _ in versions:
