@@ -39,24 +39,27 @@ of voxflex's own code, the limit of what import work in voxflex can reach.
 The answer must not change: the final node states of the two versions'
 result files are compared bitwise (printed as "same answer").
 
-    python benchmarks/bench_startup.py [--repeat 5] [--before /work/main] [--bytecode both]
+    python benchmarks/bench_startup.py [--repeat 5] [--before merge-base|REV|FOLDER] [--bytecode both]
 
 Measured on the shared 2-core x86_64 Xeon with other engineers' work running
-(load average 3.1-4.1 throughout), 9 runs, seconds (min / median); before =
-6b879e1 (where the start-up work left main), after = the start-up branch:
+(load average 1.8-2.4 throughout), 9 runs, seconds (min / median); before =
+6b879e1 (where the start-up work left main), after = the start-up branch
+(binary STL without pyvista, the program's quick exit):
 
-| bytecode | version | end to end | start | imports | numba kernel loads | compute |
+| bytecode | version | end to end | start + exit | imports | numba kernel loads | compute |
 |---|---|---|---|---|---|---|
-| env (none cached) | before | 2.27 / 2.86 | 0.41 / 0.57 | 1.44 / 2.21 | 0.15 / 0.20 | 0.45 / 0.63 |
-| env (none cached) | after | 1.84 / 2.19 | 0.26 / 0.37 | 1.13 / 1.80 | 0.13 / 0.20 | 0.38 / 0.62 |
-| env (none cached) | floor | 1.12 / 1.71 | | | | |
-| cached | before | 2.41 / 3.02 | 0.35 / 0.45 | 1.29 / 1.65 | 0.13 / 0.18 | 0.37 / 0.55 |
-| cached | after | 1.89 / 2.37 | 0.27 / 0.37 | 0.97 / 1.38 | 0.14 / 0.19 | 0.38 / 0.57 |
-| cached | floor | 1.49 / 1.60 | | | | |
+| env (none cached) | before | 1.78 / 2.34 | 0.31 / 0.35 | 1.41 / 1.51 | 0.13 / 0.14 | 0.38 / 0.42 |
+| env (none cached) | after | 1.43 / 1.62 | 0.05 / 0.06 | 0.95 / 1.13 | 0.11 / 0.12 | 0.35 / 0.39 |
+| env (none cached) | floor | 1.01 / 1.22 | | | | |
+| cached | before | 1.87 / 2.20 | 0.27 / 0.37 | 1.10 / 1.22 | 0.11 / 0.13 | 0.35 / 0.46 |
+| cached | after | 1.29 / 1.47 | 0.05 / 0.06 | 0.85 / 0.93 | 0.11 / 0.12 | 0.33 / 0.36 |
+| cached | floor | 0.99 / 1.09 | | | | |
 
-The same answer (bitwise) in both settings.  What is left above the floor is
-voxflex's own modules (~67 of them, ~21k lines, compiled again by every run
-without a bytecode cache) and the computation; the floor itself is mostly
+An earlier run at load average 3.1-4.1, before the quick exit, read 2.27 / 2.86
+(before) against 1.84 / 2.19 s (after) end to end.  The same answer (bitwise)
+in both settings.  What is left above the floor is voxflex's own modules (~67
+of them, ~21k lines, compiled again by every run without a bytecode cache)
+and the computation; the floor itself is mostly
 numba (import and the set-up of its compiler on the first kernel, ~0.6 s
 quiet) and scipy (its array-API layer imports numpy.f2py, numpy.testing,
 numpy.ma and numpy.random, ~0.2 s; scipy.ndimage decorates its functions at
