@@ -1,6 +1,6 @@
 """``python -m voxflex`` is the ``voxflex`` command."""
 
-from voxflex.cli import main
+from voxflex.cli import entry
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    entry()

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import InputError
 
 _EPILOG = """\
@@ -130,6 +128,8 @@ def run(args) -> int:
 
 def summary(image, path) -> str:
     """One line: file, shape, voxel size, voxels (and volume) per label, total volume."""
+    import numpy as np
+
     counts = np.bincount(image.labels.ravel())
     vv = image.voxel_volume
     parts = []

@@ -5,6 +5,11 @@ faces (F, 3) int64 triangles).  Files are read with pyvista's readers
 (.stl .obj .ply .vtk .vtp), any polygonal cells are triangulated and
 degenerate triangles (a repeated vertex index) are dropped.  The mesh need not
 be watertight: the inside test is the generalized winding number.
+
+Binary STL files (the bundled default scene's mesh among them) are read by
+:func:`_read_binary_stl` with numpy alone, giving the same vertices and faces
+as VTK's reader (identical coordinates merged, in order of first appearance),
+so that a run on an STL mesh does not pay for importing pyvista and VTK.
 """
 
 from __future__ import annotations
@@ -127,6 +132,10 @@ def load_mesh(path) -> SurfaceMesh:
         raise InputError(f"mesh file '{path}' is not readable; check its permissions")
     if path.stat().st_size == 0:
         raise InputError(f"mesh file '{path}' is empty (0 bytes); re-export the mesh")
+    if ext == ".stl":
+        arrays = _read_binary_stl(path)
+        if arrays is not None:
+            return SurfaceMesh(arrays[0], arrays[1], name=str(path))
     import pyvista as pv
 
     with _quiet_vtk() as report:
@@ -159,6 +168,41 @@ def load_mesh(path) -> SurfaceMesh:
         tri = tri.extract_cells_by_type(5).extract_surface() if hasattr(tri, "extract_cells_by_type") else tri
     faces = _triangle_faces(tri, path)
     return SurfaceMesh(np.asarray(tri.points, dtype=np.float64), faces, name=str(path))
+
+
+_STL_TRIANGLE = np.dtype([("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
+
+
+def _read_binary_stl(path: Path):
+    """Vertices (V, 3) float64 and faces (F, 3) int64 of a well-formed binary STL file, or None.
+
+    The result is what VTK's STL reader gives for the same file: the float32
+    corners with identical coordinates merged (``-0.0`` equal to ``0.0``),
+    numbered in order of first appearance, one face per triangle in file
+    order (:class:`SurfaceMesh` then drops the degenerate ones).  Anything
+    else -- an ASCII file (or a binary one whose header starts with
+    ``solid``), a size that disagrees with the triangle count, no triangle,
+    a non-finite coordinate -- returns None, and the caller reads the file
+    with pyvista (whose messages report what is wrong with it).
+    """
+    with open(path, "rb") as fh:
+        header = fh.read(84)
+        if len(header) < 84 or header[:5].lower() == b"solid":
+            return None
+        count = int(np.frombuffer(header, dtype="<u4", count=1, offset=80)[0])
+        if count == 0 or path.stat().st_size != 84 + _STL_TRIANGLE.itemsize * count:
+            return None
+        corners = np.fromfile(fh, dtype=_STL_TRIANGLE, count=count)["vertices"].reshape(-1, 3)
+    if len(corners) != 3 * count or not np.all(np.isfinite(corners)):
+        return None
+    # merge bitwise-equal corners; adding +0.0 turns -0.0 into 0.0, which compare equal in VTK
+    keys = np.ascontiguousarray(corners + np.float32(0.0)).view(np.dtype((np.void, 12))).ravel()
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    order = np.argsort(first)  # unique corners in order of first appearance
+    number = np.empty_like(order)
+    number[order] = np.arange(len(order))
+    faces = number[inverse.reshape(-1)].reshape(-1, 3).astype(np.int64)
+    return corners[first[order]].astype(np.float64), faces
 
 
 # messages VTK prints around the real one: pipeline bookkeeping, not a reason
