@@ -195,7 +195,7 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
     return x, LinearSolveInfo(method, int(its), res, time.perf_counter() - t0, note, fell_back)
 
 
-MIXED_MIN = 300  # dense systems from this size factor in single precision and refine (see _mixed_cholesky)
+MIXED_MIN = 1000  # dense systems from this size factor in single precision and refine (see _mixed_cholesky)
 MIXED_RTOL = 1e-13  # relative residual the refinement reaches (the double Cholesky's is about 1e-15)
 _BLAS = []  # one threadpoolctl controller, made at the first dense solve
 
@@ -242,8 +242,11 @@ def _mixed_cholesky(A, b, max_refine: int = 6):
     refinement stalls above that, which happens once ``cond(A)`` nears
     1/eps_single (about 1e7).  A is symmetric, so its transpose is the
     Fortran-ordered copy LAPACK wants, without a transposing copy.
-    Factor + solve at 552 / 1000 unknowns (cond 6e3, one thread, min of 3x20):
-    cho_factor/cho_solve 3.38 / 12.3 ms, dpotrf/dpotrs 3.08 / 15.7 ms, this 2.60 / 11.0 ms.
+    Factor + solve, one thread, min of 3x20 or 3x30 runs: random SPD matrices (cond 6e3) of 1000 / 2000
+    unknowns 14.9 / 91 ms against 17.3 / 119 ms by cho_factor / cho_solve; but the 552-unknown free
+    block of a 50-frame model (cond 7.7e3; benchmarks/bench_frames.py) 2.59-2.65 ms against 2.19-2.26
+    ms: three refinement solves (0.34 ms each) cost more than the factorisation saves, hence
+    :data:`MIXED_MIN`.
     """
     c, info = sla.lapack.spotrf(A.T.astype(np.float32), lower=0, clean=0, overwrite_a=1)  # A's lower triangle
     if info != 0:
