@@ -529,3 +529,21 @@ def test_a_plane_obstacle_is_a_patch_under_the_body():
     every = np.concatenate([result.surface_rest, result.surface_positions.reshape(-1, 3)])
     extent = (every.max(axis=0) - every.min(axis=0)).max()
     assert np.ptp(pts, axis=0).max() == pytest.approx(1.5 * extent, rel=1e-6)
+    # and the picture has it: in the iso view the patch is a band of grey-brown under the coloured ball
+    from voxflex.rendering import render_frames
+
+    import voxflex.rendering as rendering
+
+    def grey(image):  # neither white background nor colour-mapped: the patch (and the title's text)
+        rgb = image.reshape(-1, 3).astype(int)
+        return ((rgb.max(axis=1) < 250) & (rgb.max(axis=1) - rgb.min(axis=1) <= 40)).mean()
+
+    kw = dict(window_size=(480, 320), show_rest=False, axes=False, gravity=False)
+    (image,) = render_frames(result, [-1], **kw)
+    real = rendering._obstacle_meshes
+    try:
+        rendering._obstacle_meshes = lambda result, step: []
+        (bare,) = render_frames(result, [-1], **kw)
+    finally:
+        rendering._obstacle_meshes = real
+    assert _coloured(image).mean() > 0.02 and grey(image) > grey(bare) + 0.05
