@@ -57,6 +57,11 @@ LAPACK Cholesky of the 552 free unknowns is 41 % of it.  Two Python threads over
 samples (the stiffness kernel releases the GIL) did not help: 1.29 / 1.45 ms
 against 1.35 / 1.36 ms serial for the pair blocks.
 
+On 2026-12-01 (load average 0.9, numpy matmul 65 GFLOP/s: flop bound 1.20 ms), after the
+mixed-precision dense solve was tried and kept only from 1000 unknowns (at 552 it was slower,
+2.6 against 2.2 ms): 10 frames 2.38 ms, 50 frames assembly 2.58 / 4.49 ms, solve 2.66 / 3.61 ms
+(Cholesky 2.11 ms), **5.23 ms** per Newton iteration (min; `--counts 10,50 --repeat 15`).
+
 The solve is the solver's free-block gather (``H.take(free, 0).take(free, 1)``
 since the rows above were measured: ``H[np.ix_(free, free)]`` took 0.7-1.5 ms
 at 552, twice as long) plus the Cholesky; the two-thread
