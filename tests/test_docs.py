@@ -17,7 +17,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
-PAGES = ("scene.md", "results.md", "api.md", "cli.md", "conventions.md")
+PAGES = ("scene.md", "results.md", "api.md", "cli.md", "conventions.md", "robustness.md")
 
 
 def _sections(text: str) -> dict[str, str]:
