@@ -66,7 +66,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError
-from .model import ModelLayer
+from .model import ModelLayer, OnePass
 from .spring_mappings import DistanceMapping
 
 __all__ = ["Cable", "CableModel", "cable_law", "with_cables"]
@@ -211,7 +211,7 @@ class Cable:
 # ---------------------------------------------------------------------------
 # the wrapper
 # ---------------------------------------------------------------------------
-class CableModel(ModelLayer):
+class CableModel(OnePass, ModelLayer):
     """A model with cables (see the module docstring).
 
     Parameters
@@ -371,16 +371,6 @@ class CableModel(ModelLayer):
         return self._J
 
     # -- energy -----------------------------------------------------------------------
-    def energy(self, q) -> float:
-        """Inner energy plus the cables' (J)."""
-        return self.energy_gradient_hessian(q, gradient=False, hessian=False)[0]
-
-    def gradient(self, q) -> np.ndarray:
-        return self.energy_gradient_hessian(q, hessian=False)[1]
-
-    def hessian(self, q):
-        return self.energy_gradient_hessian(q)[2]
-
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
         """(energy J, gradient (n, d) or None, Hessian (nd, nd) or None) of the inner model plus the cables.
 

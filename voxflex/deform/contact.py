@@ -83,7 +83,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import ConvergenceError, InputError
-from .model import ModelLayer
+from .model import ModelLayer, OnePass
 from .obstacles import Obstacle, obstacle
 
 __all__ = ["ContactModel", "collision_points", "barrier", "friction_mollifier", "with_contact", "POINT_RULES",
@@ -232,7 +232,7 @@ def _psd(blocks):
 # ---------------------------------------------------------------------------
 # the wrapper
 # ---------------------------------------------------------------------------
-class ContactModel(ModelLayer):
+class ContactModel(OnePass, ModelLayer):
     """A model with a barrier against obstacles (see the module docstring).
 
     Parameters
@@ -496,16 +496,6 @@ class ContactModel(ModelLayer):
     def barrier_energy(self, q, fraction=None) -> float:
         """The barrier energy E_c (J) of state q (n, d) (inf when a point touches or enters an obstacle)."""
         return self._point_terms(np.asarray(q, dtype=float), fraction, hessian=False)[0]
-
-    def energy(self, q) -> float:
-        """Inner energy plus the barrier (J); inf when a collision point touches or enters an obstacle."""
-        return self.energy_gradient_hessian(q, gradient=False, hessian=False)[0]
-
-    def gradient(self, q) -> np.ndarray:
-        return self.energy_gradient_hessian(q, hessian=False)[1]
-
-    def hessian(self, q):
-        return self.energy_gradient_hessian(q)[2]
 
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True, exact: bool = False):
         """(energy J, gradient (n, d) or None, Hessian CSR (nd, nd) or None) of the inner model plus the barrier.

@@ -84,6 +84,7 @@ from ._frame_kernels import frame_tables
 from .linear_solvers import vdot
 from .materials import project_psd
 from .mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping, PointMapping
+from .model import OnePass
 from .nodes import AffineFrames
 from .voxel_model import VOLUMETRIC, boundary_quads, nearly_incompressible, triangulate
 
@@ -129,7 +130,7 @@ def voxel_samples(image, shape_function: Callable, *, rule: str = "gauss-legendr
     return VoxelSamples(rule, pts, vol, label, shape_function(pts))
 
 
-class FrameModel:
+class FrameModel(OnePass):
     """Affine frames over a label image (see the module docstring).
 
     Build with :meth:`from_image`.  The state ``q`` is ``(n, 12)``; energies
@@ -296,16 +297,6 @@ class FrameModel:
                 "cell": np.arange(len(s.volume)), "n_cells": len(s.volume), "cell_kind": "samples",
                 "materials": self.materials, "surface_F": self._surface_fmap[0].apply(self._check_q(q)),
                 "surface_label": self._surface_fmap[1], "triangle_point": np.tile(np.arange(nf), 2)}
-
-    def energy(self, q) -> float:
-        return self.energy_gradient_hessian(q, gradient=False, hessian=False)[0]
-
-    def gradient(self, q) -> np.ndarray:
-        return self.energy_gradient_hessian(q, hessian=False)[1]
-
-    def hessian(self, q):
-        """d2E/dq2 (12n, 12n): dense ndarray (point samples) or CSR (elastons)."""
-        return self.energy_gradient_hessian(q)[2]
 
     def set_tangent_projection(self, on: bool) -> bool:
         """Project the per-sample tangents dP/dF to positive semi-definite in later Hessians (``on``), or not.

@@ -82,6 +82,7 @@ import scipy.sparse as sp
 
 from ..errors import InputError
 from .membrane import StVKMembrane, TriangleDeformationMapping
+from .model import OnePass
 
 __all__ = ["MembraneModel", "VertexMap", "disk_mesh", "rectangle_mesh", "load_membrane_mesh", "footprint_image",
            "open_rim", "MEMBRANE_NODE_KIND", "MEMBRANE_SHAPES", "RIMS"]
@@ -380,7 +381,7 @@ def _skew(v):
                      np.stack([-v[:, 1], v[:, 0], z], 1)], 1)
 
 
-class MembraneModel:
+class MembraneModel(OnePass):
     """A triangle-mesh membrane (see the module docstring): nodes = vertices, state (n, 3) in m.
 
     Parameters
@@ -527,18 +528,6 @@ class MembraneModel:
         """The membrane's strain energy (J) alone."""
         F = self.mapping.apply(self.positions(q))
         return float(self.area @ self.material.energy(F))
-
-    def energy(self, q) -> float:
-        """Strain energy minus the pressure's work ``p s (V(x) - V(X))`` (J)."""
-        return self.energy_gradient_hessian(q, gradient=False, hessian=False)[0]
-
-    def gradient(self, q) -> np.ndarray:
-        """dE/dq (n, 3) (N)."""
-        return self.energy_gradient_hessian(q, hessian=False)[1]
-
-    def hessian(self, q):
-        """d2E/dq2 (3n, 3n), sparse CSR (N/m)."""
-        return self.energy_gradient_hessian(q)[2]
 
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
         """(energy J, gradient (n, 3) N or None, Hessian (3n, 3n) CSR N/m or None): exact, any state."""

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Model", "PointMap", "ModelLayer", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "moved_rest", "transform_at",
+__all__ = ["Model", "PointMap", "ModelLayer", "OnePass", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "moved_rest", "transform_at",
            "end_step", "END_STEP_PASSES"]
 
 NODE_KINDS = ("affine", "rigid", "voxel", "membrane")
@@ -167,6 +167,23 @@ class Model(Protocol):
 
     def moved_state(self, transform) -> np.ndarray:
         """The state (n, d) of the whole body moved by the affine map ``[A | t]`` (3, 4)."""
+
+
+class OnePass:
+    """``energy``, ``gradient`` and ``hessian`` of a model that computes them together in
+    ``energy_gradient_hessian(q, *, gradient=True, hessian=True) -> (E, g or None, H or None)``."""
+
+    def energy(self, q) -> float:
+        """Energy (J) at state q."""
+        return self.energy_gradient_hessian(q, gradient=False, hessian=False)[0]
+
+    def gradient(self, q) -> np.ndarray:
+        """dE/dq (N), shaped like q."""
+        return self.energy_gradient_hessian(q, hessian=False)[1]
+
+    def hessian(self, q):
+        """d2E/dq2 (dense or CSR, as ``energy_gradient_hessian`` builds it)."""
+        return self.energy_gradient_hessian(q)[2]
 
 
 class ModelLayer:
