@@ -290,3 +290,53 @@ def test_the_scene_key_reaches_the_solver_options_and_refuses_unknown_values():
         SolverSpec(tangent_projection="sometimes")
     with pytest.raises(InputError, match="tangent projection"):
         SolverOptions(tangent_projection="sometimes")
+
+
+def test_a_run_stopped_at_the_round_off_floor_says_so(tmp_path):
+    """A 1e6 stiffness contrast: the stiff half's forces are known to eps |K x| only, so Newton stops at
+    that floor, far above a tolerance of 1e-12: simulate() must warn (RoundoffWarning, naming the residual),
+    and a well-conditioned run at the same tolerance must not."""
+    import warnings
+    from dataclasses import replace
+
+    import voxflex as vf
+    from voxflex.scene import Scene
+    from voxflex.simulation import RoundoffWarning
+
+    text = """
+[object]
+shape = "box"
+size = [4.0, 1.0, 1.0]
+voxel_size = 0.5
+[nodes]
+kind = "voxel"
+[[material]]
+model = "neo-hookean"
+young = 1e3
+poisson = 0.3
+density = 1.0
+[[fixed]]
+min = [-1.0, -1.0, -1.0]
+max = [1e-6, 2.0, 2.0]
+[[load]]
+kind = "gravity"
+vector = [0.0, 0.0, -9.81e-3]
+[solver]
+steps = 1
+tolerance = 1e-12
+linear_solver = "direct"
+"""
+    (tmp_path / "s.toml").write_text(text)
+    scene = Scene.from_toml(tmp_path / "s.toml")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        vf.simulate(scene, progress=False)  # one material: the floor is far below 1e-12
+    stiff = text.replace('young = 1e3\npoisson = 0.3\ndensity = 1.0',
+                         'young = 1e3\npoisson = 0.3\ndensity = 1.0\n[[material]]\nlabel = 2\nmodel = "neo-hookean"\n'
+                         'young = 1e9\npoisson = 0.3\ndensity = 1.0')
+    assert stiff != text
+    (tmp_path / "c.toml").write_text(stiff)
+    scene2 = Scene.from_toml(tmp_path / "c.toml")
+    model = _two_part_beam(1e6)
+    with pytest.warns(RoundoffWarning, match="round-off floor"):
+        vf.simulate(scene2, progress=False, model=model)

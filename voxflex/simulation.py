@@ -39,7 +39,19 @@ from .errors import ConvergenceError, InputError
 from .result import AUTO_KEEP_BYTES, Result
 from .scene import Scene
 
-__all__ = ["simulate", "InversionWarning", "CANNOT_RECOVER", "AUTO_KEEP_BYTES"]
+__all__ = ["simulate", "InversionWarning", "RoundoffWarning", "CANNOT_RECOVER", "AUTO_KEEP_BYTES"]
+
+
+class RoundoffWarning(UserWarning):
+    """Steps were accepted at the round-off floor of double precision, above ``[solver] tolerance``: the
+    forces of the stiffest parts are known only to about eps |K x|, so the residual cannot go lower
+    (large stiffness contrasts).  The states are the best double precision gives; the warning says how
+    far above the tolerance they stopped."""
+
+
+ROUNDOFF_WARN = 100.0
+"""A run whose steps stopped at the round-off floor more than this many times above the tolerance warns
+(:class:`RoundoffWarning`); a floor a little above a tolerance asked near round-off (1e-10) does not."""
 
 
 class InversionWarning(UserWarning):
@@ -234,6 +246,15 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
         raise ConvergenceError(f"{failure}; the {recorder.steps_done} step(s) that converged were written to "
                                f"'{target}', marked incomplete") from None
     _warn_inversion(model, recorder)
+    if recorder.worst_residual[0] > ROUNDOFF_WARN * options.tolerance:
+        res, step = recorder.worst_residual
+        warnings.warn(
+            f"{recorder.roundoff_steps} step(s) stopped at the round-off floor of double precision, far above the "
+            f"tolerance {options.tolerance:.1e} (relative residual up to {res:.2e}, step {step}): the stiffest "
+            "parts' forces are known only to about eps |K x|; soften the stiffness contrast for a tighter answer",
+            RoundoffWarning,
+            stacklevel=2,
+        )
     return result
 
 
@@ -299,6 +320,9 @@ class _Recorder:
         self.totals = {"steps": 0, "newton_iterations": 0, "step_seconds": 0.0, "inverted_samples": 0,
                        "min_det_F": float("inf"), "min_det_F_step": 0}
         self.first_inverted = None  # (step, count) of the first step with inverted samples
+        self.worst_residual = (0.0, 0)  # (largest relative residual a step was accepted at, its step)
+        self.roundoff_steps = 0  # steps accepted at the round-off floor, above options.tolerance
+        self.tolerance = float(options.tolerance)
 
     @property
     def steps_done(self) -> int:
@@ -322,6 +346,9 @@ class _Recorder:
             t["min_det_F"], t["min_det_F_step"] = inversion[1], k
         if inversion[0] > 0 and self.first_inverted is None:
             self.first_inverted = (k, inversion[0])
+        if k > 0 and rec.residual > self.worst_residual[0]:
+            self.worst_residual = (float(rec.residual), k)
+        self.roundoff_steps += int(k > 0 and rec.residual > ROUNDOFF_WARN * self.tolerance)
         self.effort[0] += int(rec.newton_iterations)
         self.effort[1] += float(rec.seconds)
         if k == 0 or k % self.every == 0 or k == self.steps:
