@@ -220,7 +220,10 @@ def _march(cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
     inv_width = 1.0 / width
     nb = int(math.ceil(length.max() * smax / width)) + 3
     head = np.full(nb, -1, dtype=np.int64)
-    order = np.argsort(seed_d)
+    # stable: seeds at equal distances (the symmetric balls around point seeds, the voxels a frame
+    # owns outright) are applied in the order given, so ties go to the first seed both compiled and
+    # as plain Python (numba's quicksort and numpy's order equal keys differently)
+    order = np.argsort(seed_d, kind="mergesort")
     ns = order.shape[0]
     pending = 0
     live = 0
