@@ -77,3 +77,25 @@ def test_released_frame_beam_never_gains_energy():
                     options=SolverOptions(kind="implicit-euler", dt=0.002, steps=20), q0=bent.nodes_state[-1])
     total = np.array([r.elastic_energy + r.kinetic_energy for r in records])
     assert total[0] > 0 and np.all(np.diff(total) <= 1e-12 * total[0]) and total[-1] < total[0]
+
+
+def test_a_static_frame_scene_with_zero_energy_modes_is_refused_before_solving():
+    """The cantilever example (8x2x2 voxels) with 20 affine frames and one mid-point sample per voxel:
+    32 samples cannot hold 20 frames (47 spurious modes in the free body, some among the free frames).
+    Static: refused at build time with one line naming the samples and the fixes (it used to run
+    through 8 load cuts and fail).  Implicit Euler (mass makes each step well posed): only the
+    SpuriousModesWarning."""
+    from pathlib import Path
+
+    from voxflex.deform.modes import SpuriousModesWarning
+    from voxflex.errors import InputError
+    from voxflex.scene import Scene
+
+    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "cantilever.toml")
+    scene = replace(scene, nodes=replace(scene.nodes, kind="affine"),
+                    elasticity=replace(scene.elasticity, quadrature="midpoint"))
+    with pytest.raises(InputError, match=r"32 midpoint samples leave \d+ zero-energy mode.*samples.*gauss-legendre"):
+        vf.model(scene)
+    dynamic = replace(scene, solver=replace(scene.solver, kind="implicit-euler", steps=1, dt=0.01))
+    with pytest.warns(SpuriousModesWarning, match="spurious zero-energy modes"):
+        vf.model(dynamic)

@@ -239,11 +239,49 @@ def _frame_model(scene: Scene, image, materials, *, cache: bool = True):
     model = FrameModel.from_image(image, frames, sf, materials, samples=samples, use_occupancy=occupancy, info=info,
                                   volumetric="full" if volumetric == "auto" else volumetric)
     if quadrature != "gauss-legendre":
-        from .deform.modes import check_modes
+        import warnings
 
-        check_modes(frames, samples)  # warns (SpuriousModesWarning), naming how many samples to add
+        from .deform.modes import SpuriousModesWarning, check_modes
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", SpuriousModesWarning)
+            zero = check_modes(frames, samples)  # warns, naming how many samples to add
+        if zero > 6:
+            _refuse_static_mechanism(scene, model, frames, samples, zero - 6)
+        for w in caught:
+            warnings.warn(w.message, w.category, stacklevel=2)
     model.info["precompute_seconds"] = time.perf_counter() - t0
     return model
+
+
+def _refuse_static_mechanism(scene: Scene, model, frames, samples, spurious: int) -> None:
+    """InputError when the samples leave zero-energy modes among the frames a static scene does not hold.
+
+    The free body's spurious modes (:func:`voxflex.deform.modes.check_modes`) are harmless where they
+    only move held frames; with any left among the free ones, static equilibrium is not unique and
+    Newton cannot converge (it did not, after minutes of cut load steps).  Only static affine scenes
+    without obstacles or cables are judged here (those layers may hold such modes; dynamics has mass).
+    """
+    if (scene.nodes.kind != "affine" or scene.solver.kind != "static" or scene.obstacles
+            or getattr(scene, "cables", ())):
+        return
+    from threadpoolctl import threadpool_limits
+
+    from .deform.modes import free_body_stiffness
+
+    K = free_body_stiffness(frames, samples)
+    held = set()
+    for f in scene.fixed:
+        held.update(int(d) for d in model.held_dofs(f.min, f.max, f.components))
+    free = np.setdiff1d(np.arange(K.shape[0]), np.fromiter(held, dtype=np.int64, count=len(held)))
+    with threadpool_limits(limits=1, user_api="blas"):
+        ev = np.linalg.eigvalsh(K[np.ix_(free, free)])
+    zero = int(np.count_nonzero(ev <= 1e-8 * max(float(ev.max(initial=0.0)), 1e-300)))
+    if zero:
+        raise InputError(
+            f"the {len(samples.volume)} {samples.kind} samples leave {zero} zero-energy mode(s) among the frames "
+            f"the scene does not hold ({spurious} in the free body), so static equilibrium is not unique; raise "
+            '[elasticity] samples, use fewer frames, or quadrature = "gauss-legendre"')
 
 
 def _precompute(image, count, kind, fixed, nodes, compliance, quadrature, n_samples, occupancy):
