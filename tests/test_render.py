@@ -540,10 +540,10 @@ def test_a_plane_obstacle_is_a_patch_under_the_body():
 
     kw = dict(window_size=(480, 320), show_rest=False, axes=False, gravity=False)
     (image,) = render_frames(result, [-1], **kw)
-    real = rendering._obstacle_meshes
+    real = rendering._obstacles
     try:
-        rendering._obstacle_meshes = lambda result, step: []
+        rendering._obstacles = lambda result: []
         (bare,) = render_frames(result, [-1], **kw)
     finally:
-        rendering._obstacle_meshes = real
+        rendering._obstacles = real
     assert _coloured(image).mean() > 0.02 and grey(image) > grey(bare) + 0.05

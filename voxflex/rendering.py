@@ -260,11 +260,11 @@ def _run_fraction(result, step: int) -> float:
     return t
 
 
-def _obstacle_meshes(result, step: int) -> list:
-    """The scene's obstacles at state ``step`` as pyvista meshes in world coordinates: planes as a
-    square patch under the body (1.5 times the body's largest extent over the run, centred on the
-    body's rest centre projected onto the plane), spheres and boxes as they are; [] without obstacles.
-    ``sdf`` obstacles are not drawn (their surface is an image's level set, not a shape here)."""
+def _obstacles(result) -> list:
+    """The scene's obstacles as (obstacle, pyvista mesh at rest) pairs, built once per render: planes as a
+    square patch under the body (1.5 times the body's largest extent over the run, centred on the body's
+    rest centre projected onto the plane), spheres and boxes as they are; [] without obstacles.  ``sdf``
+    obstacles are not drawn (their surface is an image's level set, not a shape here)."""
     specs = [o for o in _scene_table(result).get("obstacle", []) if o.get("kind") in ("plane", "sphere", "box")]
     if not specs:
         return []
@@ -272,11 +272,10 @@ def _obstacle_meshes(result, step: int) -> list:
 
     from .deform.obstacles import obstacle
 
-    fraction = _run_fraction(result, step)
     every = np.concatenate([result.surface_rest, result.surface_positions.reshape(-1, 3)])
     size = 1.5 * float((every.max(axis=0) - every.min(axis=0)).max())
     centre = result.surface_rest.mean(axis=0)
-    meshes = []
+    out = []
     for spec in specs:
         ob = obstacle(spec["kind"], **{k: v for k, v in spec.items() if k != "kind"})
         if ob.kind == "plane":
@@ -286,10 +285,25 @@ def _obstacle_meshes(result, step: int) -> list:
             mesh = pv.Sphere(radius=ob.radius, center=ob.center, theta_resolution=64, phi_resolution=32)
         else:
             mesh = pv.Box(bounds=(ob.min[0], ob.max[0], ob.min[1], ob.max[1], ob.min[2], ob.max[2]))
+        out.append((ob, mesh))
+    return out
+
+
+def _posed(obstacles, result, step: int) -> list:
+    """The meshes of :func:`_obstacles` moved by each obstacle's motion to state ``step`` (copies)."""
+    fraction = _run_fraction(result, step)
+    meshes = []
+    for ob, rest in obstacles:
         R, t = ob.pose(fraction)
-        mesh.points = np.asarray(mesh.points) @ R.T + t
+        mesh = rest.copy()
+        mesh.points = np.asarray(rest.points) @ R.T + t
         meshes.append(mesh)
     return meshes
+
+
+def _obstacle_meshes(result, step: int) -> list:
+    """The scene's obstacles at state ``step`` as pyvista meshes in world coordinates (see :func:`_obstacles`)."""
+    return _posed(_obstacles(result), result, step)
 
 
 def _field_names(result) -> list[str]:
@@ -430,6 +444,7 @@ def render_frames(
     rest = pv.PolyData(np.array(result.surface_rest), faces=faces)
     cmap_obj = _colormap(style.cmap)
 
+    obstacles = _obstacles(result)
     images = []
     plotter = pv.Plotter(off_screen=True, window_size=layout.plot_size)
     try:
@@ -454,7 +469,7 @@ def render_frames(
                                  smooth_shading=False, show_edges=False, nan_color="lightgray")
             else:
                 plotter.add_mesh(mesh, color=_ZERO_COLOUR, smooth_shading=False, show_edges=False)
-            for ob_mesh in _obstacle_meshes(result, s):  # not in the camera fit: a big obstacle is cut by the frame
+            for ob_mesh in _posed(obstacles, result, s):  # not in the camera fit: a big obstacle is cut by the frame
                 plotter.add_mesh(ob_mesh, color=OBSTACLE_COLOUR, opacity=OBSTACLE_OPACITY, smooth_shading=True,
                                  show_edges=False)
             to_pixels = _place_camera(plotter, cam, pts, layout.plot_size)

@@ -135,7 +135,7 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     from . import _progress
     from .build import build_image, model as build_model
     from ._atomic import atomic_path
-    from .deform.boundary import FixedRegion, ForceRegion
+    from .deform.boundary import FORCE_KINDS, FixedRegion, ForceRegion
     from .deform.solvers import SolverOptions, solve
     from .scene import check_every, check_keep
 
@@ -172,7 +172,7 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     forces = [
         ForceRegion(np.array(ld.min), np.array(ld.max), np.array(ld.vector), kind=ld.kind)
         for ld in scene.loads
-        if ld.kind != "gravity"
+        if ld.kind in FORCE_KINDS  # gravity is a body load; a membrane's pressure is in its energy
     ]
     gravity = scene.gravity
     dynamic = scene.solver.kind == "implicit-euler"

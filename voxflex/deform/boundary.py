@@ -32,8 +32,7 @@ FORCE_KINDS = ("force", "traction")
 
 PRESSURE_KIND = "pressure"
 """``[[load]] kind`` of a follower pressure on a membrane.  It is a potential of the membrane
-model (:mod:`voxflex.deform.membrane_model`), not a dead load: a :class:`ForceRegion` of this
-kind contributes no force here (:func:`region_forces` skips it)."""
+model (:mod:`voxflex.deform.membrane_model`), not a dead load, so it never becomes a :class:`ForceRegion`."""
 
 
 def _vec3(name, value):
@@ -127,8 +126,7 @@ class ForceRegion:
         ``kind="force"``: the total force (N), spread over the material in
         the box (see :func:`region_forces`); ``kind="traction"``: force per
         unit area (Pa) on the boundary faces whose centre lies in the box.
-    kind : {"force", "traction", "pressure"}
-        ("pressure": carried by the membrane model's energy; no force here)
+    kind : {"force", "traction"}
     """
 
     min: np.ndarray
@@ -143,7 +141,7 @@ class ForceRegion:
         vec = _vec3("force vector", self.vector)
         if not np.all(np.isfinite(vec)):
             raise InputError(f"force vector must be finite, got {vec.tolist()}")
-        check_choice("force kind", self.kind, (*FORCE_KINDS, PRESSURE_KIND))
+        check_choice("force kind", self.kind, FORCE_KINDS)
         object.__setattr__(self, "min", lo)
         object.__setattr__(self, "max", hi)
         object.__setattr__(self, "vector", vec)
@@ -248,8 +246,6 @@ def region_forces(model, regions) -> np.ndarray:
     f = np.zeros(rest.shape)
     faces = None
     for r, region in enumerate(regions):
-        if region.kind == PRESSURE_KIND:
-            continue  # a follower pressure is in the model's energy (membranes)
         pts = sel = None
         if region.kind == "force":
             pts, vol = model.volume_points()
