@@ -12,7 +12,7 @@ from scipy.optimize import brentq
 import voxflex as vf
 from voxflex.deform import MATERIALS, Material, material
 from voxflex.deform.laws import NeoHookeanLaw
-from voxflex.deform.materials import lame
+from voxflex.deform.materials import lame, shifted_invariants
 from voxflex.deform.strains import get_strain
 from voxflex.errors import InputError
 
@@ -123,6 +123,32 @@ def test_numba_equals_numpy_twin(label):
         assert _rel(a, b) < 1e-12
     W, P, A = mat.evaluate(F, tangent=False)
     assert A is None and _rel(P, mat.stress(F)) == 0 and _rel(W, mat.energy(F)) == 0
+
+
+def test_shifted_invariants_kernel_equals_its_twin_and_the_definition():
+    # the compiled one-pass kernel against the numpy twin (round-off of a few terms: 1e-12 relative
+    # to the larger of the value and the strain's size), and both against I1 - 3 and J - 1 computed
+    # from C = F^T F at strains large enough (>= 1e-3) that the plain formula loses at most ~1e-12
+    rng = np.random.default_rng(3)
+    size = np.logspace(-9, 0, 200)
+    F = np.eye(3) + rng.standard_normal((200, 3, 3)) * size[:, None, None]
+    F[np.linalg.det(F) <= 0] = np.eye(3)
+    i1, j = shifted_invariants(F)
+    i1n, jn = shifted_invariants(F, backend="numpy")
+    assert np.all(np.abs(i1 - i1n) <= 1e-12 * np.maximum(np.abs(i1n), size))
+    assert np.all(np.abs(j - jn) <= 1e-12 * np.maximum(np.abs(jn), size))
+    big = size >= 1e-3
+    C = np.einsum("nki,nkj->nij", F, F)
+    assert np.allclose(i1[big], np.trace(C, axis1=1, axis2=2)[big] - 3.0, rtol=1e-10, atol=1e-12)
+    assert np.allclose(j[big], np.linalg.det(F)[big] - 1.0, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("label", list(MATERIAL_SPECS))
+def test_tangent_is_exactly_symmetric(label):
+    # every law's tangent is a second derivative (the numpy twin's is symmetric to 2e-16 relative);
+    # the chain kernel computes A's upper triangle and mirrors it: A_ijkl == A_klij bitwise
+    A = make(label).tangent(np.concatenate([f_near_identity(), f_large()])).reshape(-1, 9, 9)
+    assert np.array_equal(A, np.transpose(A, (0, 2, 1)))
 
 
 # ---------------------------------------------------------------------------- uniaxial closed forms

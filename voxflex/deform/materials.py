@@ -62,6 +62,9 @@ def _get_strain(name):
 def _chain_kernel(jac, s, K, geo, P, A, with_tangent, with_geo):  # pragma: no cover - compiled
     """P = D^T s and A = D^T K D + G per sample; jac (n, m, 9), geo (n, 9, 9).
 
+    A is computed on and above its diagonal and mirrored, so it is exactly symmetric (1000 neo-Hooke
+    samples: 0.26 against 0.35 ms for all 81 entries).
+
     Serial on purpose: the pass is memory-bound (81 doubles written per sample), and on the
     2-core CI ``parallel=True`` measured no faster (0.86e6 vs 0.92e6 samples/s, m = 6) while
     compiling 2.4x longer (5.8 s vs 2.4 s).
@@ -81,12 +84,13 @@ def _chain_kernel(jac, s, K, geo, P, A, with_tangent, with_geo):  # pragma: no c
                     for l in range(m):
                         acc += K[q, k, l] * jac[q, l, b]
                     kd[k, b] = acc
-            for a in range(9):
-                for b in range(9):
+            for a in range(9):  # A is symmetric (K and geo are second derivatives): its upper triangle, mirrored
+                for b in range(a, 9):
                     acc = geo[q, a, b] if with_geo else 0.0
                     for k in range(m):
                         acc += jac[q, k, a] * kd[k, b]
                     A[q, a, b] = acc
+                    A[q, b, a] = acc
 
 
 def _chain_numpy(jac, s, K, geo, with_tangent):
@@ -226,13 +230,46 @@ def _stretch_tangent(F, e, s, K, divided=True):
     return A
 
 
-def shifted_invariants(F):
+def shifted_invariants(F, *, backend: str = "numba"):
     """``I1 - 3`` and ``J - 1`` (n,) of ``C = F^T F`` from ``H = F - I``, without cancellation.
 
     ``I1 - 3 = 2 tr H + |H|^2`` and ``J - 1 = tr H + i2(H) + det H`` with
     ``i2 = ((tr H)^2 - tr(H H)) / 2``: each is a sum of small terms, so near rest
-    their error is round-off relative to the strain, not to 3 or 1 (numpy).
+    their error is round-off relative to the strain, not to 3 or 1.  ``backend``:
+    a compiled kernel (one pass, no temporaries: 1000 samples in about 0.01 ms
+    against 0.08 ms) or its numpy twin; they agree to round-off.
     """
+    check_choice("backend", backend, _laws.BACKENDS)
+    F = np.asarray(F, dtype=np.float64)
+    if backend == "numpy":
+        return _shifted_invariants_numpy(F)
+    i1 = np.empty(F.shape[0])
+    j = np.empty(F.shape[0])
+    _shifted_invariants_kernel(np.ascontiguousarray(F), i1, j)
+    return i1, j
+
+
+@njit
+def _shifted_invariants_kernel(F, i1, j):  # pragma: no cover - compiled
+    for n in range(F.shape[0]):
+        h00 = F[n, 0, 0] - 1.0
+        h11 = F[n, 1, 1] - 1.0
+        h22 = F[n, 2, 2] - 1.0
+        h01 = F[n, 0, 1]
+        h02 = F[n, 0, 2]
+        h10 = F[n, 1, 0]
+        h12 = F[n, 1, 2]
+        h20 = F[n, 2, 0]
+        h21 = F[n, 2, 1]
+        tr = h00 + h11 + h22
+        sq = h00 * h00 + h11 * h11 + h22 * h22 + h01 * h01 + h02 * h02 + h10 * h10 + h12 * h12 + h20 * h20 + h21 * h21
+        hh = h00 * h00 + h11 * h11 + h22 * h22 + 2.0 * (h01 * h10 + h02 * h20 + h12 * h21)
+        det = h00 * (h11 * h22 - h12 * h21) - h01 * (h10 * h22 - h12 * h20) + h02 * (h10 * h21 - h11 * h20)
+        i1[n] = 2.0 * tr + sq
+        j[n] = tr + 0.5 * (tr * tr - hh) + det
+
+
+def _shifted_invariants_numpy(F):
     H = F - np.eye(3)
     tr = H[:, 0, 0] + H[:, 1, 1] + H[:, 2, 2]
     i1 = 2.0 * tr + np.einsum("nij,nij->n", H, H)
@@ -374,7 +411,7 @@ class Material:
             else:
                 _project_psd_kernel(A)
         if self._shifted:
-            W = self.law.shifted_energy(*shifted_invariants(F))  # the same W as :meth:`energy`
+            W = self.law.shifted_energy(*shifted_invariants(F, backend=backend))  # the same W as :meth:`energy`
         P = P.reshape(n, 3, 3)
         A = None if A is None else A.reshape(n, 3, 3, 3, 3)
         return W, P, A
