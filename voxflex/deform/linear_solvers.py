@@ -124,7 +124,10 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
     b : (N,) float
     method : {"auto", "cholesky", "direct", "cg", "amg", "multigrid"}
     rtol : float
-        Relative residual for the iterative methods.
+        Relative residual for the iterative methods, and for ``"cholesky"`` from
+        :data:`MIXED_MIN` unknowns on, where a single-precision factorisation is
+        refined in double precision until it is met (below that, LAPACK's double
+        Cholesky: round-off, about 1e-15, whatever rtol).
     maxiter : int, optional
         Iteration cap of the iterative methods (default ``max(1000, N // 4)``).
     x0 : (N,) float, optional
@@ -167,8 +170,9 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
     if bnorm == 0.0:
         return np.zeros(N), LinearSolveInfo(method, 0, 0.0, 0.0)
     fell_back = False
+    res = None
     if method == "cholesky":
-        x, note = _dense(A, b)
+        x, note, res = _dense(A, b, rtol)
         its = 0
     elif method == "direct":
         x = _direct(A, b)
@@ -189,23 +193,25 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
             x = _direct(A, b)
             method = "direct"
             fell_back = True
-    res = vnorm(A @ x - b) / bnorm
+    if res is None:
+        res = vnorm(A @ x - b) / bnorm
     if not np.all(np.isfinite(x)):
         raise ConvergenceError(f"linear solve ({method}, {N} unknowns) produced non-finite values; the matrix is singular")
     return x, LinearSolveInfo(method, int(its), res, time.perf_counter() - t0, note, fell_back)
 
 
-MIXED_MIN = 1000  # dense systems from this size factor in single precision and refine (see _mixed_cholesky)
-MIXED_RTOL = 1e-13  # relative residual the refinement reaches (the double Cholesky's is about 1e-15)
+MIXED_MIN = 500  # dense systems from this size factor in single precision and refine (see _mixed_cholesky)
 _BLAS = []  # one threadpoolctl controller, made at the first dense solve
 
 
-def _dense(A, b):
+def _dense(A, b, rtol):
     """Dense Cholesky (LDL^T when not positive definite) with BLAS pinned to one thread: on a busy
     2-core machine threaded OpenBLAS stalled a 468x468 Cholesky for 0.31 s (a few ms on one thread);
     at 552 unknowns, load average 3.8, factor + solve took min / median 3.4 / 7.6 ms on one thread and
     3.0 / 11.9 ms on two (benchmarks/bench_frames.py prints both).  The pin goes through a controller
-    made once: ``threadpool_limits`` re-scans the loaded libraries on every call (0.6 ms)."""
+    made once: ``threadpool_limits`` re-scans the loaded libraries on every call (0.6 ms).
+
+    Returns x, a note, and the relative residual when the refinement computed it (else None)."""
     from threadpoolctl import ThreadpoolController
 
     if not _BLAS:
@@ -213,59 +219,70 @@ def _dense(A, b):
     Ad = A.toarray() if sp.issparse(A) else np.asarray(A, dtype=float)
     with _BLAS[0].limit(limits=1, user_api="blas"):
         if Ad.shape[0] >= MIXED_MIN:
-            x = _mixed_cholesky(Ad, b)
-            if x is not None:
-                return x, ""
+            out = _mixed_cholesky(Ad, b, rtol)
+            if out is not None:
+                return out[0], "", out[1]
         try:
             c = sla.cho_factor(Ad, lower=True, check_finite=False)
-            return sla.cho_solve(c, b, check_finite=False), ""
+            return sla.cho_solve(c, b, check_finite=False), "", None
         except np.linalg.LinAlgError:
             pass
         with warnings.catch_warnings():  # an ill-conditioned tangent is said by the note and judged by the residual
             warnings.simplefilter("ignore", sla.LinAlgWarning)
-            return sla.solve(Ad, b, assume_a="sym", check_finite=False), "not positive definite: symmetric LDL^T solve"
+            return (sla.solve(Ad, b, assume_a="sym", check_finite=False), "not positive definite: symmetric LDL^T solve",
+                    None)
 
 
-def _mixed_cholesky(A, b, max_refine: int = 6):
-    """Cholesky in single precision refined to a double-precision residual, or None.
+def _mixed_cholesky(A, b, rtol, max_refine: int = 6):
+    """Cholesky in single precision refined to a double-precision residual: ``(x, |r| / |b|)`` or None.
 
     The factorisation, the cost at these sizes, runs in float32, about 1.7x
-    as fast as in float64 (552 unknowns, one thread, quiet: 1.63 against 2.73
-    ms); each refinement step is a double residual ``r = b - A x`` (A itself
-    is never rounded) and two float32 triangular solves, O(N^2).  It stops
-    at ``|r| <= MIXED_RTOL |b|``: three solves when ``cond(A)`` is about 1e4
-    (each step gains about ``1 / (cond eps_single)``), or when the residual
-    stops falling at the round-off of a double residual itself,
-    ``4 eps |A|_F |x|`` (which is where a double Cholesky's residual lies
-    too on ill-conditioned systems).  It returns None (the caller factors in
-    double) when A is not positive definite in single precision or the
-    refinement stalls above that, which happens once ``cond(A)`` nears
-    1/eps_single (about 1e7).  A is symmetric, so its transpose is the
-    Fortran-ordered copy LAPACK wants, without a transposing copy.
-    Factor + solve, one thread, min of 3x20 or 3x30 runs: random SPD matrices (cond 6e3) of 1000 / 2000
-    unknowns 14.9 / 91 ms against 17.3 / 119 ms by cho_factor / cho_solve; but the 552-unknown free
-    block of a 50-frame model (cond 7.7e3; benchmarks/bench_frames.py) 2.59-2.65 ms against 2.19-2.26
-    ms: three refinement solves (0.34 ms each) cost more than the factorisation saves, hence
-    :data:`MIXED_MIN`.
+    as fast as in float64 (552 unknowns, one thread: 0.98 against
+    1.79 ms); each refinement step is a double residual ``r = b - A x`` (A
+    itself is never rounded) and two float32 triangular solves, O(N^2) (0.2
+    ms at 552).  It stops at ``|r| <= rtol |b|`` (the Newton solvers' dense
+    solves ask 1e-10, two orders below their own tolerance): each step gains
+    about ``1 / (cond eps_single)``, so two solves at ``cond(A)`` about 1e4
+    (the 552-unknown free block of a 50-frame model, cond 7.7e3: 2.4e-7,
+    then 2.4e-12), three on random matrices of that condition; or when the
+    residual stops falling at the round-off of a double residual itself,
+    ``4 eps |A|_F |x|`` (where a double Cholesky's residual lies too on
+    ill-conditioned systems).  It returns None (the caller factors in double)
+    when A is not positive definite in single precision, or when the
+    refinement stalls above that or is too slow to reach ``rtol`` within
+    ``max_refine`` solves (judged after the second: that happens once
+    ``cond(A)`` nears 1/eps_single, about 1e7).  A is symmetric, so its
+    transpose is the Fortran-ordered copy LAPACK wants, without a transposing copy.
+    Factor + solve, one thread (rtol 1e-13, min of 3x20 or 3x30 runs): random SPD
+    matrices (cond 6e3) of 1000 / 2000 unknowns 14.9 / 91 ms against 17.3 / 119 ms by
+    cho_factor / cho_solve.  At rtol 1e-10 on random SPD matrices of cond 1e4 (three solves;
+    min of 100, quiet): 552 unknowns 2.23 against 2.20 ms, 700: 3.89 against 4.27 ms; on the
+    50-frame free block (two solves) 1.65 against 2.03 ms.  Below :data:`MIXED_MIN` (400: 1.04
+    against 1.01 ms) the double factorisation is as fast.
     """
-    c, info = sla.lapack.spotrf(A.T.astype(np.float32), lower=0, clean=0, overwrite_a=1)  # A's lower triangle
+    # the lower factor of the Fortran-ordered copy (A is symmetric): OpenBLAS's upper one took 1.34 ms
+    # against 0.98 at 552 unknowns
+    c, info = sla.lapack.spotrf(A.T.astype(np.float32), lower=1, clean=0, overwrite_a=1)
     if info != 0:
         return None
-    target = MIXED_RTOL * vnorm(b)
-    floor = 4 * np.finfo(float).eps * np.sqrt(vdot(A.ravel(), A.ravel()))  # times |x|: a double residual's round-off
+    bn = vnorm(b)
+    target = rtol * bn
     x = np.zeros_like(b)
     r, rn = b, np.inf
-    for _ in range(max_refine):
-        dx, info = sla.lapack.spotrs(c, r.astype(np.float32), lower=0)
+    for k in range(1, max_refine + 1):
+        dx, info = sla.lapack.spotrs(c, r.astype(np.float32), lower=1)
         if info != 0 or not np.all(np.isfinite(dx)):
             return None
         x += dx
         r = b - A @ x
         rn_last, rn = rn, vnorm(r)
         if rn <= target:
-            return x
-        if rn > rn_last / 4:  # stagnated: good only at the round-off of the residual itself
-            return x if rn <= floor * vnorm(x) else None
+            return x, rn / bn
+        if rn > rn_last / 4:  # stagnated: good only at the round-off of the residual itself, 4 eps |A|_F |x|
+            floor = 4 * np.finfo(float).eps * np.sqrt(vdot(A.ravel(), A.ravel()))
+            return (x, rn / bn) if rn <= floor * vnorm(x) else None
+        if k >= 2 and rn * (rn / rn_last) ** (max_refine - k) > target:
+            return None  # at this rate not within max_refine solves: the double factorisation is cheaper
     return None
 
 
