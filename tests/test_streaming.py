@@ -337,3 +337,25 @@ def test_output_every_and_keep_are_scene_keys_the_call_overrides(tmp_path):
     assert list(r.step) == [0, 2, 4]
     r = vf.simulate(scene, progress=False, keep="all", every=1)
     assert list(r.step) == [0, 1, 2, 3, 4]
+
+
+def test_each_recorded_state_evaluates_the_sample_fields_once(tmp_path):
+    # the inversion check and the output fields of a state share one model.sample_fields(q): with
+    # fields asked, a run of T steps recorded every 2 evaluates them once per step (T + 1 states with the
+    # rest state), not twice for the recorded ones; the fields equal those computed afresh
+    from voxflex.deform.fields import model_fields
+
+    m = vf.model(_scene(6))
+    calls = []
+    real = m.sample_fields
+
+    def counted(q):
+        calls.append(1)
+        return real(q)
+
+    m.sample_fields = counted
+    result = vf.simulate(_scene(6), progress=False, model=m, every=2)
+    assert len(calls) == 7
+    m.sample_fields = real
+    cells, _ = model_fields(m, result.nodes_state[-1], ["von-mises"])
+    assert np.allclose(result.fields["von-mises"][-1], cells["von-mises"], rtol=1e-12, atol=0.0)

@@ -295,6 +295,7 @@ class _Recorder:
         from .deform.plasticity import PlasticModel
 
         self.scene, self.image, self.model, self.probe_map = scene, image, model, probe_map
+        self._layer = None  # (q, model.sample_fields(q)) of the state being recorded
         self.surf_rest, self.faces, self.surf_map = model.boundary_surface()
         names = scene.output.fields
         self.names = names
@@ -357,6 +358,7 @@ class _Recorder:
         else:
             self.held = (k, rec, self.prev, inversion)
         self.prev = rec
+        self._layer = None  # a held step (every > 1) recomputes its fields if it is recorded later
         check_interrupted()  # SIGINT / SIGTERM during a streamed run: stop after this step, file discarded
 
     def finish(self) -> None:
@@ -383,6 +385,7 @@ class _Recorder:
     def _inversion(self, q):
         """((samples with det F <= 0, smallest det F), cell kind) at state ``q``."""
         layer = self.model.sample_fields(q)
+        self._layer = (q, layer)  # the fields of this state reuse it (the row is built next, for the same q)
         det = np.linalg.det(layer["F"])
         return (int(np.count_nonzero(~(det > 0))), float(np.min(det)) if len(det) else 1.0), layer["cell_kind"]
 
@@ -409,7 +412,9 @@ class _Recorder:
         row["stats/step"] = k
         row["stats/inverted_samples"], row["stats/min_det_F"] = inversion
         if self.cell_fields:
-            cells, surface = model_fields(self.model, q, self.names)
+            layer = self._layer
+            sample = layer[1] if layer is not None and layer[0] is rec.q else None
+            cells, surface = model_fields(self.model, q, self.names, sample=sample)
             row.update({f"fields/{name}": v for name, v in cells.items()})
             row.update({f"surface/fields/{name}": v for name, v in surface.items()})
         if self.reactions is not None:

@@ -208,7 +208,7 @@ def cell_average(values, weight, cell, n_cells: int) -> np.ndarray:
     return out.reshape((n_cells,) + values.shape[1:])
 
 
-def model_fields(model, q, names):
+def model_fields(model, q, names, *, sample=None):
     """Cell and surface fields of ``model`` at state ``q`` (n, d).
 
     Parameters
@@ -218,6 +218,8 @@ def model_fields(model, q, names):
     q : (n, d) float
     names : sequence of str
         Names from :data:`FIELD_NAMES` (``reaction`` is skipped: it needs the loads).
+    sample : dict, optional
+        ``model.sample_fields(q)`` when the caller has it already (not recomputed).
 
     Returns
     -------
@@ -227,7 +229,7 @@ def model_fields(model, q, names):
         One value per triangle of ``model.boundary_surface()``.
     """
     names = [n for n in names if n in CELL_FIELDS]
-    s = model.sample_fields(q)
+    s = model.sample_fields(q) if sample is None else sample
     raw = _raw(s["F"], s["label"], s["materials"], names)
     avg = {k: cell_average(v, s["volume"], s["cell"], s["n_cells"]) for k, v in raw.items()}
     cells = _derive(avg, names)
