@@ -18,35 +18,74 @@ work inflates every wall time, so the CPU seconds of each call
 excluded as in the wall time) are given too, with their ratios: less
 sensitive to other processes' load, but they count BLAS threads that spin.  Two tables:
 
-* **same solver**: every code solves with the same method and tolerance
-  (``voxflex.deform.linear_solvers.solve_linear``; linear: Jacobi-CG at rtol
-  1e-8, Neo-Hooke: sparse LU with the MMD ordering), so the ratio is the model
-  and assembly;
+* **same solver**: every code solves its own assembled matrices with the same
+  method and tolerance (``voxflex.deform.linear_solvers.solve_linear``): Jacobi-CG
+  at rtol 1e-8 (linear beam), sparse LU with the MMD ordering (Neo-Hooke), and
+  geometric multigrid-CG (both problems; voxflex's fastest solver for voxel
+  grids), so the ratio is the model and assembly.  Multigrid needs the voxel
+  grid in voxflex's DOF numbering: for each peer and size, once and outside the
+  timed runs, :class:`VoxelOrder` matches the peer's nodes to voxflex's nodes of
+  the same beam (grid indices ``round(x / h)``); each solve reorders the peer's
+  free-DOF matrix and right-hand side to voxflex's free-DOF order (``P A P^T``),
+  makes the call voxflex makes (``method="multigrid"``, ``grid=model.grid``,
+  ``free=...``) and reorders the solution back.  That reordering is an adapter
+  cost none of the codes would pay natively: it is timed apart (column
+  ``permute s``) and left out of the peer's solve and total.  Every run builds
+  its hierarchy from its own matrix (``multigrid.clear_cache()`` at the start of
+  each run, voxflex's and the peers'; Newton iterations within a run reuse the
+  prolongations, as in voxflex).  Self-checks: the reordered 8x2x2 linear
+  stiffness of each peer equals voxflex's free-DOF block to 1e-12 relative
+  (printed; a wrong node match would differ by O(1)), and every reordered solve
+  satisfies the peer's own system to the solver's residual.  In the Neo-Hooke
+  multigrid row the peers' Newton solves use voxflex's inexact-Newton tolerance
+  (:func:`newton_rtol`: the forcing term ``min(0.1, |r| / scale)``, each code's
+  own convergence scale) since voxflex's Newton uses it; with LU the tolerance
+  does not matter.  ``fallbacks`` counts iterative solves that missed rtol and
+  were answered by the direct solver (``solve_linear``'s fallback, the same for
+  every code).  ``--shared-solvers cg,direct,multigrid`` (the default) picks the
+  rows; ``--no-skfem`` skips scikit-fem (~60 s per Neo-Hooke run);
 * **best solver each** (labelled as such): voxflex with geometric multigrid-CG
   (linear) / its ``auto`` rule (Neo-Hooke), the peers with the fastest of the
   shared methods that needs no grid (Jacobi-CG for the linear beam, LU for
   Neo-Hooke).
 
 Measured (``--repeat 3 --tables-only``, warp-lang 1.19.0, scikit-fem 12.0.2,
-load average 4.6-6.0 on the 2 shared cores, CPU seconds min / median, ratio
-peer / voxflex): same solver, linear 64x16x16 Jacobi-CG: voxflex 2.34 / 2.47,
-warp.fem 3.39 / 3.61 (1.45x), scikit-fem 12.3 / 12.8 (5.3x); Neo-Hooke
-32x8x8 sparse LU: voxflex 10.4 / 10.8, warp.fem 19.5 / 21.4 (1.9x),
-scikit-fem 57.6 / 61.6 (5.5x).  Best solver each: voxflex multigrid-CG
-0.91 / 0.92 (warp 3.7x, scikit-fem 13.5x) and Neo-Hooke ``auto`` 3.52 / 3.81
-(warp 5.5x, scikit-fem 16x).  With one solver for all, its time bounds the
-ratio: the same Jacobi-CG iterations (318) take ~2 CPU s in every code, and
-30 LU factorisations of 7776 unknowns take ~8 of voxflex's 10.4 CPU s (78 % in a profile)
-(warp.fem's 19.5 s would be only ~2.3x even with free assembly).
+load average 1.35 before, 1.6-2.1 during and after on the 2 shared cores, CPU
+seconds min / median, ratio peer / voxflex of the min): same solver for all,
+linear 64x16x16 Jacobi-CG: voxflex 1.16 / 1.17, warp.fem 1.76 / 1.82 (1.51x),
+scikit-fem 6.84 / 7.58 (5.9x); same solver for all, multigrid-CG: voxflex
+0.55 / 0.55 (12 iterations in every code), warp.fem 1.38 / 1.52 (2.5x; wall
+2.65x), scikit-fem 6.72 / 7.46 (12.2x), reordering 0.02 s (warp) and 0.05 s
+(scikit-fem) apart; Neo-Hooke 32x8x8 sparse LU: voxflex 9.48 / 10.76,
+warp.fem 15.40 / 15.58 (1.6x), scikit-fem 50.3 / 50.5 (5.3x); same solver for
+all, multigrid-CG: voxflex 2.73 / 2.75 (31 Newton, 99 CG iterations), warp.fem
+10.38 / 10.52 (3.8x; 29 Newton, 81 CG), scikit-fem 45.9 / 46.5 (16.8x); no
+fallback to direct in any code.  Best solver each: voxflex multigrid-CG 0.55
+(warp 3.2x, scikit-fem 12.4x) and Neo-Hooke ``auto`` (multigrid-CG at 7776
+unknowns) 2.61 / 2.67 (warp 5.9x, scikit-fem 19x).  Every code's tip u_z is
+-0.391219 (linear) and -2.687096 (Neo-Hooke) with every solver.  With one
+solver for all, its time bounds the ratio: with multigrid-CG warp.fem's build
+and assembly (0.92 s wall) plus its solve (0.54 s: the shared 0.39 s solve,
+the conversion to scipy and the free-DOF block) make 1.46 s, and voxflex at
+zero assembly would still take 0.40 s (build and solve), so the linear ratio
+cannot pass 3.65x while the solve is shared: 4x needs a shared solve of about
+0.14 s.  The Neo-Hooke ratio (3.8x) is warp.fem's assembly (8.6 s of its
+10.3 s) over voxflex's whole Newton run.  Jacobi-CG takes the same 318-319
+iterations (~1 s) in every code; 30 LU factorisations of 7776 unknowns are
+most of voxflex's 9.5 s.
 
 Columns: build = mesh/model and sparsity; assemble = energy, gradient and
-stiffness (Newton: every tangent and residual); solve = the linear solves.
+stiffness (Newton: every tangent and residual; voxflex's Newton runs have
+theirs in solve, all but one assembly); solve = the linear solves (the peers'
+include the conversion to a scipy matrix and the free-DOF block); permute =
+the multigrid adapter above (not in total).
 Then the **scaling series** of the linear beam 16x4x4 ... 128x32x32 solved by
 multigrid-CG and Jacobi-CG (rtol 1e-8): seconds (min/median), iterations,
 peak traced memory of the solve (``tracemalloc``, numpy arrays included) per
 DOF, and the exponent of a least-squares fit time ~ DOF^p.
 
-    python benchmarks/bench_voxel_model.py [--quick] [--repeat 3] [--tables-only] [--colamd] [--memory NXxNYxNZ] [--big]
+    python benchmarks/bench_voxel_model.py [--quick] [--repeat 3] [--tables-only] [--shared-solvers LIST]
+        [--no-skfem] [--colamd] [--memory NXxNYxNZ] [--big]
 
 ``--quick`` runs 32x8x8 / 16x4x4 and the series to 64x16x16; ``--colamd``
 adds scipy's default splu ordering (slow: ~40 s); ``--memory 128x44x44`` only
