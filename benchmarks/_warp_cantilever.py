@@ -134,7 +134,19 @@ def _lame(young, poisson):
     return young / (2 * (1 + poisson)), young * poisson / ((1 + poisson) * (1 - 2 * poisson))
 
 
-def _run(nx, young, poisson, kind, steps, linear_solver, rtol, condense="scipy"):
+def node_positions(nx):
+    """The node positions of the run's degree-1 space on the nx x nx/4 x nx/4 grid, (n, 3) m.
+
+    Node ``i`` carries DOFs ``3 i + c`` (c = 0, 1, 2 for x, y, z) in the systems ``warp_run`` solves.
+    """
+    n = nx // 4
+    geo = fem.Grid3D(res=wp.vec3i(nx, n, n), bounds_lo=wp.vec3d(0.0, 0.0, 0.0), bounds_hi=wp.vec3d(4.0, 1.0, 1.0),
+                     scalar_type=wp.float64)
+    return fem.make_polynomial_space(geo, degree=1, dtype=wp.vec3d).node_positions().numpy()
+
+
+def _run(nx, young, poisson, kind, steps, linear_solver, rtol, condense="scipy", free_solver=None,
+         newton_rtol=None):
     forms = FORMS
     mu, lam = (wp.float64(x) for x in _lame(young, poisson))
     t0 = time.perf_counter()
@@ -169,23 +181,30 @@ def _run(nx, young, poisson, kind, steps, linear_solver, rtol, condense="scipy")
     u = np.zeros(3 * space.node_count())
     newton = lin_its = 0
     solver = linear_solver
+    t_adapt = 0.0  # seconds of free_solver's adapter work (taken out of t_sol)
 
     free = np.flatnonzero(~fixed)
+    fallbacks = []  # per linear solve: whether the iterative method fell back to direct
 
-    def linear_solve(K, rhs):
-        nonlocal solver, lin_its
+    def linear_solve(K, rhs, tol=rtol):
+        nonlocal solver, lin_its, t_adapt
         if condense == "project":
             # Dirichlet by warp.fem's projection: K <- (I-P) K (I-P) + P, rhs <- (I-P) rhs (zero prescribed values)
             rhs_w = wp.array(rhs.reshape(-1, 3), dtype=wp.vec3d)
             fem.project_linear_system(K, rhs_w, P, normalize_projector=False)
             A = bsr_to_scipy(K)
-            x, info = solve_linear(A, rhs_w.numpy().ravel(), method=linear_solver, rtol=rtol)
+            x, info = solve_linear(A, rhs_w.numpy().ravel(), method=linear_solver, rtol=tol)
         else:
             # the free-DOF block taken in scipy, as scikit-fem's condense does (faster than the projection)
             A = bsr_to_scipy(K)[free][:, free]
             x = np.zeros(len(rhs))
-            x[free], info = solve_linear(A, rhs[free], method=linear_solver, rtol=rtol)
+            if free_solver is None:
+                x[free], info = solve_linear(A, rhs[free], method=linear_solver, rtol=tol)
+            else:
+                x[free], info, adapt = free_solver(A, rhs[free], tol)
+                t_adapt += adapt
         solver, lin_its = info.method, lin_its + info.iterations
+        fallbacks.append(info.fell_back)
         return x
 
     if kind == "linear":
@@ -216,16 +235,20 @@ def _run(nx, young, poisson, kind, steps, linear_solver, rtol, condense="scipy")
                                   values={"mu": mu, "lam": lam}, output_dtype=wp.float64)
                 t_asm += time.perf_counter() - ta
                 ts = time.perf_counter()
-                u += linear_solve(K, -r)
+                u += linear_solve(K, -r, rtol if newton_rtol is None else newton_rtol(
+                    np.linalg.norm(r), np.linalg.norm(r), fnorm))
                 t_sol += time.perf_counter() - ts
                 newton += 1
             else:
                 raise ConvergenceError(f"warp.fem Newton did not converge in 50 iterations at load step {k}")
+    t_sol -= t_adapt
     return dict(build=t1 - t0, assemble=t_asm, solve=t_sol, total=(t1 - t0) + t_asm + t_sol,
-                uz=float(u[3 * tip + 2]), newton=newton, linear=lin_its, solver=solver)
+                uz=float(u[3 * tip + 2]), newton=newton, linear=lin_its, solver=solver, permute=t_adapt,
+                fallbacks=int(sum(fallbacks)))
 
 
-def warp_run(nx, young, poisson, kind, steps, linear_solver=None, *, rtol=1e-8, warmup=True, condense="scipy"):
+def warp_run(nx, young, poisson, kind, steps, linear_solver=None, *, rtol=1e-8, warmup=True, condense="scipy",
+             free_solver=None, newton_rtol=None):
     """Solve the cantilever in warp.fem and time it like ``skfem_run``.
 
     Parameters
@@ -256,13 +279,25 @@ def warp_run(nx, young, poisson, kind, steps, linear_solver=None, *, rtol=1e-8, 
         ``project_linear_system`` (its documented Dirichlet route; at 64x16x16
         the projection took 1.6-2.1 s against 0.3 s for scipy's block on this
         loaded 2-core machine, so the benchmark gives warp the faster one).
+    free_solver : callable, optional
+        ``free_solver(nx)`` returns ``solve(A, b, rtol) -> (x, info, adapter_s)``
+        that replaces ``solve_linear`` on the free-DOF block (``condense="scipy"``;
+        free DOFs in warp's order, ``3 * node + component`` of :func:`node_positions`):
+        the benchmark's multigrid-CG in voxflex's DOF order.  ``adapter_s``
+        (its reordering) is returned as ``permute`` and left out of ``solve``.
+        Called before the timed part of each run (for nx = 8 and ``nx``).
+    newton_rtol : callable, optional
+        ``newton_rtol(residual_norm, rhs_norm, scale)`` -> the relative
+        tolerance of each Newton solve (Neo-Hooke; ``scale`` = the free-DOF load
+        norm of the convergence test); default ``rtol`` for every solve.
 
     Returns
     -------
     dict
         build, assemble, solve, total, compile (s); compile_cpu (CPU s of the warm-up);
-        uz (m, tip-centre u_z);
-        newton (iterations); linear (Krylov iterations); solver (method used).
+        permute (s, ``free_solver``'s adapter, not in solve or total);
+        uz (m, tip-centre u_z); newton (iterations); linear (Krylov iterations);
+        solver (method used); fallbacks (iterative solves answered by direct).
     """
     check_choice("cantilever kind", kind, KINDS)
     check_choice("condensation", condense, ("scipy", "project"))
@@ -270,10 +305,13 @@ def warp_run(nx, young, poisson, kind, steps, linear_solver=None, *, rtol=1e-8, 
         raise InputError(f"nx must be a positive multiple of 8 so that the tip centre is a grid node, got {nx}")
     linear_solver = linear_solver or ("cg" if kind == "linear" else "direct")
     t, c = time.perf_counter(), time.process_time()
+    if free_solver is not None and condense != "scipy":
+        raise InputError('free_solver needs condense="scipy" (it solves the free-DOF block)')
     if warmup:
-        _run(8, young, poisson, kind, 1, linear_solver, rtol, condense)
+        _run(8, young, poisson, kind, 1, linear_solver, rtol, condense, free_solver and free_solver(8), newton_rtol)
     compile_s, compile_cpu = time.perf_counter() - t, time.process_time() - c
-    out = _run(nx, young, poisson, kind, steps, linear_solver, rtol, condense)
+    out = _run(nx, young, poisson, kind, steps, linear_solver, rtol, condense, free_solver and free_solver(nx),
+               newton_rtol)
     out["compile"] = compile_s
     out["compile_cpu"] = compile_cpu
     return out

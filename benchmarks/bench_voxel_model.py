@@ -18,35 +18,74 @@ work inflates every wall time, so the CPU seconds of each call
 excluded as in the wall time) are given too, with their ratios: less
 sensitive to other processes' load, but they count BLAS threads that spin.  Two tables:
 
-* **same solver**: every code solves with the same method and tolerance
-  (``voxflex.deform.linear_solvers.solve_linear``; linear: Jacobi-CG at rtol
-  1e-8, Neo-Hooke: sparse LU with the MMD ordering), so the ratio is the model
-  and assembly;
+* **same solver**: every code solves its own assembled matrices with the same
+  method and tolerance (``voxflex.deform.linear_solvers.solve_linear``): Jacobi-CG
+  at rtol 1e-8 (linear beam), sparse LU with the MMD ordering (Neo-Hooke), and
+  geometric multigrid-CG (both problems; voxflex's fastest solver for voxel
+  grids), so the ratio is the model and assembly.  Multigrid needs the voxel
+  grid in voxflex's DOF numbering: for each peer and size, once and outside the
+  timed runs, :class:`VoxelOrder` matches the peer's nodes to voxflex's nodes of
+  the same beam (grid indices ``round(x / h)``); each solve reorders the peer's
+  free-DOF matrix and right-hand side to voxflex's free-DOF order (``P A P^T``),
+  makes the call voxflex makes (``method="multigrid"``, ``grid=model.grid``,
+  ``free=...``) and reorders the solution back.  That reordering is an adapter
+  cost none of the codes would pay natively: it is timed apart (column
+  ``permute s``) and left out of the peer's solve and total.  Every run builds
+  its hierarchy from its own matrix (``multigrid.clear_cache()`` at the start of
+  each run, voxflex's and the peers'; Newton iterations within a run reuse the
+  prolongations, as in voxflex).  Self-checks: the reordered 8x2x2 linear
+  stiffness of each peer equals voxflex's free-DOF block to 1e-12 relative
+  (printed; a wrong node match would differ by O(1)), and every reordered solve
+  satisfies the peer's own system to the solver's residual.  In the Neo-Hooke
+  multigrid row the peers' Newton solves use voxflex's inexact-Newton tolerance
+  (:func:`newton_rtol`: the forcing term ``min(0.1, |r| / scale)``, each code's
+  own convergence scale) since voxflex's Newton uses it; with LU the tolerance
+  does not matter.  ``fallbacks`` counts iterative solves that missed rtol and
+  were answered by the direct solver (``solve_linear``'s fallback, the same for
+  every code).  ``--shared-solvers cg,direct,multigrid`` (the default) picks the
+  rows; ``--no-skfem`` skips scikit-fem (~60 s per Neo-Hooke run);
 * **best solver each** (labelled as such): voxflex with geometric multigrid-CG
   (linear) / its ``auto`` rule (Neo-Hooke), the peers with the fastest of the
   shared methods that needs no grid (Jacobi-CG for the linear beam, LU for
   Neo-Hooke).
 
 Measured (``--repeat 3 --tables-only``, warp-lang 1.19.0, scikit-fem 12.0.2,
-load average 4.6-6.0 on the 2 shared cores, CPU seconds min / median, ratio
-peer / voxflex): same solver, linear 64x16x16 Jacobi-CG: voxflex 2.34 / 2.47,
-warp.fem 3.39 / 3.61 (1.45x), scikit-fem 12.3 / 12.8 (5.3x); Neo-Hooke
-32x8x8 sparse LU: voxflex 10.4 / 10.8, warp.fem 19.5 / 21.4 (1.9x),
-scikit-fem 57.6 / 61.6 (5.5x).  Best solver each: voxflex multigrid-CG
-0.91 / 0.92 (warp 3.7x, scikit-fem 13.5x) and Neo-Hooke ``auto`` 3.52 / 3.81
-(warp 5.5x, scikit-fem 16x).  With one solver for all, its time bounds the
-ratio: the same Jacobi-CG iterations (318) take ~2 CPU s in every code, and
-30 LU factorisations of 7776 unknowns take ~8 of voxflex's 10.4 CPU s (78 % in a profile)
-(warp.fem's 19.5 s would be only ~2.3x even with free assembly).
+load average 1.35 before, 1.6-2.1 during and after on the 2 shared cores, CPU
+seconds min / median, ratio peer / voxflex of the min): same solver for all,
+linear 64x16x16 Jacobi-CG: voxflex 1.16 / 1.17, warp.fem 1.76 / 1.82 (1.51x),
+scikit-fem 6.84 / 7.58 (5.9x); same solver for all, multigrid-CG: voxflex
+0.55 / 0.55 (12 iterations in every code), warp.fem 1.38 / 1.52 (2.5x; wall
+2.65x), scikit-fem 6.72 / 7.46 (12.2x), reordering 0.02 s (warp) and 0.05 s
+(scikit-fem) apart; Neo-Hooke 32x8x8 sparse LU: voxflex 9.48 / 10.76,
+warp.fem 15.40 / 15.58 (1.6x), scikit-fem 50.3 / 50.5 (5.3x); same solver for
+all, multigrid-CG: voxflex 2.73 / 2.75 (31 Newton, 99 CG iterations), warp.fem
+10.38 / 10.52 (3.8x; 29 Newton, 81 CG), scikit-fem 45.9 / 46.5 (16.8x); no
+fallback to direct in any code.  Best solver each: voxflex multigrid-CG 0.55
+(warp 3.2x, scikit-fem 12.4x) and Neo-Hooke ``auto`` (multigrid-CG at 7776
+unknowns) 2.61 / 2.67 (warp 5.9x, scikit-fem 19x).  Every code's tip u_z is
+-0.391219 (linear) and -2.687096 (Neo-Hooke) with every solver.  With one
+solver for all, its time bounds the ratio: with multigrid-CG warp.fem's build
+and assembly (0.92 s wall) plus its solve (0.54 s: the shared 0.39 s solve,
+the conversion to scipy and the free-DOF block) make 1.46 s, and voxflex at
+zero assembly would still take 0.40 s (build and solve), so the linear ratio
+cannot pass 3.65x while the solve is shared: 4x needs a shared solve of about
+0.14 s.  The Neo-Hooke ratio (3.8x) is warp.fem's assembly (8.6 s of its
+10.3 s) over voxflex's whole Newton run.  Jacobi-CG takes the same 318-319
+iterations (~1 s) in every code; 30 LU factorisations of 7776 unknowns are
+most of voxflex's 9.5 s.
 
 Columns: build = mesh/model and sparsity; assemble = energy, gradient and
-stiffness (Newton: every tangent and residual); solve = the linear solves.
+stiffness (Newton: every tangent and residual; voxflex's Newton runs have
+theirs in solve, all but one assembly); solve = the linear solves (the peers'
+include the conversion to a scipy matrix and the free-DOF block); permute =
+the multigrid adapter above (not in total).
 Then the **scaling series** of the linear beam 16x4x4 ... 128x32x32 solved by
 multigrid-CG and Jacobi-CG (rtol 1e-8): seconds (min/median), iterations,
 peak traced memory of the solve (``tracemalloc``, numpy arrays included) per
 DOF, and the exponent of a least-squares fit time ~ DOF^p.
 
-    python benchmarks/bench_voxel_model.py [--quick] [--repeat 3] [--tables-only] [--colamd] [--memory NXxNYxNZ] [--big]
+    python benchmarks/bench_voxel_model.py [--quick] [--repeat 3] [--tables-only] [--shared-solvers LIST]
+        [--no-skfem] [--colamd] [--memory NXxNYxNZ] [--big]
 
 ``--quick`` runs 32x8x8 / 16x4x4 and the series to 64x16x16; ``--colamd``
 adds scipy's default splu ordering (slow: ~40 s); ``--memory 128x44x44`` only
@@ -87,6 +126,149 @@ def _beam_image(nx):
 
     ny = nz = nx // 4
     return LabelImage(np.ones((nx, ny, nz)), spacing=(4 / nx, 1 / ny, 1 / nz))
+
+
+class VoxelOrder:
+    """A peer's free DOFs put in voxflex's free-DOF order of the same beam, for the shared multigrid-CG.
+
+    Geometric multigrid needs the voxel grid the unknowns live on, in voxflex's
+    numbering (``3 * node + component`` of ``VoxelModel.rest``, free DOFs
+    sorted).  Built once per code and size, outside the timed runs: each peer
+    node is matched to the voxflex node at the same grid position (integer
+    indices ``round(x / h)``), giving ``q`` with ``q[i]`` = the position, in the
+    peer's free-DOF order, of voxflex's free DOF ``i``.  :meth:`solve` then
+    solves ``A[q][:, q] y = b[q]`` (``P A P^T``) with the same call voxflex makes
+    and returns ``x[q] = y``; the seconds of the reordering (matrix and
+    vectors) come back apart, an adapter cost no code pays natively.
+
+    Parameters
+    ----------
+    nx : int
+        Voxels along x (nx/4 along y and z).
+    nodes : (n, 3) float
+        The peer's node positions, m.
+    node_dofs : (n, 3) int
+        The peer's DOF of each node's x, y, z component.
+    peer_free : (F,) int
+        The peer's free DOFs, in the order of its free-DOF matrix.
+    """
+
+    def __init__(self, nx, nodes, node_dofs, peer_free):
+        from voxflex.deform.materials import material
+        from voxflex.deform.voxel_model import VoxelModel
+
+        model = VoxelModel.from_image(_beam_image(nx), {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
+        self.model = model
+        self.grid = model.grid
+        self.free = np.flatnonzero(np.repeat(model.rest[:, 0] > 1e-9, 3))
+        dims = np.array([nx, nx // 4, nx // 4]) + 1
+        h = np.array([4.0, 1.0, 1.0]) / (dims - 1)
+
+        def index(X):
+            ijk = np.rint(np.asarray(X) / h).astype(np.int64)
+            assert np.allclose(ijk * h, X, atol=1e-9 * h.min()), "a node off the voxel grid"
+            return np.ravel_multi_index(ijk.T, dims)
+
+        vox_node = np.full(int(np.prod(dims)), -1)
+        vox_node[index(model.rest)] = np.arange(model.n_nodes)
+        match = vox_node[index(nodes)]
+        assert len(nodes) == model.n_nodes and np.all(match >= 0), "the peer's nodes are not voxflex's"
+        node_dofs = np.asarray(node_dofs)
+        vox_dof = np.empty(3 * model.n_nodes, dtype=np.int64)  # peer DOF -> voxflex DOF
+        vox_dof[node_dofs.ravel()] = (3 * match[:, None] + np.arange(3)).ravel()
+        pos = np.full(3 * model.n_nodes, -1)
+        pos[vox_dof[np.asarray(peer_free)]] = np.arange(len(peer_free))
+        self.q = pos[self.free]
+        assert len(peer_free) == len(self.free) and np.all(self.q >= 0), "the peer clamps other DOFs than voxflex"
+        self.keep = False  # remember the last reordered matrix (the self-check)
+        self.last = None
+
+    def solve(self, A, b, rtol):
+        """``x`` of ``A x = b`` (peer order) by multigrid-CG in voxflex's order; info; reordering seconds.
+
+        Asserts that ``A x = b`` to the solver's reported relative residual
+        (times 1 + 1e-6, round-off of the two orders' sums) after reordering back.
+        """
+        from voxflex.deform.linear_solvers import solve_linear
+
+        t = time.perf_counter()
+        Aq = A[self.q][:, self.q]
+        bq = b[self.q]
+        adapt = time.perf_counter() - t
+        y, info = solve_linear(Aq, bq, method="multigrid", rtol=rtol, grid=self.grid, free=self.free)
+        t = time.perf_counter()
+        x = np.empty_like(y)
+        x[self.q] = y
+        adapt += time.perf_counter() - t
+        res = np.linalg.norm(A @ x - b) / np.linalg.norm(b)
+        assert res <= max(rtol, info.residual) * (1 + 1e-6), f"reordered solve: residual {res:.2e} in the peer's order"
+        if self.keep:
+            self.last = Aq
+        return x, info, adapt
+
+
+_ORDERS = {}  # (code, nx) -> VoxelOrder
+
+
+def voxel_order(code, nx):
+    """The cached :class:`VoxelOrder` of ``code`` ("scikit-fem" or "warp.fem") at ``nx``."""
+    if (code, nx) not in _ORDERS:
+        if code == "scikit-fem":
+            from skfem import Basis, ElementHex1, ElementVector, MeshHex
+
+            ny = nz = nx // 4
+            mesh = MeshHex.init_tensor(np.linspace(0, 4, nx + 1), np.linspace(0, 1, ny + 1),
+                                       np.linspace(0, 1, nz + 1))
+            basis = Basis(mesh, ElementVector(ElementHex1()), intorder=3)
+            D = basis.get_dofs(lambda x: x[0] < 1e-9).all()
+            _ORDERS[code, nx] = VoxelOrder(nx, mesh.p.T, basis.nodal_dofs.T, np.setdiff1d(np.arange(basis.N), D))
+        else:
+            from _warp_cantilever import node_positions
+
+            X = node_positions(nx)
+            dofs = 3 * np.arange(len(X))[:, None] + np.arange(3)
+            _ORDERS[code, nx] = VoxelOrder(nx, X, dofs, np.flatnonzero(np.repeat(X[:, 0] >= 1e-9, 3)))
+    return _ORDERS[code, nx]
+
+
+def check_order(code, run):
+    """Self-check of a peer's :class:`VoxelOrder` on the 8x2x2 beam: its reordered linear stiffness is
+    voxflex's free-DOF stiffness block (the same trilinear hexahedra and 2x2x2 Gauss points) to 1e-12
+    relative (round-off of different summation orders; a wrong node match would differ by O(1))."""
+    order = voxel_order(code, 8)
+    order.keep = True
+    run()
+    order.keep = False
+    K = order.model.constant_stiffness_block(order.free)
+    err = abs(order.last - K).max() / abs(K).max()
+    assert err <= 1e-12, f"{code}: the reordered stiffness differs from voxflex's by {err:.1e} (relative)"
+    order.last = None
+    return err
+
+
+def newton_rtol(rn, rhs_norm, scale, tol=1e-8):
+    """voxflex's inexact-Newton tolerance of a Newton solve (its forcing term ``min(0.1, |r| / scale)``,
+    no tighter than the Newton tolerance needs), for the peers' multigrid-CG Neo-Hooke runs."""
+    from voxflex.deform.solvers import _forcing
+
+    eta = max(_forcing(rn, None, None, scale), 0.5 * tol * scale / max(rhs_norm, 1e-300))
+    return float(np.clip(eta, 1e-14, 0.5))
+
+
+SHARED_SOLVERS = ("cg", "direct", "multigrid")
+"""Solvers of the same-solver table: Jacobi-CG (linear beam), sparse LU (Neo-Hooke), multigrid-CG (both)."""
+
+
+def _free_solver(code):
+    """``free_solver`` for ``warp_run``: nx -> the reordered multigrid-CG solve of ``code`` at nx, a
+    fresh hierarchy for each run (``clear_cache`` as voxflex's runs)."""
+    from voxflex.deform import multigrid
+
+    def make(nx):
+        multigrid.clear_cache()
+        return voxel_order(code, nx).solve
+
+    return make
 
 
 def _repeat(fn, n):
@@ -134,14 +316,17 @@ def voxflex_linear(nx, mat, linear_solver):
     t3 = time.perf_counter()
     uz = float(model.point_mapping([TIP]).apply(model.rest + u.reshape(-1, 3))[0, 2] - TIP[2])
     return dict(build=t1 - t0, assemble=t2 - t1, solve=t3 - t2, uz=uz, newton=1, linear=info.iterations,
-                solver=info.method)
+                solver=info.method, fallbacks=int(info.fell_back))
 
 
 def voxflex_run(nx, mat, steps, linear_solver):
+    from voxflex.deform import multigrid
     from voxflex.deform.boundary import FixedRegion
     from voxflex.deform.solvers import SolverOptions, solve
     from voxflex.deform.voxel_model import VoxelModel
 
+    multigrid.clear_cache()  # every repeat builds its hierarchy (no reuse across timed runs)
+    notes = []
     t0 = time.perf_counter()
     model = VoxelModel.from_image(_beam_image(nx), {1: mat})
     model._ensure_pattern()
@@ -151,20 +336,43 @@ def voxflex_run(nx, mat, steps, linear_solver):
     model.energy_gradient_hessian(model.rest)
     t2 = time.perf_counter()
     rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81], densities={1: 1.0},
-                options=SolverOptions(steps=steps, linear_solver=linear_solver))
+                options=SolverOptions(steps=steps, linear_solver=linear_solver),
+                newton_callback=lambda d: notes.append(d["linear_solver"]))
     t3 = time.perf_counter()
     uz = float(model.point_mapping([TIP]).apply(rec[-1].q)[0, 2] - TIP[2])
     its = sum(r.newton_iterations for r in rec)
     lin = sum(r.linear_iterations for r in rec)
     return dict(build=t1 - t0, assemble=t2 - t1, solve=t3 - t2, uz=uz, newton=its, linear=lin,
-                solver=rec[-1].linear_solver)
+                solver=rec[-1].linear_solver.split(" (")[0], fallbacks=sum("fell back" in n for n in notes))
 
 
-def skfem_run(nx, young, poisson, kind, steps, linear_solver):
+def skfem_run(nx, young, poisson, kind, steps, linear_solver, forcing=False):
+    """The cantilever in scikit-fem, timed like the others; ``forcing``: Newton solves at voxflex's
+    inexact-Newton tolerance (:func:`newton_rtol`) instead of rtol 1e-8."""
     from skfem import Basis, BilinearForm, ElementHex1, ElementVector, LinearForm, MeshHex, condense
     from skfem.helpers import ddot, det, grad, inv, sym_grad, trace, transpose
 
+    from voxflex.deform import multigrid
     from voxflex.deform.linear_solvers import solve_linear
+
+    order = None
+    if linear_solver == "multigrid":  # voxflex's multigrid-CG on the reordered system (see VoxelOrder)
+        order = voxel_order("scikit-fem", nx)
+        multigrid.clear_cache()  # every run builds its own hierarchy, as voxflex's runs do
+    t_adapt = 0.0
+    lin_its = 0
+    fallbacks = 0
+
+    def free_solve(A, b, rtol):
+        nonlocal t_adapt, lin_its, fallbacks
+        if order is None:
+            x, info = solve_linear(A, b, method=linear_solver, rtol=rtol)
+        else:
+            x, info, adapt = order.solve(A, b, rtol)
+            t_adapt += adapt
+        lin_its += info.iterations
+        fallbacks += info.fell_back
+        return x
 
     mu = young / (2 * (1 + poisson))
     lam = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
@@ -218,8 +426,7 @@ def skfem_run(nx, young, poisson, kind, steps, linear_solver):
         t_asm += time.perf_counter() - ta
         ts = time.perf_counter()
         A, b, x, I = condense(K, fg, D=D)
-        x, _ = solve_linear(A, b, method=linear_solver, rtol=1e-8)
-        u[I] = x
+        u[I] = free_solve(A, b, 1e-8)
         t_sol += time.perf_counter() - ts
         newton = 1
     else:
@@ -237,12 +444,13 @@ def skfem_run(nx, young, poisson, kind, steps, linear_solver):
                 t_asm += time.perf_counter() - ta
                 ts = time.perf_counter()
                 A, b, x, I = condense(K, -r, D=D)
-                x, _ = solve_linear(A, b, method=linear_solver, rtol=1e-8)
-                u[I] += x
+                rn = np.linalg.norm(r)
+                u[I] += free_solve(A, b, newton_rtol(rn, rn, np.linalg.norm(fg)) if forcing else 1e-8)
                 t_sol += time.perf_counter() - ts
                 newton += 1
     uz = float(u[basis.nodal_dofs[2, node]])
-    return dict(build=t1 - t0, assemble=t_asm, solve=t_sol, uz=uz, newton=newton, linear=0, solver=linear_solver)
+    return dict(build=t1 - t0, assemble=t_asm, solve=t_sol - t_adapt, uz=uz, newton=newton, linear=lin_its,
+                solver=linear_solver, permute=t_adapt, fallbacks=fallbacks)
 
 
 def solver_table(nx):
@@ -398,7 +606,15 @@ def main():
     parser.add_argument("--no-series", action="store_true")
     parser.add_argument("--tables-only", action="store_true",
                         help="only the two peer tables (no solver table, no scaling series)")
+    parser.add_argument("--shared-solvers", default=",".join(SHARED_SOLVERS), metavar="LIST",
+                        help="solvers of the same-solver table, comma separated among "
+                             f"{', '.join(SHARED_SOLVERS)} (cg: linear beam, direct: Neo-Hooke, multigrid: both)")
+    parser.add_argument("--no-skfem", action="store_true", help="skip scikit-fem (~60 s per Neo-Hooke run)")
     args = parser.parse_args()
+    shared = [m.strip() for m in args.shared_solvers.split(",") if m.strip()]
+    bad = [m for m in shared if m not in SHARED_SOLVERS]
+    if bad:
+        parser.error(f"--shared-solvers: unknown {', '.join(bad)}; choose among {', '.join(SHARED_SOLVERS)}")
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"python {platform.python_version()}, NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}, "
           f"{_load()}")
@@ -425,40 +641,78 @@ def main():
         print("warp.fem: not installed (pip install warp-lang) - its rows are skipped")
     # warm-up of every code on an 8x2x2 beam: numba kernels, scikit-fem's forms, warp's compile
     voxflex_run(8, nh, 1, "direct")
+    voxflex_run(8, nh, 1, "multigrid")
     voxflex_linear(8, hooke, "cg")
     voxflex_linear(8, hooke, "multigrid")
-    skfem_run(8, 1e4, 0.3, "linear", 1, "cg")
-    skfem_run(8, 1e3, 0.3, "neo-hooke", 1, "direct")
+    if not args.no_skfem:
+        skfem_run(8, 1e4, 0.3, "linear", 1, "cg")
+        skfem_run(8, 1e3, 0.3, "neo-hooke", 1, "direct")
+    checks = []
+    if "multigrid" in shared:
+        # the peers' reorderings, built once per size before any timing, and checked on the 8x2x2 beam
+        if not args.no_skfem:
+            checks.append(("scikit-fem", check_order("scikit-fem", lambda: skfem_run(8, 1e4, 0.3, "linear", 1,
+                                                                                     "multigrid"))))
+            skfem_run(8, 1e3, 0.3, "neo-hooke", 1, "multigrid", forcing=True)
+        if warp_run:
+            checks.append(("warp.fem", check_order("warp.fem", lambda: warp_run(
+                8, 1e4, 0.3, "linear", 1, "multigrid", warmup=False, free_solver=_free_solver("warp.fem")))))
+        for code in [c for c, _ in checks]:
+            voxel_order(code, nl)
+            voxel_order(code, nn)
     lin, neo = f"linear {nl}x{nl // 4}x{nl // 4}", f"neo-hooke E=1e3 {nn}x{nn // 4}x{nn // 4} 5 steps"
 
     def peers(nx, kind, steps, solver):
         young = 1e4 if kind == "linear" else 1e3
-        out = [("scikit-fem", lambda: skfem_run(nx, young, 0.3, kind, steps, solver))]
+        mg = solver == "multigrid"
+        forcing = mg and kind != "linear"  # Newton solves at voxflex's inexact-Newton tolerance
+        out = []
+        if not args.no_skfem:
+            out.append(("scikit-fem", solver, lambda: skfem_run(nx, young, 0.3, kind, steps, solver, forcing=forcing)))
         if warp_run:
-            out.append(("warp.fem", lambda: warp_run(nx, young, 0.3, kind, steps, solver)))
+            out.append(("warp.fem", solver, lambda: warp_run(nx, young, 0.3, kind, steps, solver,
+                                                     free_solver=_free_solver("warp.fem") if mg else None,
+                                                     newton_rtol=newton_rtol if forcing else None)))
         return out
 
+    same = []
+    if "cg" in shared:
+        same.append((f"{lin} | Jacobi-CG", [("voxflex", "cg", lambda: voxflex_linear(nl, hooke, "cg"))]
+                     + peers(nl, "linear", 1, "cg")))
+    if "multigrid" in shared:
+        same.append((f"{lin} | multigrid-CG", [("voxflex", "multigrid", lambda: voxflex_linear(nl, hooke, "multigrid"))]
+                     + peers(nl, "linear", 1, "multigrid")))
+    if "direct" in shared:
+        same.append((f"{neo} | sparse LU", [("voxflex", "direct", lambda: voxflex_run(nn, nh, 5, "direct"))]
+                     + peers(nn, "neo-hooke", 5, "direct")))
+    if "multigrid" in shared:
+        same.append((f"{neo} | multigrid-CG",
+                     [("voxflex", "multigrid", lambda: voxflex_run(nn, nh, 5, "multigrid"))]
+                     + peers(nn, "neo-hooke", 5, "multigrid")))
     tables = [
-        ("same solver for every code (Jacobi-CG rtol 1e-8 / sparse LU MMD)", [
-            (lin, [("voxflex", lambda: voxflex_linear(nl, hooke, "cg"))] + peers(nl, "linear", 1, "cg")),
-            (neo, [("voxflex", lambda: voxflex_run(nn, nh, 5, "direct"))] + peers(nn, "neo-hooke", 5, "direct")),
-        ]),
+        ("same solver for all codes (Jacobi-CG rtol 1e-8 / sparse LU MMD / multigrid-CG on voxflex's grid, the "
+         "peers' matrices reordered to voxflex's DOF order: permute s, not in total)", same),
         ("best solver each (voxflex: multigrid-CG / auto; peers: Jacobi-CG / LU)", [
-            (lin, [("voxflex", lambda: voxflex_linear(nl, hooke, "multigrid"))] + peers(nl, "linear", 1, "cg")),
-            (neo, [("voxflex", lambda: voxflex_run(nn, nh, 5, "auto"))] + peers(nn, "neo-hooke", 5, "direct")),
+            (f"{lin} | best each", [("voxflex", "multigrid", lambda: voxflex_linear(nl, hooke, "multigrid"))]
+             + peers(nl, "linear", 1, "cg")),
+            (f"{neo} | best each", [("voxflex", "auto", lambda: voxflex_run(nn, nh, 5, "auto"))]
+             + peers(nn, "neo-hooke", 5, "direct")),
         ]),
     ]
+    for code, err in checks:
+        print(f"{code}: reordered 8x2x2 stiffness = voxflex's to {err:.1e} (relative)")
     compile_notes = []
     done = {}  # (code, problem, solver) -> result: a peer's runs serve both tables (its solver is the same)
     for title, problems in tables:
         print(f"\n{title}; {args.repeat} runs each, the columns of the fastest run")
-        print("| problem | code | build s | assemble s | solve s | total s min / median | CPU s min / median "
-              "| newton | linear its | u_z tip | solver |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|")
-        for name, codes in problems:
+        print("| problem | solver | code | build s | assemble s | solve s | permute s | total s min / median "
+              "| CPU s min / median | newton | linear its | fallbacks | u_z tip | solver used |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        for label, codes in problems:
+            name, solver_name = label.split(" | ")
             res = {}
-            for code, fn in codes:
-                key = (code, name, "same" if code != "voxflex" else title)
+            for code, code_solver, fn in codes:
+                key = (code, name, code_solver)  # the same run serves every row that asks for it
                 reused = key in done
                 r = done[key] if reused else _repeat(fn, args.repeat)
                 done[key] = r
@@ -466,15 +720,18 @@ def main():
                 if reused:
                     code = f"{code} (the runs above)"
                 elif "compile" in r:
-                    compile_notes.append(f"{code} {name}: kernel compile/warm-up {r['compile']:.2f} s (not in total)")
-                print(f"| {name} | {code} | {r['build']:.2f} | {r['assemble']:.2f} | {r['solve']:.2f} | "
-                      f"{r['total']:.2f} / {r['total_median']:.2f} | {r['cpu_min']:.2f} / {r['cpu_median']:.2f} | "
-                      f"{r['newton']} | {r['linear']} | {r['uz']:.6f} | {r['solver']} |", flush=True)
-            for peer in [c for c, _ in codes[1:]]:
+                    compile_notes.append(f"{code} {name} {code_solver}: kernel compile/warm-up {r['compile']:.2f} s "
+                                         "(not in total)")
+                permute = f"{r['permute']:.2f}" if r.get("permute") else ""
+                print(f"| {name} | {solver_name} | {code} | {r['build']:.2f} | {r['assemble']:.2f} | "
+                      f"{r['solve']:.2f} | {permute} | {r['total']:.2f} / {r['total_median']:.2f} | "
+                      f"{r['cpu_min']:.2f} / {r['cpu_median']:.2f} | {r['newton']} | {r['linear']} | "
+                      f"{r.get('fallbacks', 0)} | {r['uz']:.6f} | {r['solver']} |", flush=True)
+            for peer in [c for c, _, _ in codes[1:]]:
                 a, b = res[peer], res["voxflex"]
-                print(f"| {name} | ratio {peer} / voxflex (min; median) | | | | "
+                print(f"| {name} | {solver_name} | ratio {peer} / voxflex (min; median) | | | | | "
                       f"{a['total'] / b['total']:.2f}x; {a['total_median'] / b['total_median']:.2f}x | "
-                      f"{a['cpu_min'] / b['cpu_min']:.2f}x; {a['cpu_median'] / b['cpu_median']:.2f}x | | | | |",
+                      f"{a['cpu_min'] / b['cpu_min']:.2f}x; {a['cpu_median'] / b['cpu_median']:.2f}x | | | | | |",
                       flush=True)
             print(f"({_load()} after this problem)", flush=True)
     for note in compile_notes:
