@@ -197,3 +197,34 @@ def test_errors():
         mg.hierarchy(model.grid, free[::-1])
     with pytest.raises(InputError, match="multigrid smoother"):
         mg.multigrid_preconditioner(A, model.grid, free, smoother="sor")
+
+
+def test_coarse_solver_is_exact_and_survives_a_singular_level():
+    # the coarsest level's sparse LU against a dense solve (round-off: 1e-10 of the answer at
+    # cond ~1e3); a singular level (a free 1-D Laplacian: constants in its null space) falls back to
+    # the pseudo-inverse, whose answer for a consistent right-hand side solves the system to round-off
+    import scipy.sparse as sp
+
+    n = 60
+    lap = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1], format="csr")
+    A = lap + 0.01 * sp.identity(n, format="csr")
+    b = np.random.default_rng(0).standard_normal(n)
+    coarse = mg._CoarseSolver(A)
+    assert coarse.lu is not None
+    ref = np.linalg.solve(A.toarray(), b)
+    assert np.linalg.norm(coarse(A, b) - ref) <= 1e-10 * np.linalg.norm(ref)
+    free_lap = lap.tolil()
+    free_lap[0, 0] = free_lap[n - 1, n - 1] = 1.0  # Neumann ends: singular, null space = constants
+    free_lap = free_lap.tocsr()
+    rhs = b - b.mean()  # consistent: orthogonal to the null space
+    # exactly singular (SuperLU fails), and singular only up to round-off (scaled rows: LU succeeds
+    # with a pivot at round-off, which the solver must not trust)
+    d = sp.diags(np.linspace(1.0, 3.0, n) * (1 + 1e-3 * np.sin(np.arange(n))))
+    for M in (free_lap, (d @ free_lap @ d).tocsr()):
+        coarse = mg._CoarseSolver(M)
+        assert coarse.lu is None and coarse.pinv is not None
+        r = d @ rhs if M is not free_lap else rhs
+        r = r - (np.ones(n) / d.diagonal()) * (np.ones(n) / d.diagonal() @ r) / np.sum(1 / d.diagonal() ** 2) \
+            if M is not free_lap else r  # project out the null vector d^-1 1
+        x = coarse(M, r)
+        assert np.linalg.norm(M @ x - r) <= 1e-9 * np.linalg.norm(r)

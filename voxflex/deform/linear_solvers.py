@@ -201,7 +201,6 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
 
 
 MIXED_MIN = 500  # dense systems from this size factor in single precision and refine (see _mixed_cholesky)
-_BLAS = []  # one threadpoolctl controller, made at the first dense solve
 
 
 def _dense(A, b, rtol):
@@ -209,15 +208,13 @@ def _dense(A, b, rtol):
     2-core machine threaded OpenBLAS stalled a 468x468 Cholesky for 0.31 s (a few ms on one thread);
     at 552 unknowns, load average 3.8, factor + solve took min / median 3.4 / 7.6 ms on one thread and
     3.0 / 11.9 ms on two (benchmarks/bench_frames.py prints both).  The pin goes through a controller
-    made once: ``threadpool_limits`` re-scans the loaded libraries on every call (0.6 ms).
+    made once (:func:`voxflex._blas.one_thread`).
 
     Returns x, a note, and the relative residual when the refinement computed it (else None)."""
-    from threadpoolctl import ThreadpoolController
+    from .._blas import one_thread
 
-    if not _BLAS:
-        _BLAS.append(ThreadpoolController())
     Ad = A.toarray() if sp.issparse(A) else np.asarray(A, dtype=float)
-    with _BLAS[0].limit(limits=1, user_api="blas"):
+    with one_thread():
         if Ad.shape[0] >= MIXED_MIN:
             out = _mixed_cholesky(Ad, b, rtol)
             if out is not None:
@@ -523,15 +520,14 @@ _AMG_SEED = 20240601
 
 
 def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free):
-    from threadpoolctl import threadpool_limits
-
+    from .._blas import one_thread
     from .multigrid import hierarchy, multigrid_preconditioner
 
     A = sp.csr_matrix(A)
     if np.any(A.diagonal() <= 0):
         return np.zeros_like(b), 0, False
     # BLAS on one thread for the coarse factorisation and the small dense coarse solves of every cycle
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_thread():
         apply, _ = multigrid_preconditioner(A, grid, free)
         try:
             return _cg_multigrid_impl(A, b, rtol, maxiter, x0, apply)
