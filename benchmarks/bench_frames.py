@@ -62,6 +62,19 @@ mixed-precision dense solve was tried and kept only from 1000 unknowns (at 552 i
 2.6 against 2.2 ms): 10 frames 2.38 ms, 50 frames assembly 2.58 / 4.49 ms, solve 2.66 / 3.61 ms
 (Cholesky 2.11 ms), **5.23 ms** per Newton iteration (min; `--counts 10,50 --repeat 15`).
 
+On 2026-12-02 (load average 1.0-1.2, this process only; matmul 66-70 GFLOP/s), after three changes
+measured one by one on the same 50-frame model: the material tangent computed on and above its
+diagonal and mirrored (chain kernel 0.35 -> 0.26 ms) with the cancellation-free invariants in one
+compiled pass (0.066 -> 0.005 ms); the pair blocks padded from 36 to 40 numbers (pair pass 1.33 ->
+1.24 ms); the free block solved by a single-precision Cholesky (the lower factor: OpenBLAS's upper
+one is slower, 1.34 against 0.98 ms) refined twice in double to the 1e-10 relative residual Newton
+asks (2.5e-7, then 2.4e-12: 1.59 against 2.04 ms for cho_factor + cho_solve).  Three runs of
+``--counts 50 --repeat 15`` in a row: assembly 2.54 / 2.63, 2.83 / 3.97 and 4.08 / 4.37 ms, solve
+2.04 / 2.20, 2.08 / 2.33 and 3.08 / 3.32 ms, so **4.57, 4.91 and 7.17 ms** per Newton iteration; the
+bare double Cholesky in the same runs took 2.08, 2.14 and 3.14 ms (the third run's machine was 1.5x
+slower throughout: the host's other work, which the load average does not show).  10 frames:
+2.09 ms; 200 frames (2256 free unknowns): 95.5 ms against a flop bound of 54.9 ms.
+
 The solve is the solver's free-block gather (``H.take(free, 0).take(free, 1)``
 since the rows above were measured: ``H[np.ix_(free, free)]`` took 0.7-1.5 ms
 at 552, twice as long) plus the Cholesky; the two-thread
