@@ -19,7 +19,15 @@ import pytest
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from sampling_standin import ShepardSF, frames_in, two_label_block  # noqa: E402
 
-from voxflex.deform.modes import SpuriousModesWarning, check_modes, free_body_stiffness, zero_energy_modes  # noqa: E402
+from voxflex.deform.modes import (  # noqa: E402
+    SOFT_RATIO,
+    SpuriousModesWarning,
+    _rigid_modes as rigid_basis,
+    check_modes,
+    free_body_stiffness,
+    softest_mode,
+    zero_energy_modes,
+)
 from voxflex.deform.nodes import skew  # noqa: E402
 from voxflex.image import LabelImage  # noqa: E402
 from voxflex.sampling import sample  # noqa: E402
@@ -94,3 +102,49 @@ def test_elaston_gradient_terms_add_rank(body):
     s = sample(image, sf, kind="elaston", count=8)
     assert zero_energy_modes(frames, s, gradient=False) >= 12 * 8 - 6 * 8
     assert zero_energy_modes(frames, s, gradient=True) == 6
+
+
+def test_point_stiffness_kernel_equals_the_sparse_product(body):
+    # the compiled pair-block path of free_body_stiffness against J^T blockdiag(V C) J assembled here
+    # with the deformation-gradient mapping (round-off: 1e-12 of |K|)
+    import scipy.sparse as sp
+
+    from voxflex.deform.mappings import DeformationGradientMapping
+    from voxflex.deform.modes import _unit_hooke_F
+    from voxflex.deform.nodes import AffineFrames
+
+    image, frames, sf = body
+    s = sample(image, sf, kind="midpoint", count=40)
+    nodes = AffineFrames(frames)
+    J = DeformationGradientMapping(nodes, s.values).jacobian(nodes.rest)
+    H = sp.block_diag([v * _unit_hooke_F() for v in s.volume], format="csr")
+    ref = (J.T @ H @ J).toarray()
+    assert np.abs(free_body_stiffness(frames, s) - ref).max() <= 1e-12 * np.abs(ref).max()
+
+
+def test_rigid_basis_is_orthonormal_and_spans_the_rigid_motions(body):
+    _, frames, _ = body
+    Q = rigid_basis(frames)
+    R = _rigid_modes(frames)
+    assert np.allclose(Q.T @ Q, np.eye(6), atol=1e-12)
+    assert np.abs(R.T - Q @ (Q.T @ R.T)).max() <= 1e-12 * np.abs(R).max()  # R in span(Q)
+
+
+def test_softest_mode_separates_sound_and_under_integrated_quadratures(body):
+    # samples equal to the reference: every generalised eigenvalue is 1 (the rigid modes deflated to 1
+    # too); one mid-point sample per voxel against 2x2x2 Gauss: a sound quadrature, ratio in (0.02, 1];
+    # too few samples for the frames: a mode with (almost) no energy at the samples, ratio < SOFT_RATIO
+    image, frames, sf = body
+    every = sample(image, sf, kind="gauss-legendre", count=1)
+    assert softest_mode(frames, every, every) == pytest.approx(1.0, rel=1e-8)
+    from voxflex.deform.frame_model import voxel_samples
+
+    mid = voxel_samples(image, sf, rule="midpoint")
+    ratio = softest_mode(frames, mid, every)
+    assert SOFT_RATIO < ratio <= 1.0 + 1e-9
+    few = sample(image, sf, kind="midpoint", count=20)  # 20 x 6 strain rows for 90 modes: none exactly free
+    assert check_modes(frames, few) == 6  # no exact zero mode: only the ratio tells
+    assert softest_mode(frames, few, mid) < SOFT_RATIO
+    # held DOFs: the ratio over the free ones, between the free body's and 1
+    free = np.arange(12, 12 * len(frames))  # frame 0 held
+    assert softest_mode(frames, few, mid, free) >= softest_mode(frames, few, mid) - 1e-12

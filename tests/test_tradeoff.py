@@ -60,7 +60,11 @@ def test_rows_reference_first_then_coarser_grid_then_sweep(table):
     assert all(ref[m] == 0.0 for m in METRICS)
     assert table.rows[1]["voxel_size"] == 1.0
     reduced = {(r["count"], r["quadrature"]) for r in table.rows[2:]}
-    assert reduced == {(5, "midpoint"), (8, "midpoint"), (5, "elaston"), (8, "elaston")}
+    assert reduced == {(5, "midpoint"), (8, "midpoint"), (5, "elaston")}
+    # 8 frames on the 7 elastons the sampler makes of 32 voxels leave a near-zero-energy mode (its
+    # surface was 79 % off while the probe was 16 % off): refused before solving, listed with the reason
+    assert len(table.skipped) == 1 and "8 frames" in table.skipped[0][0] and "elaston" in table.skipped[0][0]
+    assert "near-zero-energy mode" in table.skipped[0][1]
     for r in table.rows:
         assert "surfaces differ" not in r["note"]  # same image: the same boundary vertex for vertex
         assert r["total_seconds"] == pytest.approx(r["precompute_seconds"] + r["solve_seconds"])

@@ -214,8 +214,8 @@ def _frame_model(scene: Scene, image, materials, *, cache: bool = True):
     occupancy = bool(scene.object.occupancy)
     settings = {"count": count, "positions": nodes.positions, "kind": kind, "parents": nodes.parents,
                 "distance": nodes.distance, "seed": nodes.seed, "compliance": compliance,
-                "fixed": [(lo.tolist(), hi.tolist()) for lo, hi in fixed], "quadrature": quadrature,
-                "samples": n_samples, "occupancy": occupancy}
+                "fixed": [(lo.tolist(), hi.tolist(), f.components) for (lo, hi), f in zip(fixed, scene.fixed)],
+                "quadrature": quadrature, "samples": n_samples, "occupancy": occupancy}
     use_cache = cache and disk.enabled()
     key = None
     if use_cache:
@@ -223,13 +223,13 @@ def _frame_model(scene: Scene, image, materials, *, cache: bool = True):
         key = disk.key_of(disk.code_fingerprint(), image.labels, np.asarray(image.spacing),
                           np.asarray(image.origin), np.asarray(image.direction), occ, settings)
     stored = disk.load("frames", key) if use_cache else None
+    softest = None
     if stored is not None:
         frames, sf, samples = _from_store(image, stored, kind, nodes.parents)
+        softest = float(stored["softest"]) if "softest" in stored else None
     else:
         frames, sf, samples = _precompute(image, count, kind, fixed, nodes, compliance, quadrature,
                                           n_samples, occupancy)
-        if use_cache:
-            disk.save("frames", key, _to_store(frames, sf, samples))
     info = {"shape_function": kind, "parents": int(nodes.parents), "distance": nodes.distance,
             "precompute_cached": stored is not None}
     # [elasticity] volumetric: "reduced" asks for F-bar / B-bar over each frame's cell; "auto" stays "full"
@@ -248,10 +248,65 @@ def _frame_model(scene: Scene, image, materials, *, cache: bool = True):
             zero = check_modes(frames, samples)  # warns, naming how many samples to add
         if zero > 6:
             _refuse_static_mechanism(scene, model, frames, samples, zero - 6)
+        elif stored is None:
+            softest = _softest_mode(scene, image, model, frames, sf, samples, occupancy)
         for w in caught:
             warnings.warn(w.message, w.category, stacklevel=2)
+        if zero <= 6 and softest is not None:
+            _judge_soft_modes(scene, samples, softest)
+    if use_cache and stored is None:
+        extra = {} if softest is None else {"softest": np.float64(softest)}
+        disk.save("frames", key, {**_to_store(frames, sf, samples), **extra})
     model.info["precompute_seconds"] = time.perf_counter() - t0
     return model
+
+
+def _static_frames(scene: Scene) -> bool:
+    """A static affine scene without obstacles or cables: the scenes judged before solving by the
+    frame quadrature's modes (those layers may hold the modes; dynamics has mass)."""
+    return (scene.nodes.kind == "affine" and scene.solver.kind == "static" and not scene.obstacles
+            and not getattr(scene, "cables", ()))
+
+
+def _held(scene: Scene, model) -> np.ndarray:
+    held = set()
+    for f in scene.fixed:
+        held.update(int(d) for d in model.held_dofs(f.min, f.max, f.components))
+    return np.fromiter(sorted(held), dtype=np.int64, count=len(held))
+
+
+def _softest_mode(scene: Scene, image, model, frames, sf, samples, occupancy) -> float | None:
+    """The samples' softest deformation against one mid-point sample per voxel
+    (:func:`voxflex.deform.modes.softest_mode`) over the DOFs the scene does not hold (a free
+    body: all, rigid modes deflated).  About 0.1 s for the default scene; stored in the cache entry."""
+    import dataclasses
+
+    from .deform.frame_model import voxel_samples
+    from .deform.modes import softest_mode
+    from .voronoi.shape_functions import keep_largest
+
+    reference = voxel_samples(image, sf, rule="midpoint", use_occupancy=occupancy)
+    reference = dataclasses.replace(reference, values=keep_largest(reference.values, scene.nodes.parents))
+    held = _held(scene, model)
+    free = np.setdiff1d(np.arange(12 * len(frames)), held) if len(held) else None
+    return softest_mode(frames, samples, reference, free)
+
+
+def _judge_soft_modes(scene: Scene, samples, softest: float) -> None:
+    """Refuse a static affine scene whose samples leave a near-zero-energy mode; warn for the others."""
+    import warnings
+
+    from .deform.modes import SOFT_RATIO, SpuriousModesWarning
+
+    if softest >= SOFT_RATIO:
+        return
+    what = (f"the {len(samples.volume)} {samples.kind} samples leave a deformation mode {1 / max(softest, 1e-300):.0f} "
+            f"times softer than one sample per voxel would (limit {1 / SOFT_RATIO:.0f}): a spurious near-zero-energy "
+            "mode")
+    fix = 'raise [elasticity] samples, use fewer frames, or quadrature = "gauss-legendre"'
+    if _static_frames(scene):
+        raise InputError(f"{what}, so the static answer would be far too soft; {fix}")
+    warnings.warn(f"{what}; results may be far too soft; {fix}", SpuriousModesWarning, stacklevel=3)
 
 
 def _refuse_static_mechanism(scene: Scene, model, frames, samples, spurious: int) -> None:
@@ -262,18 +317,14 @@ def _refuse_static_mechanism(scene: Scene, model, frames, samples, spurious: int
     Newton cannot converge (it did not, after minutes of cut load steps).  Only static affine scenes
     without obstacles or cables are judged here (those layers may hold such modes; dynamics has mass).
     """
-    if (scene.nodes.kind != "affine" or scene.solver.kind != "static" or scene.obstacles
-            or getattr(scene, "cables", ())):
+    if not _static_frames(scene):
         return
     from threadpoolctl import threadpool_limits
 
     from .deform.modes import free_body_stiffness
 
     K = free_body_stiffness(frames, samples)
-    held = set()
-    for f in scene.fixed:
-        held.update(int(d) for d in model.held_dofs(f.min, f.max, f.components))
-    free = np.setdiff1d(np.arange(K.shape[0]), np.fromiter(held, dtype=np.int64, count=len(held)))
+    free = np.setdiff1d(np.arange(K.shape[0]), _held(scene, model))
     with threadpool_limits(limits=1, user_api="blas"):
         ev = np.linalg.eigvalsh(K[np.ix_(free, free)])
     zero = int(np.count_nonzero(ev <= 1e-8 * max(float(ev.max(initial=0.0)), 1e-300)))
