@@ -253,6 +253,7 @@ def _frame_model(scene: Scene, image, materials, *, cache: bool = True):
         for w in caught:
             warnings.warn(w.message, w.category, stacklevel=2)
         if zero <= 6 and softest is not None:
+            model.info["softest_mode"] = softest
             _judge_soft_modes(scene, samples, softest)
     if use_cache and stored is None:
         extra = {} if softest is None else {"softest": np.float64(softest)}
