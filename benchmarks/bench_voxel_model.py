@@ -10,7 +10,11 @@ warp-lang``, checked with 1.19.0 on the CPU, see ``_warp_cantilever.py``; its
 rows are skipped when it is missing).  Every code is warmed first (the same
 problem on an 8x2x2 beam: voxflex's numba kernels, scikit-fem's and
 warp.fem's code paths; warp's compile time is printed apart), then timed 3
-times (``--repeat``): the tables give the min and the median of the totals; a
+times (``--repeat``) round-robin across the codes of a row (voxflex, scikit-fem,
+warp.fem, voxflex, ...: a slow spell of the host falls on every code alike; run
+back to back, one code's three repeats once all fell in one, and the same
+Jacobi-CG solve read 0.82x in one run and 1.19x the next): the tables give the
+min and the median of the totals; a
 peer's runs serve both tables (its solver is the same in both).  The load
 average is printed after each problem: on the shared 2-core machine other
 work inflates every wall time, so the CPU seconds of each call
@@ -49,7 +53,17 @@ sensitive to other processes' load, but they count BLAS threads that spin.  Two 
   shared methods that needs no grid (Jacobi-CG for the linear beam, LU for
   Neo-Hooke).
 
-Measured (``--repeat 3 --tables-only``, warp-lang 1.19.0, scikit-fem 12.0.2,
+Measured on 2026-12-02 after the coarse level's sparse LU, codes timed round-robin
+(``--repeat 3 --tables-only``, load average 0.2-1.0, CPU seconds min, ratio peer / voxflex):
+Jacobi-CG voxflex 1.73, warp.fem 3.05 (1.76x), scikit-fem 9.24 (5.3x); linear multigrid-CG
+voxflex 0.75, warp.fem 1.71 (2.3x), scikit-fem 7.09 (9.4x); Neo-Hooke sparse LU voxflex 10.6,
+warp.fem 18.4 (1.7x), scikit-fem 64.9 (6.1x); Neo-Hooke multigrid-CG voxflex 3.13, warp.fem
+12.4 (3.96x; wall 4.19x min, 3.7x median), scikit-fem 55.2 (17.6x); best each: linear warp.fem
+4.0x, Neo-Hooke ``auto`` 2.52 s (warp.fem 7.3x).  A run an hour before with each code's repeats
+back to back read 0.82x for the Jacobi-CG row (the host slowed during voxflex's three runs) and
+3.9x / 4.15x for Neo-Hooke multigrid.
+
+Measured before (``--repeat 3 --tables-only``, warp-lang 1.19.0, scikit-fem 12.0.2,
 load average 1.35 before, 1.6-2.1 during and after on the 2 shared cores, CPU
 seconds min / median, ratio peer / voxflex of the min): same solver for all,
 linear 64x16x16 Jacobi-CG: voxflex 1.16 / 1.17, warp.fem 1.76 / 1.82 (1.51x),
@@ -271,24 +285,40 @@ def _free_solver(code):
     return make
 
 
-def _repeat(fn, n):
-    """Run ``fn`` n times; the last result with total = min over the runs, total_median and the other
-    columns of the fastest run."""
+def _summary(runs):
+    """The fastest of a code's runs, with total = its min, total_median and CPU min / median."""
     import statistics
 
-    runs = []
-    for _ in range(n):
-        c = time.process_time()
-        r = fn()
-        # CPU seconds of the call (all threads of this process), less a warm-up it ran (warp's compile)
-        r["cpu"] = time.process_time() - c - r.get("compile_cpu", 0.0)
-        r["total"] = r["build"] + r["assemble"] + r["solve"]
-        runs.append(r)
     best = min(runs, key=lambda r: r["total"])
     best["total_median"] = statistics.median(r["total"] for r in runs)
     best["cpu_min"] = min(r["cpu"] for r in runs)
     best["cpu_median"] = statistics.median(r["cpu"] for r in runs)
     return best
+
+
+def _once(fn):
+    c = time.process_time()
+    r = fn()
+    # CPU seconds of the call (all threads of this process), less a warm-up it ran (warp's compile)
+    r["cpu"] = time.process_time() - c - r.get("compile_cpu", 0.0)
+    r["total"] = r["build"] + r["assemble"] + r["solve"]
+    return r
+
+
+def _interleaved(fns, n):
+    """Run every code's ``fn`` n times, round-robin (code A, B, C, A, B, C, ...), so that a slow spell of
+    a shared machine falls on every code alike instead of on one code's back-to-back repeats (the host's
+    speed moved 2x within minutes: the same Jacobi-CG solve took 1.0 to 2.8 s).  Returns {code: summary}."""
+    runs = {code: [] for code in fns}
+    for _ in range(n):
+        for code, fn in fns.items():
+            runs[code].append(_once(fn))
+    return {code: _summary(r) for code, r in runs.items()}
+
+
+def _repeat(fn, n):
+    """Run ``fn`` n times back to back (the scaling series: one code); its summary."""
+    return _summary([_once(fn) for _ in range(n)])
 
 
 def voxflex_linear(nx, mat, linear_solver):
@@ -711,10 +741,12 @@ def main():
         for label, codes in problems:
             name, solver_name = label.split(" | ")
             res = {}
+            fresh = _interleaved({code: fn for code, code_solver, fn in codes if (code, name, code_solver) not in done},
+                                 args.repeat)
             for code, code_solver, fn in codes:
                 key = (code, name, code_solver)  # the same run serves every row that asks for it
                 reused = key in done
-                r = done[key] if reused else _repeat(fn, args.repeat)
+                r = done[key] if reused else fresh[code]
                 done[key] = r
                 res[code] = r
                 if reused:
