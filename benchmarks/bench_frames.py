@@ -72,7 +72,10 @@ asks (2.5e-7, then 2.4e-12: 1.59 against 2.04 ms for cho_factor + cho_solve).  T
 ``--counts 50 --repeat 15`` in a row: assembly 2.54 / 2.63, 2.83 / 3.97 and 4.08 / 4.37 ms, solve
 2.04 / 2.20, 2.08 / 2.33 and 3.08 / 3.32 ms, so **4.57, 4.91 and 7.17 ms** per Newton iteration; the
 bare double Cholesky in the same runs took 2.08, 2.14 and 3.14 ms (the third run's machine was 1.5x
-slower throughout: the host's other work, which the load average does not show).  10 frames:
+slower throughout: the host's other work, which the load average does not show).  Later, with the
+host quiet again (matmul 60 / 68 GFLOP/s, bare Cholesky 2.08 / 2.10 ms): **4.48 and 4.68 ms**
+(assembly 2.43 / 2.49, solve 2.05 / 2.19 ms); in between, with matmul at 30 / 41 GFLOP/s, 6.27 and
+5.12 ms.  10 frames:
 2.09 ms; 200 frames (2256 free unknowns): 95.5 ms against a flop bound of 54.9 ms.
 
 The solve is the solver's free-block gather (``H.take(free, 0).take(free, 1)``
