@@ -241,15 +241,16 @@ def _frame_model(scene: Scene, image, materials, *, cache: bool = True):
     if quadrature != "gauss-legendre":
         import warnings
 
-        from .deform.modes import SpuriousModesWarning, check_modes
+        from .deform.modes import SpuriousModesWarning, check_modes, free_body_stiffness
 
+        K = free_body_stiffness(frames, samples)  # once: the rank check, the refusal and the softest mode
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SpuriousModesWarning)
-            zero = check_modes(frames, samples)  # warns, naming how many samples to add
+            zero = check_modes(frames, samples, stiffness=K)  # warns, naming how many samples to add
         if zero > 6:
-            _refuse_static_mechanism(scene, model, frames, samples, zero - 6)
+            _refuse_static_mechanism(scene, model, K, samples, zero - 6)
         elif stored is None:
-            softest = _softest_mode(scene, image, model, frames, sf, samples, occupancy)
+            softest = _softest_mode(scene, image, model, frames, sf, samples, occupancy, K)
         for w in caught:
             warnings.warn(w.message, w.category, stacklevel=2)
         if zero <= 6 and softest is not None:
@@ -276,7 +277,7 @@ def _held(scene: Scene, model) -> np.ndarray:
     return np.fromiter(sorted(held), dtype=np.int64, count=len(held))
 
 
-def _softest_mode(scene: Scene, image, model, frames, sf, samples, occupancy) -> float | None:
+def _softest_mode(scene: Scene, image, model, frames, sf, samples, occupancy, K) -> float | None:
     """The samples' softest deformation against one mid-point sample per voxel
     (:func:`voxflex.deform.modes.softest_mode`) over the DOFs the scene does not hold (a free
     body: all, rigid modes deflated).  About 0.1 s for the default scene; stored in the cache entry."""
@@ -290,7 +291,7 @@ def _softest_mode(scene: Scene, image, model, frames, sf, samples, occupancy) ->
     reference = dataclasses.replace(reference, values=keep_largest(reference.values, scene.nodes.parents))
     held = _held(scene, model)
     free = np.setdiff1d(np.arange(12 * len(frames)), held) if len(held) else None
-    return softest_mode(frames, samples, reference, free)
+    return softest_mode(frames, samples, reference, free, stiffness=K)
 
 
 def _judge_soft_modes(scene: Scene, samples, softest: float) -> None:
@@ -310,23 +311,21 @@ def _judge_soft_modes(scene: Scene, samples, softest: float) -> None:
     warnings.warn(f"{what}; results may be far too soft; {fix}", SpuriousModesWarning, stacklevel=3)
 
 
-def _refuse_static_mechanism(scene: Scene, model, frames, samples, spurious: int) -> None:
+def _refuse_static_mechanism(scene: Scene, model, K, samples, spurious: int) -> None:
     """InputError when the samples leave zero-energy modes among the frames a static scene does not hold.
 
     The free body's spurious modes (:func:`voxflex.deform.modes.check_modes`) are harmless where they
     only move held frames; with any left among the free ones, static equilibrium is not unique and
     Newton cannot converge (it did not, after minutes of cut load steps).  Only static affine scenes
     without obstacles or cables are judged here (those layers may hold such modes; dynamics has mass).
+    ``K``: the free body's stiffness (:func:`voxflex.deform.modes.free_body_stiffness`).
     """
     if not _static_frames(scene):
         return
-    from threadpoolctl import threadpool_limits
+    from ._blas import one_thread
 
-    from .deform.modes import free_body_stiffness
-
-    K = free_body_stiffness(frames, samples)
     free = np.setdiff1d(np.arange(K.shape[0]), _held(scene, model))
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_thread():
         ev = np.linalg.eigvalsh(K[np.ix_(free, free)])
     zero = int(np.count_nonzero(ev <= 1e-8 * max(float(ev.max(initial=0.0)), 1e-300)))
     if zero:

@@ -115,26 +115,27 @@ def run(args) -> int:
     return 0
 
 
-def _positive_int(text):
+def _scene_value(check, text, *, names=()):
+    """A command-line value checked by the scene's own validator (one definition of what is valid)."""
+    from ..errors import InputError
+
+    value = text if text in names else (int(text) if text.lstrip("+-").isdigit() else text)
     try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return value
+        return check(value, "value")
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc).strip()) from None
+
+
+def _positive_int(text):
+    from ..scene import check_every
+
+    return _scene_value(check_every, text)
 
 
 def _keep(text):
-    if text in ("auto", "all", "last"):
-        return text
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected all, last or a number of states >= 1, got {text!r}")
-    return value
+    from ..scene import KEEP_CHOICES, check_keep
+
+    return _scene_value(check_keep, text, names=KEEP_CHOICES)
 
 
 def _every_state(result, output):

@@ -96,7 +96,7 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
     return 0.5 * (K + K.T)
 
 
-def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None) -> int:
+def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None) -> int:
     """Number of zero eigenvalues of the free-body stiffness (six for a sound quadrature).
 
     Parameters
@@ -108,6 +108,8 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
         An eigenvalue counts as zero below ``tol * max eigenvalue``.
     gradient : bool, optional
         See :func:`free_body_stiffness`.
+    stiffness : (12n, 12n) float, optional
+        ``free_body_stiffness(frames, samples, gradient=gradient)`` when the caller has it.
 
     Returns
     -------
@@ -116,10 +118,10 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
     tol = float(tol)
     if not 0 < tol < 1:
         raise InputError(f"tol must be in (0, 1), got {tol}")
-    K = free_body_stiffness(frames, samples, gradient=gradient)
-    from threadpoolctl import threadpool_limits
+    K = free_body_stiffness(frames, samples, gradient=gradient) if stiffness is None else stiffness
+    from .._blas import one_thread
 
-    with threadpool_limits(limits=1, user_api="blas"):  # threaded BLAS stalls on small dense work here
+    with one_thread():  # threaded BLAS stalls on small dense work here
         ev = np.linalg.eigvalsh(K)
     top = float(ev.max()) if ev.size else 0.0
     if top <= 0:
@@ -151,7 +153,7 @@ configurations with tip errors of 97 % (cantilever 32x8x8, 40 frames, 100 sample
 elastons of the capsule measure 0.056 and are 57 % off."""
 
 
-def softest_mode(frames, samples, reference, free=None) -> float | None:
+def softest_mode(frames, samples, reference, free=None, *, stiffness=None) -> float | None:
     """How much softer the samples make the softest deformation than a finer quadrature does.
 
     The smallest ``lambda`` of ``K_s v = lambda K_ref v`` over the DOFs ``free``, with the two
@@ -168,6 +170,8 @@ def softest_mode(frames, samples, reference, free=None) -> float | None:
         Their values on these frames.
     free : (F,) int, optional
         The DOFs the scene does not hold (default all: a free body).
+    stiffness : (12n, 12n) float, optional
+        ``free_body_stiffness(frames, samples)`` when the caller has it.
 
     Returns
     -------
@@ -177,7 +181,7 @@ def softest_mode(frames, samples, reference, free=None) -> float | None:
 
     from .._blas import one_thread
 
-    Ks = free_body_stiffness(frames, samples)
+    Ks = free_body_stiffness(frames, samples) if stiffness is None else stiffness
     Kr = free_body_stiffness(frames, reference)
     if free is None:
         R = _rigid_modes(np.asarray(frames, dtype=np.float64))
@@ -213,11 +217,12 @@ def _rigid_modes(frames) -> np.ndarray:
     return Q
 
 
-def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None) -> int:
+def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None) -> int:
     """Count zero-energy modes and warn (:class:`SpuriousModesWarning`) when there are more than six.
 
     The warning names how many samples to add at least (each mid-point sample
     removes at most 6 modes, an elaston with gradient terms at most 24).
+    ``stiffness``: the free-body stiffness when the caller has it (see :func:`zero_energy_modes`).
 
     Returns
     -------
@@ -225,7 +230,7 @@ def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = N
     """
     if gradient is None:
         gradient = getattr(samples, "kind", None) == "elaston" and samples.values.ddw is not None
-    zero = zero_energy_modes(frames, samples, tol=tol, gradient=gradient)
+    zero = zero_energy_modes(frames, samples, tol=tol, gradient=gradient, stiffness=stiffness)
     if zero > 6:
         per = 24 if gradient else 6
         add = -(-(zero - 6) // per)
