@@ -185,8 +185,26 @@ def test_thin_plate_and_near_incompressible():
     assert np.linalg.norm(x - ref) <= _kappa(A) * 1e-8 * np.linalg.norm(ref)
 
 
+def test_coarsest_level_smaller_while_voxels_stay_cubes():
+    """Coarsening goes on below MAX_COARSE to MAX_COARSE_CUBIC only while every axis is longer than one
+    voxel: the beam's 1275-DOF level is coarsened once more, the one-voxel plate's 1014-DOF level is not."""
+    mg.clear_cache()
+    model, K, free, A, b = _beam(32)
+    assert mg.hierarchy(model.grid, free).sizes == [7776, 1275, 243]
+    assert mg.hierarchy(model.grid, free, max_coarse_cubic=mg.MAX_COARSE).sizes == [7776, 1275]
+    plate = VoxelModel.from_image(LabelImage(np.ones((24, 24, 1)), spacing=(1 / 24, 1 / 24, 0.02)),
+                                  {1: material("hooke", young=1e4, poisson=0.49, strain="linear")})
+    pfree = np.flatnonzero(np.repeat(plate.rest[:, 0] > 1e-9, 3))
+    h = mg.hierarchy(plate.grid, pfree)
+    assert h.shapes == [(24, 24, 1), (12, 12, 1)] and mg.MAX_COARSE_CUBIC < h.sizes[-1] <= mg.MAX_COARSE
+    x, info = solve_linear(A, b, method="multigrid", rtol=1e-8, grid=model.grid, free=free)
+    assert info.method == "multigrid" and info.residual <= 1e-8 and info.iterations <= 12
+
+
 def test_errors():
     model, K, free, A, b = _beam(8)
+    with pytest.raises(InputError, match="max_coarse_cubic"):
+        mg.hierarchy(model.grid, free, max_coarse_cubic=0)
     with pytest.raises(InputError, match="needs the voxel grid"):
         solve_linear(A, b, method="multigrid")
     with pytest.raises(InputError, match="free has"):

@@ -28,8 +28,16 @@
   0.034 / 0.052 (12) / 0.027 (98); 3528: 0.126 / 0.064 (12) / 0.054 (118);
   7776: 0.42 / 0.14 (12) / 0.11 (158); 14520: 1.25 / 0.14 (12) / 0.25 (198).
   nu = 0.45: 2160: 0.087 / 0.068 (22) / 0.071 (175); 3528: 0.147 / 0.133 (22)
-  / 0.159 (212); 7776: 0.94 / 0.32 (21) / 0.28 (284).  Sparse LU stops
-  winning between 2k and 3.5k unknowns; Jacobi-CG is close on these
+  / 0.159 (212); 7776: 0.94 / 0.32 (21) / 0.28 (284).  Since the coarsest
+  level goes down to :data:`~voxflex.deform.multigrid.MAX_COARSE_CUBIC` on
+  these beams (it stopped at 1500 DOFs), one run alternating sparse LU and
+  multigrid-CG (min / median of 5, seconds): nu = 0.3: 1200: 0.0093 / 0.0098
+  against 0.0088 / 0.0089; 2160: 0.035 / 0.035 against 0.017 / 0.018; 3528:
+  0.058 / 0.060 against 0.025 / 0.026; nu = 0.45: 1200: 0.0088 / 0.0095
+  against 0.0118 / 0.0121; 2160: 0.032 / 0.040 against 0.023 / 0.024; 3528:
+  0.059 / 0.065 against 0.042 / 0.054.  Sparse LU stops
+  winning between 1.2k and 3.5k unknowns (the threshold stays at 3000: the
+  gain below it is milliseconds, and LU is immune to ill-conditioned tangents); Jacobi-CG is close on these
   well-conditioned beams but its iterations grow with the grid (651 at 418k
   unknowns against 12) and with ill-conditioning (thin plate, nu = 0.49: 2786
   against 115).  Faster direct solvers that install from wheels did not win:

@@ -63,7 +63,10 @@ def _chain_kernel(jac, s, K, geo, P, A, with_tangent, with_geo):  # pragma: no c
     """P = D^T s and A = D^T K D + G per sample; jac (n, m, 9), geo (n, 9, 9).
 
     A is computed on and above its diagonal and mirrored, so it is exactly symmetric (1000 neo-Hooke
-    samples: 0.26 against 0.35 ms for all 81 entries).
+    samples: 0.26 against 0.35 ms for all 81 entries).  Only the upper triangle of geo is read (it is
+    symmetric), each entry before A[a, b] or A[b, a] is written, so ``geo`` and ``A`` may be the same
+    array: :meth:`Material.evaluate` adds into the strain's geometric term in place (16384 neo-Hooke
+    samples: 4.8 against 8.2 ms, no second 81-double array per sample to allocate and stream).
 
     Serial on purpose: the pass is memory-bound (81 doubles written per sample), and on the
     2-core CI ``parallel=True`` measured no faster (0.86e6 vs 0.92e6 samples/s, m = 6) while
@@ -391,13 +394,17 @@ class Material:
             P, A = _chain_numpy(jac, s, K, geo, tangent)
         else:
             P = np.empty((n, 9))
-            A = np.empty((n, 9, 9) if tangent else (1, 9, 9))
-            dummy = np.zeros((1, 9, 9))
+            if geo is not None and getattr(self.strain, "fresh_geometric", False):
+                A = geo  # in place: the kernel reads geo[a, b] (a <= b) before it writes A[a, b] or A[b, a]
+            elif geo is not None:
+                A = geo.copy()  # a strain of the user's may hand out an array it keeps
+            else:
+                A = np.empty((n, 9, 9) if tangent else (1, 9, 9))
             _chain_kernel(
                 jac,
                 s,
                 K if tangent else np.zeros((1, m, m)),
-                geo if geo is not None else dummy,
+                A,
                 P,
                 A,
                 tangent,

@@ -56,7 +56,9 @@ from ..voronoi.trilinear import CORNER_OFFSETS, TrilinearGrid
 
 SMOOTHERS = ("gauss-seidel", "symmetric-gauss-seidel", "jacobi")
 MAX_COARSE = 1500
-"""Coarsening stops once a level has at most this many free DOFs (factorised by sparse LU)."""
+"""Coarsening stops once a level has at most this many free DOFs (factorised by sparse LU)..."""
+MAX_COARSE_CUBIC = 300
+"""...or this many, while the next level's voxels would still be cubes (every axis longer than 1 voxel)."""
 MAX_LEVELS = 12
 _CACHE_SIZE = 4
 
@@ -299,10 +301,9 @@ class _CoarseSolver:
     changes), so this is paid once per iteration: on the neo-Hooke beam
     32x8x8 (7776 unknowns, coarsest level 1275 DOFs) a dense Cholesky took 25
     ms of each iteration, a quarter of it; the sparse LU of the same matrix
-    a few ms (the 31-iteration run: 4.1 against 2.8 CPU s in one process).
-    A smaller coarsest level would be cheaper still but breaks thin plates
-    (24x24x1 at nu = 0.49: 100 CG iterations with the 12x12 level, 209 with
-    6x6).  Falls back to a pseudo-inverse when the coarse matrix is singular
+    11 ms (the 31-iteration run: 4.1 against 2.8 CPU s in one process), and
+    the 243-DOF level that :data:`MAX_COARSE_CUBIC` now gives that beam 1 ms.
+    Falls back to a pseudo-inverse when the coarse matrix is singular
     (a coarse space that is not full rank on a few voxels).
     """
 
@@ -328,7 +329,8 @@ class _CoarseSolver:
         return self.pinv @ b
 
 
-def hierarchy(grid, free=None, *, max_coarse: int = MAX_COARSE, max_levels: int = MAX_LEVELS) -> VoxelHierarchy:
+def hierarchy(grid, free=None, *, max_coarse: int = MAX_COARSE, max_coarse_cubic: int = MAX_COARSE_CUBIC,
+              max_levels: int = MAX_LEVELS) -> VoxelHierarchy:
     """The multigrid hierarchy of a voxel grid's free DOFs, cached.
 
     Parameters
@@ -338,7 +340,19 @@ def hierarchy(grid, free=None, *, max_coarse: int = MAX_COARSE, max_levels: int 
     free : (F,) int, optional
         Sorted unique free DOFs (``3 * node + component``); default all.
     max_coarse : int
-        Coarsen until a level has at most this many free DOFs.
+        Coarsen until a level has at most this many free DOFs...
+    max_coarse_cubic : int
+        ...or this many, while every axis of the level is longer than one voxel
+        (the next level's voxels are then cubes again).  Coarsening a level
+        with a one-voxel axis (a plate) flattens the coarse voxels, and a coarse
+        space of flat voxels is poor for near-incompressible bending: the
+        24x24x1 plate at nu = 0.49 took 100 CG iterations with a 1014-DOF
+        coarsest level (12x12x1), 209 with the next (6x6x1); where the voxels stay
+        cubes the smaller coarsest level costs an iteration or none (clamped
+        beam 32x8x8: 11 against 10, 64x16x16 and 128x32x32: 10 and 10) and
+        saves the larger factorisation at every Newton iteration (a 1275-DOF
+        sparse LU took 11 ms of the neo-Hooke beam's ~90 ms iteration, the
+        243-DOF one 1 ms).
     max_levels : int
         At most this many levels (the finest included).
 
@@ -359,14 +373,14 @@ def hierarchy(grid, free=None, *, max_coarse: int = MAX_COARSE, max_levels: int 
     if free.ndim != 1 or free.dtype.kind not in "iu" or (len(free) and (free[0] < 0 or free[-1] >= n)) or \
             np.any(np.diff(free) <= 0):
         raise InputError(f"free must be sorted unique DOF indices in [0, {n}) (3 * node + component)")
-    if int(max_coarse) < 1 or int(max_levels) < 1:
-        raise InputError("max_coarse and max_levels must be at least 1")
-    key = (id(grid), len(free), int(max_coarse), int(max_levels))
+    if int(max_coarse) < 1 or int(max_coarse_cubic) < 1 or int(max_levels) < 1:
+        raise InputError("max_coarse, max_coarse_cubic and max_levels must be at least 1")
+    key = (id(grid), len(free), int(max_coarse), int(max_coarse_cubic), int(max_levels))
     for k, (g, fr, h) in _cache.items():
         if k == key and g is grid and np.array_equal(fr, free):
             _cache.move_to_end(k)
             return h
-    h = _build_impl(grid, free.astype(np.int64), int(max_coarse), int(max_levels))
+    h = _build_impl(grid, free.astype(np.int64), int(max_coarse), int(max_coarse_cubic), int(max_levels))
     _cache[key] = (grid, free.copy(), h)
     while len(_cache) > _CACHE_SIZE:
         _cache.popitem(last=False)
@@ -381,11 +395,12 @@ def clear_cache() -> None:
     _cache.clear()
 
 
-def _build_impl(grid, free, max_coarse, max_levels):
+def _build_impl(grid, free, max_coarse, max_coarse_cubic, max_levels):
     ijk, conn, n_nodes, shape = grid.element_ijk, grid.element_nodes, grid.n_nodes, tuple(grid.shape)
     Ps, Rs, shapes, kept = [], [], [shape], []
     level_free = free
-    while len(level_free) > max_coarse and len(shapes) < max_levels and max(shape) > 1:
+    while len(shapes) < max_levels and max(shape) > 1 and \
+            len(level_free) > min(max_coarse, max_coarse_cubic if min(shape) > 1 else max_coarse):
         Pn, ijk, conn, shape = node_prolongation(ijk, conn, n_nodes, shape)
         n_nodes = Pn.shape[1]
         P, level_free = dof_prolongation(Pn, level_free, n_nodes)
@@ -399,7 +414,7 @@ def _build_impl(grid, free, max_coarse, max_levels):
 
 
 def multigrid_preconditioner(A, grid, free=None, *, smoother: str = "gauss-seidel", sweeps: int = 1,
-                             max_coarse: int = MAX_COARSE):
+                             max_coarse: int = MAX_COARSE, max_coarse_cubic: int = MAX_COARSE_CUBIC):
     """V-cycle preconditioner ``r -> z ~ A^{-1} r`` for the free-DOF matrix of a voxel model.
 
     Parameters
@@ -417,7 +432,8 @@ def multigrid_preconditioner(A, grid, free=None, *, smoother: str = "gauss-seide
         18 iterations / 0.37 s, 15 / 0.58 s and 26 / 0.77 s (2 sweeps).
     sweeps : int
         Smoother iterations on each side.
-    max_coarse : int
+    max_coarse, max_coarse_cubic : int
+        Where coarsening stops (see :func:`hierarchy`).
 
     Returns
     -------
@@ -429,7 +445,7 @@ def multigrid_preconditioner(A, grid, free=None, *, smoother: str = "gauss-seide
     check_choice("multigrid smoother", smoother, SMOOTHERS)
     if int(sweeps) < 1:
         raise InputError(f"sweeps must be at least 1, got {sweeps}")
-    h = hierarchy(grid, free, max_coarse=max_coarse)
+    h = hierarchy(grid, free, max_coarse=max_coarse, max_coarse_cubic=max_coarse_cubic)
     if A.shape != (len(h.free), len(h.free)):
         raise InputError(f"matrix shape {A.shape} does not match the {len(h.free)} free DOFs of the grid")
     ml = h.solver(A, smoother=smoother, sweeps=int(sweeps))

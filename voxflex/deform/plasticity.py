@@ -110,6 +110,7 @@ class _ShiftedStrain:
         self.base = base
         self.name = f"{base.name}-minus-plastic"
         self.constant_jacobian = bool(getattr(base, "constant_jacobian", False))
+        self.fresh_geometric = bool(getattr(base, "fresh_geometric", False))  # geometric() is the base's
         self.offset = None
 
     def apply(self, F):

@@ -140,6 +140,7 @@ class Strain:
     switch: float
     constant_jacobian: bool = False
     constant_hessian: bool = False
+    fresh_geometric = True  # geometric() returns a new array: Material.evaluate may write into it
 
     @property
     def kind(self) -> str:
