@@ -15,8 +15,8 @@
   geometric voxel multigrid of :mod:`voxflex.deform.multigrid` (needs the
   voxel grid: ``grid=model.grid, free=...``).  Its prolongations are cached
   per grid and free-DOF set, so Newton iterations redo only the Galerkin
-  products.  Iterations at rtol 1e-8 on the clamped beam: 8, 12, 12 at
-  32x8x8, 64x16x16, 128x32x32 (Jacobi-CG: 158, 318, 651); deterministic
+  products.  Iterations at rtol 1e-8 on the clamped beam under gravity: 12 at
+  each of 16x4x4, 32x8x8, 64x16x16, 128x32x32 (Jacobi-CG: 78, 158, 318, 651); deterministic
   (no random start).
 * ``"auto"``: ``"cholesky"`` up to :data:`DENSE_MAX` unknowns; with the voxel
   grid (``grid=``), ``"direct"`` up to :data:`MULTIGRID_MIN` and

@@ -58,7 +58,9 @@ SMOOTHERS = ("gauss-seidel", "symmetric-gauss-seidel", "jacobi")
 MAX_COARSE = 1500
 """Coarsening stops once a level has at most this many free DOFs (factorised by sparse LU)..."""
 MAX_COARSE_CUBIC = 300
-"""...or this many, while the next level's voxels would still be cubes (every axis longer than 1 voxel)."""
+"""...or this many (or 1/:data:`CUBIC_FRACTION` of the finest level's, if more), while the next level's
+voxels would still be cubes (every axis longer than 1 voxel)."""
+CUBIC_FRACTION = 32
 MAX_LEVELS = 12
 _CACHE_SIZE = 4
 
@@ -342,17 +344,23 @@ def hierarchy(grid, free=None, *, max_coarse: int = MAX_COARSE, max_coarse_cubic
     max_coarse : int
         Coarsen until a level has at most this many free DOFs...
     max_coarse_cubic : int
-        ...or this many, while every axis of the level is longer than one voxel
-        (the next level's voxels are then cubes again).  Coarsening a level
+        ...or this many, or 1/:data:`CUBIC_FRACTION` of the finest level's free
+        DOFs if that is more, while every axis of the level is longer than one
+        voxel (the next level's voxels are then cubes again).  Coarsening a level
         with a one-voxel axis (a plate) flattens the coarse voxels, and a coarse
         space of flat voxels is poor for near-incompressible bending: the
         24x24x1 plate at nu = 0.49 took 100 CG iterations with a 1014-DOF
-        coarsest level (12x12x1), 209 with the next (6x6x1); where the voxels stay
-        cubes the smaller coarsest level costs an iteration or none (clamped
-        beam 32x8x8: 11 against 10, 64x16x16 and 128x32x32: 10 and 10) and
-        saves the larger factorisation at every Newton iteration (a 1275-DOF
-        sparse LU took 11 ms of the neo-Hooke beam's ~90 ms iteration, the
-        243-DOF one 1 ms).
+        coarsest level (12x12x1), 209 with the next (6x6x1).  Where the voxels
+        stay cubes a smaller coarsest level costs an iteration or none (clamped
+        beam under gravity, rtol 1e-8, 1275 against 243 DOFs: 12 and 12 at
+        32x8x8; 12 and 13 at 64x16x16 and 128x32x32) and saves the larger
+        factorisation at every Newton iteration: the 1275-DOF sparse LU took
+        11 ms of each ~90 ms iteration of the 32x8x8 neo-Hooke beam, the
+        243-DOF one 1 ms (its 31-iteration run, alternated 4 times: 2.80-3.38
+        against 3.58-3.94 CPU s).  On a large grid that extra iteration costs
+        more than the factorisation (64x16x16, one solve, alternated 5 times:
+        0.64-0.82 against 0.60-0.71 s), hence the fraction: from about 40k
+        free DOFs the coarsest level stays as :data:`MAX_COARSE` leaves it.
     max_levels : int
         At most this many levels (the finest included).
 
@@ -399,8 +407,9 @@ def _build_impl(grid, free, max_coarse, max_coarse_cubic, max_levels):
     ijk, conn, n_nodes, shape = grid.element_ijk, grid.element_nodes, grid.n_nodes, tuple(grid.shape)
     Ps, Rs, shapes, kept = [], [], [shape], []
     level_free = free
+    cubic = max(max_coarse_cubic, len(free) // CUBIC_FRACTION)
     while len(shapes) < max_levels and max(shape) > 1 and \
-            len(level_free) > min(max_coarse, max_coarse_cubic if min(shape) > 1 else max_coarse):
+            len(level_free) > min(max_coarse, cubic if min(shape) > 1 else max_coarse):
         Pn, ijk, conn, shape = node_prolongation(ijk, conn, n_nodes, shape)
         n_nodes = Pn.shape[1]
         P, level_free = dof_prolongation(Pn, level_free, n_nodes)
