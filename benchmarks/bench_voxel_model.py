@@ -53,7 +53,19 @@ sensitive to other processes' load, but they count BLAS threads that spin.  Two 
   shared methods that needs no grid (Jacobi-CG for the linear beam, LU for
   Neo-Hooke).
 
-Measured on 2026-12-02 after the coarse level's sparse LU, codes timed round-robin
+Measured on 2026-12-02 after the cubic coarsening rule (``multigrid.MAX_COARSE_CUBIC``), the in-place
+material tangent and the half-computed voxel stiffness (``--repeat 3 --tables-only``, load average
+0.7-1.0, CPU seconds min, ratio peer / voxflex): Jacobi-CG voxflex 2.19, warp.fem 2.77 (1.26x),
+scikit-fem 10.36 (4.7x); linear multigrid-CG voxflex 0.84 (12 iterations), warp.fem 1.56 (1.87x;
+wall 2.16x), scikit-fem 9.57 (11.4x); Neo-Hooke sparse LU voxflex 11.5, warp.fem 21.5 (1.87x),
+scikit-fem 60.4 (5.2x); Neo-Hooke multigrid-CG voxflex 2.53 (31 Newton, 107 CG iterations), warp.fem
+13.8 (5.47x; wall 5.98x min, 6.06x median; 30 Newton, 89 CG), scikit-fem 61.8 (24x); best each:
+linear warp.fem 3.3x, Neo-Hooke ``auto`` 2.08 (warp.fem 10.3x).  The host ran about twice as fast in
+a run an hour before (the Jacobi-CG solve 1.05 against 1.99 s): Neo-Hooke multigrid-CG voxflex 2.49,
+warp.fem 12.47 (5.02x; wall 5.50x min, 6.37x median); linear multigrid-CG (13 iterations, before the
+1/32 fraction) voxflex 0.49, warp.fem 1.23 (2.53x).
+
+Measured earlier on 2026-12-02 after the coarse level's sparse LU, codes timed round-robin
 (``--repeat 3 --tables-only``, load average 0.2-1.0, CPU seconds min, ratio peer / voxflex):
 Jacobi-CG voxflex 1.73, warp.fem 3.05 (1.76x), scikit-fem 9.24 (5.3x); linear multigrid-CG
 voxflex 0.75, warp.fem 1.71 (2.3x), scikit-fem 7.09 (9.4x); Neo-Hooke sparse LU voxflex 10.6,
