@@ -636,6 +636,39 @@ def scaling_series(sizes, repeat):
     print("peak traced memory: the solver's own arrays (hierarchy, levels, CG vectors) beyond the given matrix")
 
 
+PLATE_SOLVERS = ("auto", "direct", "cg")
+
+
+def plate_run(solvers, n=64):
+    """The one-voxel-thick neo-Hooke plate: n x n x 1 voxels of 1/n m, E = 1e5 Pa, nu = 0.45, density 1,
+    the edge x = 0 clamped, gravity, 5 load steps; each solver once (warmed on a 16x16x1 plate), with
+    wall and CPU seconds, Newton and linear iterations and the largest sag.  Jacobi-CG takes minutes."""
+    from voxflex.deform.boundary import FixedRegion
+    from voxflex.deform.materials import material
+    from voxflex.deform.solvers import SolverOptions, solve
+    from voxflex.deform.voxel_model import VoxelModel
+    from voxflex.image.label_image import LabelImage
+
+    def run(m, solver):
+        model = VoxelModel.from_image(LabelImage(np.ones((m, m, 1)), spacing=(1 / m,) * 3),
+                                      {1: material("neo-hookean", young=1e5, poisson=0.45)})
+        t, c = time.perf_counter(), time.process_time()
+        rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81], densities={1: 1.0},
+                    options=SolverOptions(steps=5, linear_solver=solver))
+        sag = -float((rec[-1].q[:, 2] - model.rest[:, 2]).min())
+        return (time.perf_counter() - t, time.process_time() - c, sum(r.newton_iterations for r in rec),
+                sum(r.linear_iterations for r in rec), sag, rec[-1].linear_solver, 3 * model.n_nodes)
+
+    print(f"\nneo-Hooke plate {n}x{n}x1 (E = 1e5, nu = 0.45, 5 load steps), one run per solver")
+    print("| linear solver | used | DOF | wall s | CPU s | newton | linear its | max sag m |")
+    print("|---|---|---|---|---|---|---|---|")
+    for solver in solvers:
+        run(16, solver)  # warm the kernels of this path
+        wall, cpu, newton, lin, sag, used, dof = run(n, solver)
+        print(f"| {solver} | {used} | {dof} | {wall:.1f} | {cpu:.1f} | {newton} | {lin} | {sag:.4f} |", flush=True)
+    print(f"({_load()})")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
@@ -652,6 +685,9 @@ def main():
                         help="solvers of the same-solver table, comma separated among "
                              f"{', '.join(SHARED_SOLVERS)} (cg: linear beam, direct: Neo-Hooke, multigrid: both)")
     parser.add_argument("--no-skfem", action="store_true", help="skip scikit-fem (~60 s per Neo-Hooke run)")
+    parser.add_argument("--plate", nargs="?", const=",".join(PLATE_SOLVERS), default="", metavar="LIST",
+                        help="only the 64x64x1 neo-Hooke plate, with each linear solver of LIST "
+                             f"(default {','.join(PLATE_SOLVERS)}; cg takes minutes)")
     args = parser.parse_args()
     shared = [m.strip() for m in args.shared_solvers.split(",") if m.strip()]
     bad = [m for m in shared if m not in SHARED_SOLVERS]
@@ -660,6 +696,9 @@ def main():
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"python {platform.python_version()}, NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}, "
           f"{_load()}")
+    if args.plate:
+        plate_run([m.strip() for m in args.plate.split(",") if m.strip()])
+        return
     if args.memory:
         memory_run(tuple(int(v) for v in args.memory.lower().split("x")), args.solver)
         return

@@ -286,7 +286,8 @@ def _material_elaston_impl(material, F, dF, V, M1, M2, hessian):
     Hy[:, :, 1:, :, 0] = H.e0G.transpose(0, 2, 3, 1)
     Hy[:, :, 1:, :, 1:] = H.GG
     Hy = Hy.reshape(n, 4 * m, 4 * m)
-    Hx = np.einsum("nyx,nyz,nzw->nxw", Jy, Hy, Jy).reshape(n, 9, 4, 9, 4)
+    # two batched products (einsum's one three-operand loop took 0.5 s for 400 elastons: 50x the pass)
+    Hx = np.matmul(Jy.transpose(0, 2, 1), np.matmul(Hy, Jy)).reshape(n, 9, 4, 9, 4)
     # geometric terms of the map (its second derivative is constant for these strains)
     G_FF, G_FdF = geometric_with_gradient(strain, F, dF, res.grad_e0, gG)
     Hx[:, :, 0, :, 0] += G_FF.reshape(n, 9, 9)

