@@ -111,7 +111,14 @@ peak traced memory of the solve (``tracemalloc``, numpy arrays included) per
 DOF, and the exponent of a least-squares fit time ~ DOF^p.
 
     python benchmarks/bench_voxel_model.py [--quick] [--repeat 3] [--tables-only] [--shared-solvers LIST]
-        [--no-skfem] [--colamd] [--memory NXxNYxNZ] [--big]
+        [--no-skfem] [--colamd] [--memory NXxNYxNZ] [--big] [--plate [LIST]]
+
+``--plate`` runs only the one-voxel-thick neo-Hooke plate (64x64x1 voxels of 1/64 m, 25,350 DOF,
+E = 1e5 Pa, nu = 0.45, clamped along x = 0, gravity, 5 load steps) with each linear solver of LIST
+(default ``auto,direct,cg``).  Measured on 2026-12-02 (one run each, load average 0.9-1.7, wall / CPU
+seconds): ``auto`` (multigrid-CG) 15.2 / 15.9 s, 59 Newton and 876 CG iterations; sparse LU 38.1 /
+38.8 s, 56 Newton iterations; Jacobi-CG 226.8 / 224.2 s, 89 Newton and 161,623 CG iterations; the
+same largest sag, 0.1726 m, with every solver.
 
 ``--quick`` runs 32x8x8 / 16x4x4 and the series to 64x16x16; ``--colamd``
 adds scipy's default splu ordering (slow: ~40 s); ``--memory 128x44x44`` only
