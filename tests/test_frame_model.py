@@ -83,6 +83,20 @@ def test_gradient_and_hessian_against_finite_differences(name, kw, quadrature):
     assert abs(H - H.T).max() <= 1e-12 * abs(H).max()
 
 
+def test_elaston_hessian_by_chunks(monkeypatch):
+    """The elastons' dense Hessian blocks summed one elaston at a time equal the default chunks (round-off
+    of the summation order), and the Hessian is the finite difference of the gradient (above)."""
+    import voxflex.deform.frame_model as fm
+
+    model = _model(material("stvk", young=1e3, poisson=0.3), quadrature="elaston")
+    q = _perturbed(model)
+    H = model.hessian(q)
+    monkeypatch.setattr(fm, "ELASTON_CHUNK", 1)
+    H1 = model.hessian(q)
+    assert isinstance(H, np.ndarray) and np.array_equal(H, H.T)
+    assert np.abs(H1 - H).max() <= 1e-13 * np.abs(H).max()
+
+
 def test_affine_motion_is_exact_and_stress_free_rigid_motion_has_no_energy():
     model = _model(material("neo-hookean", young=1e3, poisson=0.3))
     T = np.array([[1.1, 0.2, 0.0, 0.3], [-0.1, 0.95, 0.05, -0.2], [0.0, 0.1, 1.05, 0.4]])

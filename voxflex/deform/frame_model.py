@@ -90,6 +90,9 @@ from .voxel_model import VOLUMETRIC, boundary_quads, nearly_incompressible, tria
 
 __all__ = ["FrameModel", "VoxelSamples", "voxel_samples"]
 
+ELASTON_CHUNK = 1 << 22
+"""Entries of the elastons' dense Hessian blocks ``J_e^T D_e J_e`` formed at a time (32 MB)."""
+
 
 @dataclass(frozen=True, eq=False)
 class VoxelSamples:
@@ -470,20 +473,28 @@ class FrameModel(OnePass):
         H = None
         if hessian:
             # sum_e J_e^T D_e J_e with J_e the elaston's 36 rows on the columns they touch (its parents'
-            # DOFs), dense: 400 elastons of 6 parents in 12 ms against 82 ms for the sparse J^T (D J)
-            Je, flat = self._elaston_rows()
-            He = np.matmul(Je.transpose(0, 2, 1), np.matmul(blocks, Je))
+            # DOFs), dense: 400 elastons of 6 parents in 12 ms against 82 ms for the sparse J^T (D J);
+            # by chunks of at most 2^22 entries (32 MB), so many elastons of many parents stay lean
+            Je, idx = self._elaston_rows()
             N = 12 * self.n_nodes
-            H = np.bincount(flat, weights=He.ravel(), minlength=N * N).reshape(N, N)
+            H = np.zeros((N, N))
+            flat_H = H.reshape(-1)
+            C = Je.shape[2]
+            step = max(1, ELASTON_CHUNK // (C * C))
+            for a in range(0, m, step):
+                b = slice(a, a + step)
+                He = np.matmul(Je[b].transpose(0, 2, 1), np.matmul(blocks[b], Je[b]))
+                np.add.at(flat_H, (idx[b, :, None] * N + idx[b, None, :]).ravel(), He.ravel())
             H = 0.5 * (H + H.T)
         return float(energy), grad, H
 
     def _elaston_rows(self):
         """``Je (m, 36, C)``: each elaston's rows of the (F, grad F) Jacobian on the C columns it touches
-        (padded with zero columns), and the flat index ``(m * C * C,)`` of each ``Je^T D Je`` entry in the
-        (12n, 12n) Hessian; built once from :meth:`jacobian` (constant for affine frames)."""
+        (padded with zero columns), and those columns ``(m, C)`` (0 for the padding); built once from
+        :meth:`jacobian` (constant for affine frames)."""
         if self._elaston_gather is None:
-            J = self.jacobian()
+            J = self.jacobian().copy()
+            J.sum_duplicates()  # one entry per (row, column): the gather below assigns
             m, N = J.shape[0] // 36, J.shape[1]
             row = np.repeat(np.arange(J.shape[0]), np.diff(J.indptr))
             key = (row // 36) * N + J.indices  # (elaston, column) of every entry
@@ -497,8 +508,7 @@ class FrameModel(OnePass):
             idx = np.zeros((m, C), dtype=np.int64)
             e = np.repeat(np.arange(m), count)
             idx[e, np.arange(len(cols)) - first[e]] = cols % N
-            flat = (idx[:, :, None] * N + idx[:, None, :]).ravel()
-            self._elaston_gather = (Je, flat)
+            self._elaston_gather = (Je, idx)
         return self._elaston_gather
 
     # -- mass and gravity --------------------------------------------------------
