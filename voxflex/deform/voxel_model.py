@@ -214,10 +214,31 @@ def _deviatoric(C) -> np.ndarray:
     return P @ C @ P
 
 
+def _det3(F) -> np.ndarray:
+    """Determinants (...) of 3x3 matrices (..., 3, 3), by cofactors (LAPACK's batched LU of 30k
+    matrices took 5.7 ms, this 1)."""
+    return (F[..., 0, 0] * (F[..., 1, 1] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 1])
+            - F[..., 0, 1] * (F[..., 1, 0] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 0])
+            + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0]))
+
+
+def _inv3(F) -> np.ndarray:
+    """Inverses (..., 3, 3) of invertible 3x3 matrices: the adjugate over the determinant (LAPACK's
+    batched solve of 30k matrices took 18 ms, this 3)."""
+    adj = np.empty_like(F)
+    for i in range(3):
+        i1, i2 = (i + 1) % 3, (i + 2) % 3
+        for j in range(3):
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            adj[..., j, i] = F[..., i1, j1] * F[..., i2, j2] - F[..., i1, j2] * F[..., i2, j1]
+    return adj / _det3(F)[..., None, None]
+
+
 def _nodal(M, G) -> np.ndarray:
     """``B_q^T vec(M_q)`` for every sample: (k, Q, 3, 3) and G (Q, 8, 3) -> (k, Q, 24)."""
     k, nq = M.shape[:2]
-    return np.einsum("eqij,qaj->eqai", M, G).reshape(k, nq, 24)
+    # (k, Q, 3, 3) @ (Q, 3, 8): a batched product (the equivalent einsum took 26 ms for 3736 voxels, this 2)
+    return np.matmul(M, G.transpose(0, 2, 1)).transpose(0, 1, 3, 2).reshape(k, nq, 24)
 
 
 def fbar_evaluate(material, F, vol, G, qweights, *, gradient=True, tangent=True):
@@ -258,8 +279,8 @@ def fbar_evaluate(material, F, vol, G, qweights, *, gradient=True, tangent=True)
     k = len(F) // nq
     Fq = F.reshape(k, nq, 3, 3)
     Fc = np.einsum("q,eqij->eij", qweights, Fq)
-    Jq = np.linalg.det(Fq)
-    Jc = np.linalg.det(Fc)
+    Jq = _det3(Fq)
+    Jc = _det3(Fc)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = Jc[:, None] / Jq
     ok = np.isfinite(ratio) & (ratio > 0)
@@ -277,9 +298,9 @@ def fbar_evaluate(material, F, vol, G, qweights, *, gradient=True, tangent=True)
     Pbar = Pbar.reshape(k, nq, 3, 3)
     vq = vol.reshape(k, nq)
     s = np.einsum("eqij,eqij->eq", Pbar, Fq_safe)
-    Fq_inv = np.linalg.inv(Fq_safe)
+    Fq_inv = _inv3(Fq_safe)
     Fc_safe = np.where((np.abs(Jc) > 0)[:, None, None], Fc, np.eye(3))
-    Fc_inv = np.linalg.inv(Fc_safe)
+    Fc_inv = _inv3(Fc_safe)
     Ve = vq.sum(axis=1)
     S = np.einsum("eq,eq,eq->e", vq, r, s) / 3.0
     SV = np.divide(S, Ve, out=np.zeros_like(S), where=Ve > 0)
@@ -291,17 +312,22 @@ def fbar_evaluate(material, F, vol, G, qweights, *, gradient=True, tangent=True)
     if not tangent:
         return W, P_eff, None
     Abar = Abar.reshape(k, nq, 3, 3, 3, 3)
-    Tq = np.einsum("eqli,eqjk->eqijkl", Fq_inv, Fq_inv)
-    M = (r**2)[..., None, None, None, None] * Abar + (r * s / 3.0)[..., None, None, None, None] * Tq
+    M = np.einsum("eqli,eqjk->eqijkl", Fq_inv, Fq_inv)  # T_q, then M in place (81 doubles a sample)
+    M *= (r * s / 3.0)[..., None, None, None, None]
+    M += (r**2)[..., None, None, None, None] * Abar
     K = kern.element_stiffness(G, M.reshape(-1, 3, 3, 3, 3), vol)
+    del M
     AF = np.einsum("eqijkl,eqkl->eqij", Abar, Fq_safe)
     Gc = np.einsum("q,qaj->aj", qweights, G)
     gc = np.einsum("eji,aj->eai", Fc_inv, Gc).reshape(k, 1, 24)  # B_c^T F_c^-T
     g = (gc - _nodal(Fq_inv.transpose(0, 1, 3, 2), G)) / 3.0
     u = _nodal((r**2)[..., None, None] * AF + r[..., None, None] * Pbar, G)
     beta = r**2 * np.einsum("eqij,eqij->eq", AF, Fq_safe) + r * s
-    ug = np.einsum("eqa,eqb->eab", vq[..., None] * u, g)
-    K += ug + ug.transpose(0, 2, 1) + np.einsum("eqa,eqb->eab", (vq * beta)[..., None] * g, g)
+    # sums over the Q samples of outer products, as batched (24, Q) @ (Q, 24) products (einsum: 37 ms each)
+    ug = np.matmul((vq[..., None] * u).transpose(0, 2, 1), g)
+    K += ug
+    K += ug.transpose(0, 2, 1)
+    K += np.matmul(((vq * beta)[..., None] * g).transpose(0, 2, 1), g)
     Tc = np.einsum("eli,ejk->eijkl", Fc_inv, Fc_inv)
     K += kern.element_stiffness(Gc[None], Tc, -S)
     if np.any(bad):
