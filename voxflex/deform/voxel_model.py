@@ -215,16 +215,17 @@ def _deviatoric(C) -> np.ndarray:
 
 
 def _det3(F) -> np.ndarray:
-    """Determinants (...) of 3x3 matrices (..., 3, 3), by cofactors (LAPACK's batched LU of 30k
-    matrices took 5.7 ms, this 1)."""
+    """Determinants (...) of 3x3 matrices (..., 3, 3), by cofactors (30k matrices, min of 50: 0.9 ms
+    against 4.8 ms for LAPACK's batched LU; equal to 7e-16 near the identity)."""
     return (F[..., 0, 0] * (F[..., 1, 1] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 1])
             - F[..., 0, 1] * (F[..., 1, 0] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 0])
             + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0]))
 
 
 def _inv3(F) -> np.ndarray:
-    """Inverses (..., 3, 3) of invertible 3x3 matrices: the adjugate over the determinant (LAPACK's
-    batched solve of 30k matrices took 18 ms, this 3)."""
+    """Inverses (..., 3, 3) of invertible 3x3 matrices: the adjugate over the determinant (30k
+    matrices, min of 50: 5.6 ms against 14.3 ms for LAPACK's batched solve; equal to 9e-16 near the
+    identity)."""
     adj = np.empty_like(F)
     for i in range(3):
         i1, i2 = (i + 1) % 3, (i + 2) % 3
