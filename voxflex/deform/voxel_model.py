@@ -238,7 +238,7 @@ def _inv3(F) -> np.ndarray:
 def _nodal(M, G) -> np.ndarray:
     """``B_q^T vec(M_q)`` for every sample: (k, Q, 3, 3) and G (Q, 8, 3) -> (k, Q, 24)."""
     k, nq = M.shape[:2]
-    # (k, Q, 3, 3) @ (Q, 3, 8): a batched product (the equivalent einsum took 26 ms for 3736 voxels, this 2)
+    # (k, Q, 3, 3) @ (Q, 3, 8), a batched product: 5.9 ms for 3736 voxels, min of 30 (the einsum: 15.4 ms)
     return np.matmul(M, G.transpose(0, 2, 1)).transpose(0, 1, 3, 2).reshape(k, nq, 24)
 
 
@@ -324,7 +324,8 @@ def fbar_evaluate(material, F, vol, G, qweights, *, gradient=True, tangent=True)
     g = (gc - _nodal(Fq_inv.transpose(0, 1, 3, 2), G)) / 3.0
     u = _nodal((r**2)[..., None, None] * AF + r[..., None, None] * Pbar, G)
     beta = r**2 * np.einsum("eqij,eqij->eq", AF, Fq_safe) + r * s
-    # sums over the Q samples of outer products, as batched (24, Q) @ (Q, 24) products (einsum: 37 ms each)
+    # sums over the Q samples of outer products as batched (24, Q) @ (Q, 24) products: 1.4 ms for 3736
+    # voxels, min of 30 (the einsum: 22.3 ms)
     ug = np.matmul((vq[..., None] * u).transpose(0, 2, 1), g)
     K += ug
     K += ug.transpose(0, 2, 1)
