@@ -379,6 +379,38 @@ def test_spec_entry_point_and_constants():
                               "arruda-boyce", "veronda-westmann"}
 
 
+def test_tangent_in_place_only_in_a_fresh_geometric_array():
+    """Material.evaluate adds J^T K J into the strain's geometric-term array only when the strain says
+    that array is new (voxflex's strains): a strain of the user's that hands out an array it keeps gets
+    a copy, and both give the same tangent."""
+    base = get_strain("invariant")
+
+    class Keeping:  # a user's strain: geometric() returns the same array every time
+        kind, size, name = base.kind, base.size, "keeping"
+
+        def __init__(self):
+            self.kept = None
+
+        def evaluate(self, F, s=None, *, law_tangent=None):
+            return base.evaluate(F, s, law_tangent=law_tangent)
+
+        def geometric(self, F, s, *, law_tangent=None):
+            self.kept = base.geometric(F, s, law_tangent=law_tangent)
+            self.snapshot = self.kept.copy()
+            return self.kept
+
+    rng = np.random.default_rng(3)
+    F = np.eye(3) + 0.1 * rng.standard_normal((20, 3, 3))
+    keeping = Keeping()
+    mine = Material(keeping, NeoHookeanLaw(MU, LM))
+    ref = Material(base, NeoHookeanLaw(MU, LM))
+    assert base.fresh_geometric and not hasattr(keeping, "fresh_geometric")
+    A = mine.evaluate(F)[2]
+    assert np.array_equal(keeping.kept, keeping.snapshot)  # left as it was handed out
+    assert np.array_equal(A, ref.evaluate(F)[2])
+    assert np.allclose(A, ref.evaluate(F, backend="numpy")[2], rtol=0, atol=1e-12 * np.abs(A).max())
+
+
 BAD = [
     ("neo-hookean", dict(young=-1.0, poisson=0.3), r"young = -1.0 is out of range; valid: \(0, inf\)"),
     ("neo-hookean", dict(young=1.0, poisson=0.5), r"poisson = 0.5 is out of range; valid: \(-1, 0.5\)"),
