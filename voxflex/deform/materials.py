@@ -302,6 +302,9 @@ class Material:
     ----------
     strain : Strain
         A strain measure from :mod:`voxflex.deform.strains` (``apply``, ``jacobian``, ``geometric``).
+        Another object with those methods and a ``kind`` works too; if its ``geometric`` returns a
+        new array on every call, ``fresh_geometric = True`` lets :meth:`evaluate` build the tangent
+        in that array instead of a copy (voxflex's strains do).
     law : Law
         An energy law from :mod:`voxflex.deform.laws` whose ``accepts`` holds the strain's kind.
     name : str
