@@ -61,7 +61,7 @@ wall 2.16x), scikit-fem 9.57 (11.4x); Neo-Hooke sparse LU voxflex 11.5, warp.fem
 scikit-fem 60.4 (5.2x); Neo-Hooke multigrid-CG voxflex 2.53 (31 Newton, 107 CG iterations), warp.fem
 13.8 (5.47x; wall 5.98x min, 6.06x median; 30 Newton, 89 CG), scikit-fem 61.8 (24x); best each:
 linear warp.fem 3.3x, Neo-Hooke ``auto`` 2.08 (warp.fem 10.3x).  The host ran about twice as fast in
-a run an hour before (the Jacobi-CG solve 1.05 against 1.99 s): Neo-Hooke multigrid-CG voxflex 2.49,
+a run 20 minutes before (the Jacobi-CG solve 1.05 against 1.99 s): Neo-Hooke multigrid-CG voxflex 2.49,
 warp.fem 12.47 (5.02x; wall 5.50x min, 6.37x median); linear multigrid-CG (13 iterations, before the
 1/32 fraction) voxflex 0.49, warp.fem 1.23 (2.53x).
 
