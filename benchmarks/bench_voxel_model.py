@@ -115,10 +115,11 @@ DOF, and the exponent of a least-squares fit time ~ DOF^p.
 
 ``--plate`` runs only the one-voxel-thick neo-Hooke plate (64x64x1 voxels of 1/64 m, 25,350 DOF,
 E = 1e5 Pa, nu = 0.45, clamped along x = 0, gravity, 5 load steps) with each linear solver of LIST
-(default ``auto,direct,cg``).  Measured on 2026-12-02 (one run each, load average 0.9-1.7, wall / CPU
-seconds): ``auto`` (multigrid-CG) 15.2 / 15.9 s, 59 Newton and 876 CG iterations; sparse LU 38.1 /
-38.8 s, 56 Newton iterations; Jacobi-CG 226.8 / 224.2 s, 89 Newton and 161,623 CG iterations; the
-same largest sag, 0.1726 m, with every solver.
+(default ``auto,direct,cg``), warmed, ``--repeat`` runs each round-robin.  Measured on 2026-12-02
+(``--plate --repeat 3``, load average 0.4-1.0, total seconds min / median): ``auto`` (multigrid-CG)
+13.8 / 14.0 s, 59 Newton and 876 CG iterations; sparse LU 35.1 / 36.5 s, 56 Newton iterations;
+Jacobi-CG 190.2 / 226.7 s, 89 Newton and 161,623 CG iterations; the same largest sag, 0.1726 m, with
+every solver.
 
 ``--quick`` runs 32x8x8 / 16x4x4 and the series to 64x16x16; ``--colamd``
 adds scipy's default splu ordering (slow: ~40 s); ``--memory 128x44x44`` only
@@ -646,10 +647,11 @@ def scaling_series(sizes, repeat):
 PLATE_SOLVERS = ("auto", "direct", "cg")
 
 
-def plate_run(solvers, n=64):
+def plate_run(solvers, repeat, n=64):
     """The one-voxel-thick neo-Hooke plate: n x n x 1 voxels of 1/n m, E = 1e5 Pa, nu = 0.45, density 1,
-    the edge x = 0 clamped, gravity, 5 load steps; each solver once (warmed on a 16x16x1 plate), with
-    wall and CPU seconds, Newton and linear iterations and the largest sag.  Jacobi-CG takes minutes."""
+    the edge x = 0 clamped, gravity, 5 load steps; each solver warmed on a 16x16x1 plate, then timed
+    ``repeat`` times round-robin (:func:`_interleaved`): total (model and solve) and CPU seconds, min /
+    median, Newton and linear iterations and the largest sag.  Jacobi-CG takes minutes a run."""
     from voxflex.deform.boundary import FixedRegion
     from voxflex.deform.materials import material
     from voxflex.deform.solvers import SolverOptions, solve
@@ -657,22 +659,26 @@ def plate_run(solvers, n=64):
     from voxflex.image.label_image import LabelImage
 
     def run(m, solver):
+        t0 = time.perf_counter()
         model = VoxelModel.from_image(LabelImage(np.ones((m, m, 1)), spacing=(1 / m,) * 3),
                                       {1: material("neo-hookean", young=1e5, poisson=0.45)})
-        t, c = time.perf_counter(), time.process_time()
+        t1 = time.perf_counter()
         rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81], densities={1: 1.0},
                     options=SolverOptions(steps=5, linear_solver=solver))
-        sag = -float((rec[-1].q[:, 2] - model.rest[:, 2]).min())
-        return (time.perf_counter() - t, time.process_time() - c, sum(r.newton_iterations for r in rec),
-                sum(r.linear_iterations for r in rec), sag, rec[-1].linear_solver, 3 * model.n_nodes)
+        t2 = time.perf_counter()
+        return dict(build=t1 - t0, assemble=0.0, solve=t2 - t1, newton=sum(r.newton_iterations for r in rec),
+                    linear=sum(r.linear_iterations for r in rec), sag=-float((rec[-1].q[:, 2] - model.rest[:, 2]).min()),
+                    used=rec[-1].linear_solver, dof=3 * model.n_nodes)
 
-    print(f"\nneo-Hooke plate {n}x{n}x1 (E = 1e5, nu = 0.45, 5 load steps), one run per solver")
-    print("| linear solver | used | DOF | wall s | CPU s | newton | linear its | max sag m |")
-    print("|---|---|---|---|---|---|---|---|")
     for solver in solvers:
         run(16, solver)  # warm the kernels of this path
-        wall, cpu, newton, lin, sag, used, dof = run(n, solver)
-        print(f"| {solver} | {used} | {dof} | {wall:.1f} | {cpu:.1f} | {newton} | {lin} | {sag:.4f} |", flush=True)
+    out = _interleaved({solver: (lambda solver=solver: run(n, solver)) for solver in solvers}, repeat)
+    print(f"\nneo-Hooke plate {n}x{n}x1 (E = 1e5, nu = 0.45, 5 load steps), {repeat} runs each, round-robin")
+    print("| linear solver | used | DOF | total s min / median | CPU s min / median | newton | linear its | max sag m |")
+    print("|---|---|---|---|---|---|---|---|")
+    for solver, r in out.items():
+        print(f"| {solver} | {r['used']} | {r['dof']} | {r['total']:.1f} / {r['total_median']:.1f} | "
+              f"{r['cpu_min']:.1f} / {r['cpu_median']:.1f} | {r['newton']} | {r['linear']} | {r['sag']:.4f} |")
     print(f"({_load()})")
 
 
@@ -704,7 +710,7 @@ def main():
           f"python {platform.python_version()}, NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}, "
           f"{_load()}")
     if args.plate:
-        plate_run([m.strip() for m in args.plate.split(",") if m.strip()])
+        plate_run([m.strip() for m in args.plate.split(",") if m.strip()], args.repeat)
         return
     if args.memory:
         memory_run(tuple(int(v) for v in args.memory.lower().split("x")), args.solver)

@@ -681,19 +681,7 @@ class FrameModel(OnePass):
 
     def rigid_modes(self) -> np.ndarray:
         """(12n, 6): translations (dt = e_k) and rotations about the frames' centroid (dA = [e_k]x, dt = e_k x (X_a - c))."""
-        n = self.n_nodes
-        B = np.zeros((n, 12, 6))
-        for k in range(3):
-            B[:, 9 + k, k] = 1.0
-        c = self.frames.mean(axis=0)
-        R = self.frames - c
-        for k in range(3):
-            e = np.zeros(3)
-            e[k] = 1.0
-            K = np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
-            B[:, :9, 3 + k] = K.reshape(9)
-            B[:, 9:, 3 + k] = np.cross(e, R)
-        return B.reshape(12 * n, 6)
+        return self.nodes.rigid_modes()
 
     def components(self):
         """Material components as the shape functions couple them (voxels touching by a face,

@@ -35,12 +35,12 @@
   against 0.0088 / 0.0089; 2160: 0.035 / 0.035 against 0.017 / 0.018; 3528:
   0.058 / 0.060 against 0.025 / 0.026; nu = 0.45: 1200: 0.0088 / 0.0095
   against 0.0118 / 0.0121; 2160: 0.032 / 0.040 against 0.023 / 0.024; 3528:
-  0.059 / 0.065 against 0.042 / 0.054.  Sparse LU stops
-  winning between 1.2k and 3.5k unknowns (the threshold stays at 3000: the
-  gain below it is milliseconds, and LU is immune to ill-conditioned tangents); Jacobi-CG is close on these
-  well-conditioned beams but its iterations grow with the grid (651 at 418k
-  unknowns against 12) and with ill-conditioning (thin plate, nu = 0.49: 2786
-  against 115).  Faster direct solvers that install from wheels did not win:
+  0.059 / 0.065 against 0.042 / 0.054.  Sparse LU stops winning between 1.2k
+  and 3.5k unknowns (the threshold stays at 3000: the gain below it is
+  milliseconds, and LU is immune to ill-conditioned tangents); Jacobi-CG is
+  close on these well-conditioned beams but its iterations grow with the grid
+  (651 at 418k unknowns against 12) and with ill-conditioning (thin plate,
+  nu = 0.49: 2786 against 115).  Faster direct solvers that install from wheels did not win:
   cholespy (CHOLMOD) 0.17 / 0.72 / 4.0 s and qdldl 0.13 / 2.3 s at 3528 /
   7776 / 14520 unknowns; pypardiso needs the MKL wheels (not tried).
   Measured for the grid-less rule on the clamped voxel beam

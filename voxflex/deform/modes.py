@@ -20,7 +20,7 @@ import warnings
 import numpy as np
 
 from ..errors import InputError
-from .mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping
+from .mappings import DeformationGradientWithGradientMapping
 from .nodes import AffineFrames
 
 __all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness", "softest_mode",
@@ -72,26 +72,20 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
     if not gradient:
         return _point_stiffness(X, values, V, C)
     nodes = AffineFrames(X)
-    if gradient:
-        mapping = DeformationGradientWithGradientMapping(nodes, values)
-        M1, M2 = np.asarray(samples.M1), np.asarray(samples.M2)
-        # E = 1/2 int C[dF(x)]^2, dF(x) = F + ∇F (x - p): blocks over (F 9 | ∇F 27 = (ij)*3 + a)
-        H = np.zeros((m, 36, 36))
-        H[:, :9, :9] = V[:, None, None] * C
-        FdF = np.einsum("pq,sb->spqb", C, M1).reshape(m, 9, 27)
-        H[:, :9, 9:] = FdF
-        H[:, 9:, :9] = FdF.transpose(0, 2, 1)
-        H[:, 9:, 9:] = np.einsum("pq,sab->spaqb", C, M2).reshape(m, 27, 27)
-        width = 36
-    else:
-        mapping = DeformationGradientMapping(nodes, values)
-        H = V[:, None, None] * C
-        width = 9
+    mapping = DeformationGradientWithGradientMapping(nodes, values)
+    M1, M2 = np.asarray(samples.M1), np.asarray(samples.M2)
+    # E = 1/2 int C[dF(x)]^2, dF(x) = F + ∇F (x - p): blocks over (F 9 | ∇F 27 = (ij)*3 + a)
+    H = np.zeros((m, 36, 36))
+    H[:, :9, :9] = V[:, None, None] * C
+    FdF = np.einsum("pq,sb->spqb", C, M1).reshape(m, 9, 27)
+    H[:, :9, 9:] = FdF
+    H[:, 9:, :9] = FdF.transpose(0, 2, 1)
+    H[:, 9:, 9:] = np.einsum("pq,sab->spaqb", C, M2).reshape(m, 27, 27)
     J = mapping.jacobian(nodes.rest)
     import scipy.sparse as sp
 
     Hb = sp.block_diag(list(H), format="csr") if m else sp.csr_matrix((0, 0))
-    assert Hb.shape[0] == J.shape[0] == m * width
+    assert Hb.shape[0] == J.shape[0] == m * 36
     K = (J.T @ Hb @ J).toarray()
     return 0.5 * (K + K.T)
 
@@ -202,18 +196,8 @@ def softest_mode(frames, samples, reference, free=None, *, stiffness=None) -> fl
 
 
 def _rigid_modes(frames) -> np.ndarray:
-    """(12n, 6) orthonormal rigid motions of affine frames: translations (t_a = e) and infinitesimal
-    rotations (A_a = W, t_a = W X_a) in the DOF order ``12 a + 3 i + c``, ``12 a + 9 + i``."""
-    n = len(frames)
-    R = np.zeros((n, 12, 6))
-    for i in range(3):
-        R[:, 9 + i, i] = 1.0
-    for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):  # W = e_i e_j^T - e_j e_i^T
-        W = np.zeros((3, 3))
-        W[i, j], W[j, i] = 1.0, -1.0
-        R[:, 3 * np.arange(3)[:, None] + np.arange(3)[None, :], 3 + k] = W  # A_a entries (row r, col c)
-        R[:, 9:12, 3 + k] = frames @ W.T
-    Q, _ = np.linalg.qr(R.reshape(12 * n, 6))
+    """(12n, 6) orthonormal basis of the affine frames' rigid motions (:meth:`AffineFrames.rigid_modes`)."""
+    Q, _ = np.linalg.qr(AffineFrames(frames).rigid_modes())
     return Q
 
 

@@ -407,9 +407,9 @@ def _build_impl(grid, free, max_coarse, max_coarse_cubic, max_levels):
     ijk, conn, n_nodes, shape = grid.element_ijk, grid.element_nodes, grid.n_nodes, tuple(grid.shape)
     Ps, Rs, shapes, kept = [], [], [shape], []
     level_free = free
-    cubic = max(max_coarse_cubic, len(free) // CUBIC_FRACTION)
+    cubic = min(max_coarse, max(max_coarse_cubic, len(free) // CUBIC_FRACTION))
     while len(shapes) < max_levels and max(shape) > 1 and \
-            len(level_free) > min(max_coarse, cubic if min(shape) > 1 else max_coarse):
+            len(level_free) > (cubic if min(shape) > 1 else max_coarse):
         Pn, ijk, conn, shape = node_prolongation(ijk, conn, n_nodes, shape)
         n_nodes = Pn.shape[1]
         P, level_free = dof_prolongation(Pn, level_free, n_nodes)

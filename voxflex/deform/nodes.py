@@ -160,6 +160,22 @@ class AffineFrames(_NodeType):
         """The matrices A ``(n, 3, 3)``."""
         return self.check_state(state)[:, :9].reshape(-1, 3, 3).copy()
 
+    def rigid_modes(self) -> np.ndarray:
+        """(12n, 6): translations (dt = e_k) and rotations about the frames' centroid
+        (dA = [e_k]x, dt = e_k x (X_a - c)), not normalised."""
+        X = np.asarray(self.rest_positions, dtype=float)
+        B = np.zeros((self.n, 12, 6))
+        for k in range(3):
+            B[:, 9 + k, k] = 1.0
+        R = X - X.mean(axis=0)
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = 1.0
+            W = np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
+            B[:, :9, 3 + k] = W.reshape(9)
+            B[:, 9:, 3 + k] = np.cross(e, R)
+        return B.reshape(12 * self.n, 6)
+
 
 @dataclass(frozen=True)
 class RigidFrames(_NodeType):
