@@ -246,3 +246,40 @@ def test_coarse_solver_is_exact_and_survives_a_singular_level():
             if M is not free_lap else r  # project out the null vector d^-1 1
         x = coarse(M, r)
         assert np.linalg.norm(M @ x - r) <= 1e-9 * np.linalg.norm(r)
+
+
+def test_stale_coarse_levels_serve_the_next_tangents():
+    """A Newton run's next tangents (same pattern, other values) are solved on the coarse levels of an
+    earlier one, at most MAX_STALE_SOLVES times; each answer still meets rtol (CG runs on the true matrix),
+    and a tangent far from the one the levels came from has them rebuilt instead of failing or stalling."""
+    model, K, free, A, b = _beam(16)
+    mg.clear_cache()
+    h = mg.hierarchy(model.grid, free)
+    x, info = solve_linear(A, b, method="multigrid", rtol=1e-8, grid=model.grid, free=free)
+    coarse = h._last[1].levels[1].A
+    assert h.fresh_iterations == info.iterations and h.stale_solves == 0
+
+    def stiffer(factor):  # the same stored pattern (explicit zeros kept)
+        out = A.copy()
+        out.data *= factor
+        return out
+
+    for k in range(mg.MAX_STALE_SOLVES):
+        Ak = stiffer(1.0 + 0.1 * (k + 1))
+        xk, ik = solve_linear(Ak, b, method="multigrid", rtol=1e-8, grid=model.grid, free=free)
+        assert h._last[1].levels[1].A is coarse and h.stale_solves == k + 1
+        assert ik.method == "multigrid" and not ik.fell_back
+        assert np.linalg.norm(Ak @ xk - b) <= 1.01e-8 * np.linalg.norm(b)
+        assert ik.iterations <= mg.STALE_GROWTH * info.iterations + 2
+    xk, ik = solve_linear(stiffer(1.5), b, method="multigrid", rtol=1e-8, grid=model.grid, free=free)
+    assert h.stale_solves == 0 and h._last[1].levels[1].A is not coarse  # rebuilt after MAX_STALE_SOLVES
+    for scale in (100.0, 0.01):  # coarse levels 100x too soft (over-correction) and 100x too stiff
+        solve_linear(A, b, method="multigrid", rtol=1e-8, grid=model.grid, free=free)  # fresh levels of A
+        coarse = h._last[1].levels[1].A
+        far = stiffer(scale)
+        xs, info_s = solve_linear(far, b, method="multigrid", rtol=1e-8, grid=model.grid, free=free)
+        assert info_s.method == "multigrid" and not info_s.fell_back
+        assert np.linalg.norm(far @ xs - b) <= 1.01e-8 * np.linalg.norm(b)
+        assert np.allclose(xs, x / scale, rtol=1e-6, atol=1e-6 * np.abs(x / scale).max())
+        rebuilt = h._last[1].levels[1].A is not coarse
+        assert rebuilt or h.refresh, scale  # the stale levels were replaced, or will be at the next solve

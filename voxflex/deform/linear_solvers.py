@@ -330,7 +330,8 @@ def _pcg(A, b, inv_diag, rtol, maxiter, x0, precond=None):
 
     The preconditioner is ``z = inv_diag * r`` (Jacobi), or ``z = precond(r)``
     when given (multigrid).  Returns x, iterations, converged (False also when
-    a direction of non-positive curvature shows that A is not positive definite).
+    a direction of non-positive curvature shows that A is not positive definite,
+    or ``r . z <= 0`` that the preconditioner is not).
     """
     if x0 is None:
         x = np.zeros_like(b)
@@ -343,6 +344,8 @@ def _pcg(A, b, inv_diag, rtol, maxiter, x0, precond=None):
     p = z.copy()
     rz = vdot(r, z)
     its = 0
+    if not rz > 0.0 and vnorm(r) > target:
+        return x, its, False
     while vnorm(r) > target:
         if its >= maxiter:
             return x, its, False
@@ -358,10 +361,12 @@ def _pcg(A, b, inv_diag, rtol, maxiter, x0, precond=None):
         else:
             z = precond(r)
         rz_new = vdot(r, z)
+        its += 1
+        if not rz_new > 0.0 and vnorm(r) > target:  # the preconditioner is not positive definite
+            return x, its, False
         p *= rz_new / rz
         p += z
         rz = rz_new
-        its += 1
     return x, its, True
 
 
@@ -529,18 +534,30 @@ _AMG_SEED = 20240601
 
 def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free):
     from .._blas import one_thread
-    from .multigrid import hierarchy, multigrid_preconditioner
+    from .multigrid import STALE_GROWTH, hierarchy, multigrid_preconditioner
 
     A = sp.csr_matrix(A)
     if np.any(A.diagonal() <= 0):
         return np.zeros_like(b), 0, False
     # BLAS on one thread for the coarse factorisation and the small dense coarse solves of every cycle
+    h = hierarchy(grid, free)
     with one_thread():
-        apply, _ = multigrid_preconditioner(A, grid, free)
         try:
-            return _cg_multigrid_impl(A, b, rtol, maxiter, x0, apply)
+            # the coarse levels of the previous tangent (same pattern) serve a few more solves: the
+            # Galerkin products and the coarse factorisation are then skipped (see multigrid.MAX_STALE_SOLVES)
+            apply, ml = multigrid_preconditioner(A, grid, free, stale=True)
+            stale = ml.stale
+            budget = min(maxiter, int(STALE_GROWTH * (h.fresh_iterations or 0)) + 10) if stale else maxiter
+            x, its, ok = _cg_multigrid_impl(A, b, rtol, budget, x0, apply)
+            h.report(its, ok, stale)
+            if stale and not ok:  # too slow on the old levels: rebuild them and go on from x
+                apply, ml = multigrid_preconditioner(A, grid, free)
+                x, more, ok = _cg_multigrid_impl(A, b, rtol, maxiter - its, x, apply)
+                h.report(more, ok, False)
+                its += more
+            return x, its, ok
         finally:
-            hierarchy(grid, free).release()  # the cached levels must not keep this matrix alive
+            h.release()  # the cached levels must not keep this matrix alive
 
 
 def _cg_multigrid_impl(A, b, rtol, maxiter, x0, apply):
