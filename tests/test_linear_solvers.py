@@ -102,8 +102,8 @@ def test_cg_on_free_dofs_equals_cg_on_the_submatrix():
 
 
 def test_free_block_equals_fancy_indexing_in_blocks_and_in_place(monkeypatch):
-    """The gathered block holds exactly scipy's ``A[free][:, free]`` (a gather: bitwise equal), with row
-    blocks smaller than the matrix; in place it reuses A's buffers."""
+    """The gathered block holds exactly scipy's ``A[free][:, free]`` (a gather: bitwise equal), compiled and
+    by the numpy twin with row blocks smaller than the matrix; in place it reuses A's buffers."""
     import scipy.sparse as sp
 
     import voxflex.deform.linear_solvers as ls
@@ -112,9 +112,11 @@ def test_free_block_equals_fancy_indexing_in_blocks_and_in_place(monkeypatch):
     ref = K[free][:, free].tocsr()
     ref.sort_indices()
     monkeypatch.setattr(ls, "FREE_BLOCK_ROWS", 37)  # several blocks, boundaries inside the rows' structure
+    twin = ls._free_block_impl(K.indptr, K.indices, K.data, free.astype(np.int64), K.shape[0], False)
     B = ls.free_block(K, free)
-    assert B.has_sorted_indices and np.array_equal(B.indptr, ref.indptr) and np.array_equal(B.indices, ref.indices)
-    assert np.array_equal(B.data, ref.data)
+    for M in (B, twin):  # the compiled gather and its numpy twin
+        assert M.has_sorted_indices and np.array_equal(M.indptr, ref.indptr)
+        assert np.array_equal(M.indices, ref.indices) and np.array_equal(M.data, ref.data)
     K2 = K.copy()
     C = ls.free_block(K2, free, overwrite=True)
     assert np.array_equal(C.toarray(), ref.toarray())

@@ -1,6 +1,6 @@
 """Compiled kernels of the voxel model (stiffness of trilinear voxels, CSR scatter).
 
-Two kernels, each with a plain numpy twin used by the tests:
+Three kernels, each with a plain numpy twin used by the tests:
 
 * :func:`element_stiffness` — ``K_e = sum_q vol_q B_q^T A_q B_q`` for a batch
   of voxels sharing the world gradient table ``G (Q, 8, 3)`` (the same in every
@@ -9,10 +9,12 @@ Two kernels, each with a plain numpy twin used by the tests:
 * :func:`scatter_blocks` — adds element matrices (or one shared matrix times a
   per-element factor) into the data array of a CSR matrix whose rows hold
   whole 3x3 node blocks (see :func:`block_csr_pattern`).
+* :func:`free_block_kernel` — the free-DOF block ``A[free][:, free]`` of a
+  CSR matrix, gathered row by row (in place or into new arrays).
 
-The sparsity pattern itself is plain numpy: :func:`grid_block_pattern` reads
-it off the grid structure in O(64 m + 27 n); :func:`block_csr_pattern`, which
-sorts the 64 node pairs of every element, is its reference twin.
+The sparsity pattern: :func:`grid_block_pattern` reads it off the grid
+structure in O(64 m + 27 n) (two compiled loops); :func:`block_csr_pattern`,
+which sorts the 64 node pairs of every element, is its reference twin.
 """
 
 from __future__ import annotations
@@ -235,10 +237,6 @@ def _pair_offsets():
     return a, b, (d[:, 0] * 9 + d[:, 1] * 3 + d[:, 2]).astype(np.int64)
 
 
-PATTERN_CHUNK = 65536
-"""Elements / nodes handled per batch by :func:`grid_block_pattern` (bounds its temporaries)."""
-
-
 def grid_block_pattern(conn, n_nodes):
     """Same result as :func:`block_csr_pattern` for voxel-grid connectivity, without sorting.
 
@@ -249,7 +247,7 @@ def grid_block_pattern(conn, n_nodes):
     corner index, offsets in lexicographic order give increasing node ids, so
     each row's columns come out sorted and the block index of ``(p, p + o)`` is
     the row start plus the rank of ``o`` among the row's present offsets.
-    O(64 m + 27 n), vectorised, no sort.
+    O(64 m + 27 n), two compiled loops, no sort (64x16x16 voxels: 7 ms; 35 ms vectorised in numpy).
 
     Parameters
     ----------
@@ -264,38 +262,84 @@ def grid_block_pattern(conn, n_nodes):
     indptr, indices, indptr_b, blockmap
         As :func:`block_csr_pattern` (identical arrays).
     """
-    conn = np.asarray(conn, dtype=np.int64)
+    conn = np.ascontiguousarray(conn, dtype=np.int64)
     n = int(n_nodes)
     m = len(conn)
     pa, pb, po = _pair_offsets()
     node_dtype = np.int32 if n < np.iinfo(np.int32).max else np.int64
     col = np.full((n, 27), -1, dtype=node_dtype)
-    for s in range(0, m, PATTERN_CHUNK):
-        c = conn[s : s + PATTERN_CHUNK]
-        col[c[:, pa], po] = c[:, pb]
-    present = col >= 0
-    deg = present.sum(axis=1)
+    _pattern_table(conn, pa, pb, po, col)
+    deg = (col >= 0).sum(axis=1)
     indptr_b = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(deg, out=indptr_b[1:])
     nnzb = int(indptr_b[-1])
     index_dtype = np.int32 if 9 * nnzb < np.iinfo(np.int32).max else np.int64
-    # block index of (p, p + o): row start + rank of o among the present offsets of row p
-    slot = np.cumsum(present, axis=1, dtype=index_dtype)
-    slot += (indptr_b[:-1] - 1).astype(index_dtype)[:, None]
     blockmap = np.empty((m, 64), dtype=index_dtype)
-    for s in range(0, m, PATTERN_CHUNK):
-        c = conn[s : s + PATTERN_CHUNK]
-        blockmap[s : s + PATTERN_CHUNK] = slot[c[:, pa], po]
-    del slot
-    # scalar pattern: rows 3p, 3p+1, 3p+2 all hold columns 3 col + d of the row's blocks in order
-    indptr = np.zeros(3 * n + 1, dtype=np.int64)
-    np.cumsum(np.repeat(3 * deg, 3), out=indptr[1:])
     indices = np.empty(9 * nnzb, dtype=index_dtype)
-    d3 = np.arange(3, dtype=index_dtype)
-    for s in range(0, n, PATTERN_CHUNK):
-        cc = col[s : s + PATTERN_CHUNK].astype(index_dtype)
-        k = len(cc)
-        vals = np.broadcast_to((3 * cc)[:, None, :, None] + d3, (k, 3, 27, 3))
-        mask = np.broadcast_to(present[s : s + PATTERN_CHUNK, None, :, None], (k, 3, 27, 3))
-        indices[9 * indptr_b[s] : 9 * indptr_b[s + k]] = vals[mask]
-    return indptr.astype(index_dtype), indices, indptr_b, blockmap
+    indptr = np.empty(3 * n + 1, dtype=index_dtype)
+    _pattern_fill(conn, col, indptr_b, pa, po, blockmap, indices, indptr)
+    return indptr, indices, indptr_b, blockmap
+
+
+@njit
+def _pattern_table(conn, pa, pb, po, col):
+    """col[p, o] = the node at offset o of node p (left -1 where none), from every element's 64 corner pairs."""
+    for e in range(conn.shape[0]):
+        for k in range(64):
+            col[conn[e, pa[k]], po[k]] = conn[e, pb[k]]
+
+
+@njit
+def _pattern_fill(conn, col, indptr_b, pa, po, blockmap, indices, indptr):
+    """The block map (m, 64) and the scalar CSR pattern of :func:`grid_block_pattern` from the offset table."""
+    n = col.shape[0]
+    slot = np.full((n, 27), -1, dtype=blockmap.dtype)  # block index of (p, p + o): row start + rank of o
+    for p in range(n):
+        r = indptr_b[p]
+        for o in range(27):
+            if col[p, o] >= 0:
+                slot[p, o] = r
+                r += 1
+    for e in range(conn.shape[0]):
+        for k in range(64):
+            blockmap[e, k] = slot[conn[e, pa[k]], po[k]]
+    # rows 3p, 3p+1, 3p+2 all hold columns 3 col + d of the row's blocks in order
+    w = 0
+    for p in range(n):
+        for d in range(3):
+            indptr[3 * p + d] = w
+            for o in range(27):
+                c = col[p, o]
+                if c >= 0:
+                    for dd in range(3):
+                        indices[w] = 3 * c + dd
+                        w += 1
+    indptr[3 * n] = w
+
+
+@njit
+def free_block_kernel(indptr, indices, data, newcol, free, out_indptr, out_indices, out_data):
+    """Gather ``A[free][:, free]`` of a CSR matrix (free sorted): rows ``free[k]``, columns ``newcol >= 0``.
+
+    ``newcol`` (N,) maps a column to its place among the free ones (-1: dropped).
+    Writes ``out_indptr`` (F + 1,), and the kept entries into ``out_indices``
+    and ``out_data`` in row order; these may be ``indices`` and ``data``
+    themselves (an in-place compaction: entry e is only ever moved to a
+    position at or before e).  Returns the number of entries kept; with
+    ``out_indices`` of length 0 it only counts them (and fills ``out_indptr``).
+    Plain twin: ``linear_solvers._free_block_impl``.
+    """
+    count_only = len(out_indices) == 0
+    w = 0
+    out_indptr[0] = 0
+    for k in range(len(free)):
+        r = free[k]
+        for e in range(indptr[r], indptr[r + 1]):
+            c = newcol[indices[e]]
+            if c >= 0:
+                if not count_only:
+                    out_indices[w] = c
+                    out_data[w] = data[e]
+                w += 1
+        out_indptr[k + 1] = w
+    return w

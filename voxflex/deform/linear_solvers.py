@@ -123,7 +123,7 @@ def choose_method(n: int, *, grid=None) -> str:
 
 
 def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: int | None = None,
-                 x0=None, near_null=None, grid=None, free=None):
+                 x0=None, near_null=None, grid=None, free=None, elements=None):
     """Solve the symmetric system ``A x = b``.
 
     Parameters
@@ -148,6 +148,10 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
     free : (N,) int, optional
         With ``grid``: the DOFs (``3 * node + component``, sorted) that the
         unknowns are, i.e. ``A = H[free][:, free]``; default all ``3 * grid.n_nodes``.
+    elements : voxflex.deform.multigrid.ElementMatrices, optional
+        With ``grid``: H as voxel element matrices (``model.stiffness_elements()``
+        of a constant-tangent voxel model); multigrid then forms its first coarse
+        level from them instead of by a sparse product (the same matrix, to round-off).
 
     Returns
     -------
@@ -192,7 +196,7 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
         if method == "cg":
             x, its, ok = _cg_jacobi(A, b, rtol, maxiter, x0)
         elif method == "multigrid":
-            x, its, ok = _cg_multigrid(A, b, rtol, maxiter, x0, grid, free)
+            x, its, ok = _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements)
         else:
             x, its, ok = _cg_amg(A, b, rtol, maxiter, x0, near_null)
         note = ""
@@ -385,19 +389,17 @@ class _Masked:
 
 
 FREE_BLOCK_ROWS = 4096
-"""Rows per pass of :func:`free_block` (its scratch: ~13 bytes per stored entry of that many rows).
-
-At 64x16x16 voxels (56k DOF) 65536 rows (one pass) put the lean block's peak
-at 3702 bytes/DOF above the model, 4096 rows at 1973 (the assembly's own
-peak), and the block took 0.59-0.69 s against 0.73-0.89 s."""
+"""Rows per pass of the numpy twin of :func:`free_block` (its scratch: ~13 bytes per stored entry
+of that many rows; at 56k DOF 65536 rows put the peak at 3702 bytes/DOF above the model, 4096 at 1973)."""
 
 
 def free_block(A, free, *, overwrite: bool = False) -> sp.csr_matrix:
-    """``A[free][:, free]`` of a CSR matrix, by row blocks, optionally in A's own arrays.
+    """``A[free][:, free]`` of a CSR matrix, gathered row by row, optionally in A's own arrays.
 
     scipy's two-step fancy indexing peaks at about twice the matrix (3.2 kB
-    per DOF at 0.8 million voxel DOFs); here the scratch is one row block
-    (:data:`FREE_BLOCK_ROWS` rows).  With ``overwrite=True`` the kept entries
+    per DOF at 0.8 million voxel DOFs); here a compiled gather
+    (:func:`~voxflex.deform._voxel_kernels.free_block_kernel`) needs only a
+    column map (8 bytes per row) besides the block.  With ``overwrite=True`` the kept entries
     are moved to the front of ``A.data`` and ``A.indices`` (a stable
     compaction: an entry only moves towards the start), so the block costs no
     second matrix; A is then invalid and the block's arrays are views of A's
@@ -432,10 +434,29 @@ def free_block(A, free, *, overwrite: bool = False) -> sp.csr_matrix:
     if not A.has_sorted_indices:
         A = A.copy() if not overwrite else A
         A.sort_indices()
-    return _free_block_impl(A.indptr, A.indices, A.data, free.astype(np.int64), N, overwrite)
+    from ._voxel_kernels import free_block_kernel
+
+    indptr, indices, data = A.indptr, A.indices, A.data
+    free = free.astype(np.int64)
+    F = len(free)
+    newcol = np.full(N, -1, dtype=np.int64)
+    newcol[free] = np.arange(F)
+    idx = indices.dtype if max(int(A.nnz), F) < np.iinfo(np.int32).max or indices.dtype == np.int64 else np.int64
+    new_indptr = np.zeros(F + 1, dtype=np.int64)
+    if overwrite and indices.dtype == idx:
+        nnz = free_block_kernel(indptr, indices, data, newcol, free, new_indptr, indices, data)
+        out_idx, out_data = indices, data
+    else:  # count, then gather into new arrays (0.05 s at 55k DOF; the row-blocked numpy twin took 0.1 s)
+        nnz = free_block_kernel(indptr, indices, data, newcol, free, new_indptr, np.empty(0, dtype=idx),
+                                np.empty(0, dtype=data.dtype))
+        out_idx, out_data = np.empty(nnz, dtype=idx), (data if overwrite else np.empty(nnz, dtype=data.dtype))
+        free_block_kernel(indptr, indices, data, newcol, free, new_indptr, out_idx, out_data)
+    return sp.csr_matrix((out_data[:nnz], out_idx[:nnz], new_indptr.astype(idx)), shape=(F, F))
 
 
 def _free_block_impl(indptr, indices, data, free, N, overwrite):
+    """Plain numpy twin of the compiled gather (:func:`~voxflex.deform._voxel_kernels.free_block_kernel`),
+    by row blocks of :data:`FREE_BLOCK_ROWS` rows; the tests compare the two."""
     keep = np.zeros(N, dtype=bool)
     keep[free] = True
     F = len(free)
@@ -532,7 +553,7 @@ def _cg_jacobi(A, b, rtol, maxiter, x0):
 _AMG_SEED = 20240601
 
 
-def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free):
+def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements=None):
     from .._blas import one_thread
     from .multigrid import STALE_GROWTH, hierarchy, multigrid_preconditioner
 
@@ -545,13 +566,13 @@ def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free):
         try:
             # the coarse levels of the previous tangent (same pattern) serve a few more solves: the
             # Galerkin products and the coarse factorisation are then skipped (see multigrid.MAX_STALE_SOLVES)
-            apply, ml = multigrid_preconditioner(A, grid, free, stale=True)
+            apply, ml = multigrid_preconditioner(A, grid, free, stale=True, elements=elements)
             stale = ml.stale
             budget = min(maxiter, int(STALE_GROWTH * (h.fresh_iterations or 0)) + 10) if stale else maxiter
             x, its, ok = _cg_multigrid_impl(A, b, rtol, budget, x0, apply)
             h.report(its, ok, stale)
             if stale and not ok:  # too slow on the old levels: rebuild them and go on from x
-                apply, ml = multigrid_preconditioner(A, grid, free)
+                apply, ml = multigrid_preconditioner(A, grid, free, elements=elements)
                 x, more, ok = _cg_multigrid_impl(A, b, rtol, maxiter - its, x, apply)
                 h.report(more, ok, False)
                 its += more

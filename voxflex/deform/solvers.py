@@ -191,8 +191,12 @@ class _Problem:
         # the lean static path of constant-tangent models: the free-DOF block (F, F) assembled once by the
         # model, no full Hessian ever built (gradients then matrix-free); Newton solves with it
         self.block = block
+        self.elements = None
         if block is not None:
             self.elastic_diagonal = block.diagonal()  # of the free DOFs only (what the round-off floor reads)
+            # the block's matrix as voxel element matrices: multigrid forms its first coarse level from them
+            elements = getattr(model, "stiffness_elements", None)
+            self.elements = elements() if callable(elements) else None
         # the inertia (and damping) matrix of the step, M / h^2 + D / h, built once, added to each Hessian
         self.inertia = None
         if M is not None:
@@ -444,7 +448,7 @@ class _FreeBlock:
         return sp.csr_matrix((H.data[self.sel], self.indices_ff, self.indptr_ff), shape=(nf, nf))
 
 
-def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=None):
+def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=None, elements=None):
     """Solve ``H[free][:, free] d = rhs``; returns d, info and the submatrix when it was built.
 
     Jacobi-CG (``"cg"``, and ``"auto"`` on large systems without a voxel grid)
@@ -452,7 +456,8 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=
     direct fallback) take the submatrix from ``reduce``.  ``grid`` is the
     model's :attr:`dof_grid` (voxel models): with it ``auto`` picks sparse LU or
     geometric-multigrid CG (see :func:`voxflex.deform.linear_solvers.choose_method`).
-    ``block``: the submatrix itself (the lean path; H is then None), solved as given.
+    ``block``: the submatrix itself (the lean path; H is then None), solved as given;
+    ``elements``: its matrix as voxel element matrices (multigrid's first coarse level).
     """
     method = options.linear_solver
     if method == "auto" and getattr(reduce, "direct_only", False):
@@ -463,9 +468,9 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=
             dense = nf <= DENSE_AUTO_MAX and block.nnz >= DENSE_FILL * nf**2
             method = "cholesky" if dense else choose_method(nf, grid=grid)
         nn = near_null if method == "amg" else None
-        d, info = solve_linear(block, rhs, method=method, rtol=eta, near_null=nn,
-                               grid=grid if method == "multigrid" else None,
-                               free=free if method == "multigrid" else None)
+        mg = method == "multigrid"
+        d, info = solve_linear(block, rhs, method=method, rtol=eta, near_null=nn, grid=grid if mg else None,
+                               free=free if mg else None, elements=elements if mg else None)
         return d, info, block
     if isinstance(H, np.ndarray):
         # a dense Hessian (frame models): dense Cholesky unless a sparse method was asked for
@@ -593,7 +598,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         eta = float(np.clip(eta, 1e-14, 0.5))
         rn_prev, eta_prev = rn, eta
         d, info, Hff = _solve_free(H, rhs, free, reduce, options, eta, near_null, problem.model.dof_grid,
-                                   block=problem.block)
+                                   block=problem.block, elements=problem.elements)
         lin_its += info.iterations
         last_lin = info.iterations
         problem.solves += 1

@@ -829,6 +829,27 @@ class VoxelModel:
                 out += np.bincount(dof.ravel(), weights=fe.ravel(), minlength=3 * n)
         return out.reshape(n, 3)
 
+    def stiffness_elements(self):
+        """The constant stiffness as voxel element matrices (:class:`~voxflex.deform.multigrid.ElementMatrices`).
+
+        ``K = sum_e element_volume[e] * unit[label_e]``: what
+        :meth:`constant_stiffness_block` assembles; geometric multigrid forms its
+        first coarse level from it.  None unless every material has a constant
+        tangent.
+        """
+        from .multigrid import ElementMatrices
+
+        if not self.constant_tangent:
+            return None
+        units = self._quadratic_terms()[2]
+        kind = np.full(len(self.element_volume), -1, dtype=np.int64)
+        stack = []
+        for label, ids, _ in self._groups:
+            if label in units:
+                kind[ids] = len(stack)
+                stack.append(units[label])
+        return ElementMatrices(np.array(stack).reshape(-1, 24, 24), kind, self.element_volume)
+
     def constant_stiffness_block(self, free) -> sp.csr_matrix:
         """The free-DOF block ``K[free][:, free]`` (F, F) of a constant-tangent model's stiffness (N/m), lean.
 
