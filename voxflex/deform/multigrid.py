@@ -162,14 +162,21 @@ def node_prolongation(element_ijk, element_nodes, n_nodes, shape):
     fine_corner = element_ijk[owner] + CORNER_OFFSETS[corner]  # (n, 3) fine corner index
     base = element_ijk[owner] // f  # (n, 3) coarse voxel holding the node (occupied)
     xi = fine_corner / f - base  # (n, 3) in [0, 1]
-    d = CORNER_OFFSETS[None, :, :]  # (1, 8, 3)
-    w = np.prod(np.where(d > 0, xi[:, None, :], 1.0 - xi[:, None, :]), axis=2)  # (n, 8)
-    cc = base[:, None, :] + d  # (n, 8, 3) coarse corners
-    keys = (cc[..., 0] * (coarse_shape[1] + 1) + cc[..., 1]) * (coarse_shape[2] + 1) + cc[..., 2]
-    cols = np.searchsorted(coarse_key, keys)
+    # weight of coarse corner d: the product over the axes of xi (d = 1) or 1 - xi (d = 0)
+    lo, hi = 1.0 - xi, xi
+    w = np.empty((n_nodes, 8))
+    for k, (dx, dy, dz) in enumerate(CORNER_OFFSETS):
+        w[:, k] = (hi if dx else lo)[:, 0] * (hi if dy else lo)[:, 1] * (hi if dz else lo)[:, 2]
+    # coarse corner node ids through a dense table of the coarse corner grid (keys of base + d)
+    stride = np.array([(coarse_shape[1] + 1) * (coarse_shape[2] + 1), coarse_shape[2] + 1, 1])
+    table = np.full(int(np.prod(np.array(coarse_shape) + 1)), -1, dtype=np.int64)
+    table[coarse_key] = np.arange(len(coarse_key))
+    cols = table[(base @ stride)[:, None] + CORNER_OFFSETS @ stride]  # (n, 8), increasing along each row
     keep = w > 0
-    rows = np.repeat(np.arange(n_nodes), 8).reshape(n_nodes, 8)
-    P = sp.csr_matrix((w[keep], (rows[keep], cols[keep])), shape=(n_nodes, len(coarse_key)))
+    # rows in order, their columns increasing (corner keys grow with d in this order): CSR directly
+    indptr = np.zeros(n_nodes + 1, dtype=np.int64)
+    np.cumsum(keep.sum(axis=1), out=indptr[1:])
+    P = sp.csr_matrix((w[keep], cols[keep], indptr), shape=(n_nodes, len(coarse_key)))
     return P, coarse_ijk, coarse_nodes, coarse_shape
 
 
@@ -192,13 +199,16 @@ def dof_prolongation(P_nodes, free, n_coarse_nodes):
     comp = free % 3
     starts = Pn.indptr[node]
     counts = Pn.indptr[node + 1] - starts
-    rows = np.repeat(np.arange(len(free)), counts)
     idx = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts) + np.arange(counts.sum())
     cols = 3 * Pn.indices[idx] + np.repeat(comp, counts)
     vals = Pn.data[idx]
-    coarse_free = np.unique(cols)
-    P = sp.csr_matrix((vals, (rows, np.searchsorted(coarse_free, cols))), shape=(len(free), len(coarse_free)))
-    assert P.shape[1] <= 3 * n_coarse_nodes
+    used = np.zeros(3 * n_coarse_nodes, dtype=bool)
+    used[cols] = True
+    coarse_free = np.flatnonzero(used)
+    place = np.cumsum(used) - 1  # column of a kept coarse DOF (monotone: each row stays sorted)
+    indptr = np.zeros(len(free) + 1, dtype=np.int64)
+    np.cumsum(counts, out=indptr[1:])
+    P = sp.csr_matrix((vals, place[cols], indptr), shape=(len(free), len(coarse_free)))
     return P, coarse_free
 
 
