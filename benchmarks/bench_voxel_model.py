@@ -34,7 +34,13 @@ sensitive to other processes' load, but they count BLAS threads that spin.  Two 
   makes the call voxflex makes (``method="multigrid"``, ``grid=model.grid``,
   ``free=...``) and reorders the solution back.  That reordering is an adapter
   cost none of the codes would pay natively: it is timed apart (column
-  ``permute s``) and left out of the peer's solve and total.  Every run builds
+  ``permute s``) and left out of the peer's solve and total.  On the linear
+  beam voxflex also passes ``elements=model.stiffness_elements()``, as its own
+  ``solve`` does for constant-tangent models: the first coarse level is then
+  summed from its voxel element matrices, the same matrix (to round-off) that
+  the peers' sparse products form from their assembled ones, so the cycle and
+  the iterations are the same; forming it is part of each code's solve time.
+  Every run builds
   its hierarchy from its own matrix (``multigrid.clear_cache()`` at the start of
   each run, voxflex's and the peers'; Newton iterations within a run reuse the
   prolongations, as in voxflex).  Self-checks: the reordered 8x2x2 linear
@@ -52,6 +58,18 @@ sensitive to other processes' load, but they count BLAS threads that spin.  Two 
   (linear) / its ``auto`` rule (Neo-Hooke), the peers with the fastest of the
   shared methods that needs no grid (Jacobi-CG for the linear beam, LU for
   Neo-Hooke).
+
+Measured on 2026-12-02 after the stale coarse levels, the first coarse level from the element
+matrices, the compiled pattern and free-DOF gather and the single-precision cycle (``--repeat 3
+--tables-only``, load average 0.7-1.1, CPU seconds min, ratio peer / voxflex): Jacobi-CG voxflex
+1.26, warp.fem 2.12 (1.68x), scikit-fem 8.66 (6.9x); linear multigrid-CG voxflex 0.47 (12
+iterations; assembly 0.04, solve 0.39), warp.fem 1.57 (3.32x, median 3.11x; wall 3.22x min, 3.67x
+median; assembly 0.90), scikit-fem 7.69 (16x); Neo-Hooke sparse LU voxflex 9.87, warp.fem 16.9
+(1.71x), scikit-fem 53.6 (5.4x); Neo-Hooke multigrid-CG voxflex 1.67 (31 Newton, 129 CG), warp.fem
+9.91 (5.93x, median 6.63x; wall 6.59x, 7.34x; 30 Newton, 125 CG), scikit-fem 52.4 (31x); best each:
+linear warp.fem 4.47x, Neo-Hooke ``auto`` 1.70 (warp.fem 9.94x).  A run just before, with the stale
+coarse levels only, read linear multigrid-CG voxflex 0.64, warp.fem 1.51 (2.35x) and Neo-Hooke
+multigrid-CG 1.79 against 9.86 (5.50x).
 
 Measured on 2026-12-02 after the cubic coarsening rule (``multigrid.MAX_COARSE_CUBIC``), the in-place
 material tangent and the half-computed voxel stiffness (``--repeat 3 --tables-only``, load average

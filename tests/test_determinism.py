@@ -20,7 +20,7 @@ from voxflex.image.label_image import LabelImage
 
 @pytest.fixture(scope="module", autouse=True)
 def one_blas_thread():
-    """Dense Cholesky with threaded OpenBLAS stalls for seconds on a busy 2-core machine (NOTES)."""
+    """Dense Cholesky with threaded OpenBLAS stalls for seconds on a busy 2-core machine (measured)."""
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:  # only slower without it

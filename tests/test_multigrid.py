@@ -312,3 +312,59 @@ def test_stale_coarse_levels_serve_the_next_tangents():
         assert np.allclose(xs, x / scale, rtol=1e-6, atol=1e-6 * np.abs(x / scale).max())
         rebuilt = h._last[1].levels[1].A is not coarse
         assert rebuilt or h.refresh, scale  # the stale levels were replaced, or will be at the next solve
+
+
+def _element_cases():
+    """A clamped beam; the odd shape with two materials and random fixed DOFs (component subsets
+    included); a one-voxel plate (no coarsening across its thickness)."""
+    rng = np.random.default_rng(3)
+    hard = material("hooke", young=1e4, poisson=0.3, strain="linear")
+    soft = material("hooke", young=3e3, poisson=0.45, strain="linear")
+    beam = VoxelModel.from_image(LabelImage(np.ones((16, 4, 4)), spacing=(0.25, 0.25, 0.25)), {1: hard})
+    yield beam, np.flatnonzero(np.repeat(beam.rest[:, 0] > 1e-9, 3))
+    labels = _odd_shape().astype(np.int32)
+    labels[5:] *= 2
+    odd = VoxelModel.from_image(LabelImage(labels, spacing=(0.1, 0.2, 0.15)), {1: hard, 2: soft})
+    yield odd, np.sort(rng.choice(3 * odd.n_nodes, size=int(0.9 * 3 * odd.n_nodes), replace=False))
+    plate = VoxelModel.from_image(LabelImage(np.ones((12, 12, 1)), spacing=(1 / 12, 1 / 12, 0.02)), {1: hard})
+    yield plate, np.flatnonzero(np.repeat(plate.rest[:, 0] > 1e-9, 3))
+
+
+def test_first_level_from_element_matrices_equals_the_galerkin_product():
+    """The first coarse level summed from the voxel element matrices (fixed DOFs zeroed per voxel) is the
+    sparse product P^T A P to round-off (1e-14 of its largest entry), on every case; the solve with it meets
+    rtol; bad element data is refused."""
+    for model, free in _element_cases():
+        mg.clear_cache()
+        A = model.constant_stiffness_block(free)
+        h = mg.hierarchy(model.grid, free, max_coarse=40)
+        elements = model.stiffness_elements()
+        ref = mg._galerkin_impl(A, h.prolongations[0], h.restrictions[0])
+        C = h.first_level(elements)
+        assert C.shape == ref.shape and np.abs((C - ref).toarray()).max() <= 1e-14 * np.abs(ref.data).max()
+        b = np.random.default_rng(0).standard_normal(len(free))
+        x, info = solve_linear(A, b, method="multigrid", rtol=1e-8, grid=model.grid, free=free, elements=elements)
+        assert info.method == "multigrid" and np.linalg.norm(A @ x - b) <= 1.01e-8 * np.linalg.norm(b)
+    with pytest.raises(InputError, match="elements must hold"):
+        h.first_level(mg.ElementMatrices(elements.units, elements.kind[1:], elements.scale[1:]))
+    nonlinear = VoxelModel.from_image(LabelImage(np.ones((4, 2, 2))), {1: material("neo-hookean", young=1e3,
+                                                                                    poisson=0.3)})
+    assert nonlinear.stiffness_elements() is None  # no constant stiffness to describe
+
+
+def test_lean_static_solve_uses_the_element_matrices():
+    """solve() on a constant-tangent voxel model (the lean path) hands multigrid the element matrices: the
+    hierarchy then holds the first level's plan, and the answer is the direct solve's."""
+    from voxflex.deform.boundary import FixedRegion
+    from voxflex.deform.solvers import SolverOptions, solve
+
+    tips = {}
+    for method in ("multigrid", "direct"):
+        mg.clear_cache()
+        model, K, free, A, b = _beam(16)
+        rec = solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81], densities={1: 1.0},
+                    options=SolverOptions(linear_solver=method, tolerance=1e-10))
+        tips[method] = rec[-1].q[-1]
+        if method == "multigrid":
+            assert mg.hierarchy(model.grid, free)._plan is not None
+    assert np.allclose(tips["multigrid"], tips["direct"], rtol=1e-7, atol=1e-12)

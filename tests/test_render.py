@@ -30,7 +30,7 @@ assert img.shape[:2] == (48, 64)
 
 @pytest.fixture(scope="module", autouse=True)
 def offscreen_gl():
-    """Render once in a subprocess: a missing GL library segfaults instead of raising (NOTES)."""
+    """Render once in a subprocess: a missing GL library segfaults instead of raising."""
     proc = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=120)
     if proc.returncode != 0:
         pytest.skip(

@@ -15,7 +15,7 @@ import sys
 LARGE_DOFS = 200_000
 """Models with at least this many DOFs (estimated) announce their size before they are built and solved."""
 
-# measured on the voxel reference (see NOTES): memory per DOF of the solve, linear and nonlinear materials
+# measured on the voxel reference (peak resident memory per DOF of a solve, linear and nonlinear materials)
 _VOXEL_BYTES_PER_DOF = {True: 1.2e3, False: 2.9e3}
 
 

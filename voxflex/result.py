@@ -1,6 +1,6 @@
 """Simulation results: the in-memory :class:`Result`, its HDF5 file and ParaView series.
 
-The HDF5 layout is the SPEC's result table, exactly (extra datasets/attrs may
+The HDF5 layout is docs/results.md's table, exactly (extra datasets/attrs may
 be added; readers ignore what they do not know):
 
 =========================================== ============ =======================================
@@ -430,7 +430,7 @@ class Result:
 
     # -- HDF5 -------------------------------------------------------------
     def save(self, path) -> Path:
-        """Write the result file (HDF5, the SPEC layout), atomically; returns the path."""
+        """Write the result file (HDF5, the layout of docs/results.md), atomically; returns the path."""
         path = Path(path)
         with atomic_path(path) as tmp:
             writer = ResultWriter(tmp, self)

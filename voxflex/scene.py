@@ -1,6 +1,6 @@
 """Scenes: what to simulate, read from TOML or built in code.
 
-A scene mirrors the pipeline (see the SPEC's scene table): the object (a
+A scene mirrors the pipeline (docs/scene.md is the reference): the object (a
 primitive shape, a surface mesh or a label image), one material per label, the
 nodes, the elasticity integration, fixed regions, loads, the solver, probes and
 the output file.  Each table is a frozen dataclass validated on construction;
@@ -18,10 +18,10 @@ Example
 True
 
 Defaults: ``[nodes] kind = "affine"`` (frames); ``[elasticity] quadrature`` is the
-node kind's own (``"midpoint"`` for frames — the SPEC says elastons, but their exact
+node kind's own (``"midpoint"`` for frames — not elastons, whose exact
 Hessian needs a strain with a constant second derivative, which the default
 neo-Hookean material's invariants are not — and ``"gauss-legendre"`` for voxels);
-``[nodes] parents = 6`` (the SPEC says 4: measured, 4 parents were 9 % off on a
+``[nodes] parents = 6`` (not 4: measured, 4 parents were 9 % off on a
 cantilever where 6 were within 1 %).  Extensions: a top-level ``title``; ``[object]
 axis`` for cylinders; ``[[material]]`` model constants and a per-material
 ``strain``; ``[[load]] kind = "force"``; ``[solver]`` options mirroring the solver's.
@@ -841,7 +841,7 @@ _FIELD = {"material": "materials", "fixed": "fixed", "load": "loads", "probe": "
 
 @dataclass(frozen=True)
 class Scene:
-    """A complete simulation set-up (see the module docstring and the SPEC's scene table).
+    """A complete simulation set-up (see the module docstring and docs/scene.md).
 
     Only ``object`` and at least one material are required.  ``base_dir`` is
     the folder relative paths were resolved against (informational; not

@@ -76,7 +76,7 @@ COLUMNS = (
     "probe_error", "surface_error", "energy_error", "reference_error", "below_reference", "pareto",
     "probe_ux", "probe_uy", "probe_uz", "note",
 )
-"""Columns of ``tradeoff.csv`` (the SPEC's columns and a few more, see :class:`TradeoffTable`)."""
+"""Columns of ``tradeoff.csv`` (documented in docs/tradeoff.md, see :class:`TradeoffTable`)."""
 
 _TIMES = ("precompute_seconds", "solve_seconds", "total_seconds")
 _SHORT_RUN = 1.0  # seconds: shorter runs are timed 3 times and the median reported

@@ -6,7 +6,7 @@
   symmetric-indefinite dense solve when A is not positive definite.
 * ``"direct"``: sparse LU with the ``MMD_AT_PLUS_A`` fill-reducing ordering
   (scipy's default COLAMD ordering is ~3x slower on voxel elasticity: 38 s vs
-  11.6 s at 56k DOF, see NOTES).
+  11.6 s for a sparse LU at 56k DOF).
 * ``"cg"``: conjugate gradients with the Jacobi (diagonal) preconditioner.
 * ``"amg"``: conjugate gradients preconditioned by pyamg smoothed aggregation
   with the rigid-body modes as near-null space (needs node positions).  Its
@@ -14,8 +14,11 @@
 * ``"multigrid"``: conjugate gradients preconditioned by one V-cycle of the
   geometric voxel multigrid of :mod:`voxflex.deform.multigrid` (needs the
   voxel grid: ``grid=model.grid, free=...``).  Its prolongations are cached
-  per grid and free-DOF set, so Newton iterations redo only the Galerkin
-  products.  Iterations at rtol 1e-8 on the clamped beam under gravity: 12 at
+  per grid and free-DOF set, and a Newton run's next tangents reuse the coarse
+  levels of an earlier one for up to three solves (rebuilt when a solve on
+  them slows down or stalls); ``elements=model.stiffness_elements()`` lets a
+  constant-tangent model's first coarse level be summed from its element
+  matrices.  Iterations at rtol 1e-8 on the clamped beam under gravity: 12 at
   each of 16x4x4, 32x8x8, 64x16x16, 128x32x32 (Jacobi-CG: 78, 158, 318, 651); deterministic
   (no random start).
 * ``"auto"``: ``"cholesky"`` up to :data:`DENSE_MAX` unknowns; with the voxel

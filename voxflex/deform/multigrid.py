@@ -30,7 +30,21 @@ where it was.  On the 32x8x8 neo-Hooke beam (31 Newton iterations) this took
 each, alternated); on the voxel default scene (F-bar, 22 Newton iterations)
 1.72-2.11 s against 1.98-2.71; on the 64x64x1 neo-Hooke plate, where each solve
 takes ~15 CG iterations and the products are cheap beside them, no change
-(12.5-13.0 s against 12.5-12.7 s).  The cycle, the smoothers (Gauss-Seidel by default, forward before
+(12.5-13.0 s against 12.5-12.7 s).
+
+Two more things make a solve cheaper without changing the operators:
+
+* a constant-tangent model passes its stiffness as voxel element matrices
+  (:class:`ElementMatrices`, ``VoxelModel.stiffness_elements``), and the first
+  coarse level is then summed from them (:meth:`VoxelHierarchy.first_level`)
+  instead of formed by two sparse products: the same matrix to round-off, 5 ms
+  against 60-180 ms at 55k DOF;
+* the cycle runs in single precision (``precision="auto"``, up to
+  :data:`SINGLE_MAX_ENTRIES` stored entries) while CG stays in double on A: a
+  cycle at 55k DOF took 16.5 against 21.6 ms (min of 40, alternated), the
+  same 12 iterations.
+
+The cycle, the smoothers (Gauss-Seidel by default, forward before
 and backward after the coarse correction,
 pointwise: component subsets of fixed DOFs break 3x3 nodal blocks, and pyamg's
 3x3 block Gauss-Seidel took 4-7x longer for the same iteration count) and the
@@ -65,6 +79,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from .._jit import njit
 from ..errors import InputError, check_choice
 from ..voronoi.trilinear import CORNER_OFFSETS, TrilinearGrid
 
@@ -315,7 +330,8 @@ class VoxelHierarchy:
             Kc = np.matmul(np.matmul(Tc.transpose(0, 2, 1), Ke), Tc)
             scatter_blocks(Kc, conn1[parent[e]], blockmap[parent[e]], indptr_b, data)
         n = len(self.coarse_free[0])
-        return sp.csr_matrix((data[sel], c_indices, c_indptr), shape=(n, n))
+        _gather_forward(data, sel)  # data[:k] = data[sel] in place (sel increases, sel[k] >= k)
+        return sp.csr_matrix((data[: len(sel)], c_indices, c_indptr), shape=(n, n))
 
     def _first_plan(self):
         """What :meth:`first_level` needs besides the element matrices (geometry only; built once)."""
@@ -334,11 +350,14 @@ class VoxelHierarchy:
             free_mask[self.free] = True
             el_free = free_mask[(3 * conn0)[:, :, None] + np.arange(3)].reshape(len(conn0), 24)
             indptr, indices, indptr_b, blockmap = grid_block_pattern(conn1, n1)
-            # the kept block's entries, as positions in the full coarse matrix's data (exact in float64)
-            where = sp.csr_matrix((np.arange(len(indices), dtype=np.float64), indices, indptr), shape=(3 * n1, 3 * n1))
-            block = free_block(where, self.coarse_free[0], overwrite=True)
-            self._plan = (parent, child, _child_transfers(f), el_free, conn1, blockmap, indptr_b, len(indices),
-                          block.data.astype(np.int64), block.indptr.copy(), block.indices.copy())
+            n_data = len(indices)
+            # the kept block's pattern and its entries' positions in the full coarse matrix's data (the
+            # gather run on the positions themselves; the full pattern's indices are not kept)
+            block = free_block(sp.csr_matrix((np.arange(n_data, dtype=indices.dtype), indices, indptr),
+                                             shape=(3 * n1, 3 * n1)), self.coarse_free[0], overwrite=True)
+            del indices, indptr
+            self._plan = (parent, child, _child_transfers(f), el_free, conn1, blockmap, indptr_b, n_data,
+                          block.data.copy(), block.indptr, block.indices.copy())
         return self._plan
 
     def solver(self, A, *, smoother: str = "gauss-seidel", sweeps: int = 1, stale: bool = False, elements=None,
@@ -450,6 +469,13 @@ class ElementMatrices:
     units: np.ndarray
     kind: np.ndarray
     scale: np.ndarray
+
+
+@njit
+def _gather_forward(data, sel):
+    """``data[k] = data[sel[k]]`` for k in order, in place (valid when ``sel[k] >= k``, as a compaction's)."""
+    for k in range(len(sel)):
+        data[k] = data[sel[k]]
 
 
 def _voxel_keys(ijk, shape):

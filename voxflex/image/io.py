@@ -34,7 +34,7 @@ in every format.
 World frame
 -----------
 voxflex's ``origin`` is the world position of the *corner* of voxel (0, 0, 0)
-(SPEC).  NIfTI, NRRD, MetaImage and VTK point data place the *centre* of voxel
+(docs/conventions.md).  NIfTI, NRRD, MetaImage and VTK point data place the *centre* of voxel
 0 at their origin; readers convert with ``corner = centre - direction @
 (spacing / 2)`` and writers convert back.  VTK ``.vti`` files written here store
 the voxels as cells, so their origin already is the corner (dimensions =

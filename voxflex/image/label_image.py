@@ -1,6 +1,6 @@
 """The label image: integer labels on a regular grid placed in the world.
 
-Conventions (see SPEC): ``labels[i, j, k]`` with i along x; ``spacing`` is the
+Conventions (docs/conventions.md): ``labels[i, j, k]`` with i along x; ``spacing`` is the
 voxel size along the array axes; ``origin`` is the world position of the
 *corner* of voxel (0, 0, 0); ``direction`` is an orthonormal 3x3 matrix whose
 columns are the world directions of the array axes.  Voxel (i, j, k) covers

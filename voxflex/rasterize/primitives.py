@@ -2,7 +2,7 @@
 
 Each primitive is a frozen dataclass with an exact signed distance
 (negative inside, metres) and an axis-aligned bounding box.  ``origin`` is the
-LOWER CORNER of the bounding box (SPEC), so ``Box((4, 1, 1))`` fills
+LOWER CORNER of the bounding box (docs/conventions.md), so ``Box((4, 1, 1))`` fills
 ``[0, 4] x [0, 1] x [0, 1]``.
 
 Spec strings (command line, scene files)::

@@ -33,7 +33,7 @@ SHAPE_FUNCTION_KINDS = ("natural-neighbour", "sibson", "laplace", "distance-rati
 """Shape functions of frames over a label image (``natural-neighbour`` is ``sibson``)."""
 
 VOXEL_SHAPE_FUNCTIONS = ("trilinear", "barycentric")
-"""Names of the voxel model's own shape functions (trilinear in each voxel; ``barycentric`` is the SPEC's word)."""
+"""Names of the voxel model's own shape functions (trilinear in each voxel; ``barycentric`` is another name for it)."""
 
 
 @dataclass(frozen=True)
