@@ -572,7 +572,9 @@ def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements=None):
             apply, ml = multigrid_preconditioner(A, grid, free, stale=True, elements=elements)
             stale = ml.stale
             budget = min(maxiter, int(STALE_GROWTH * (h.fresh_iterations or 0)) + 10) if stale else maxiter
-            x, its, ok = _cg_multigrid_impl(A, b, rtol, budget, x0, apply)
+            # CG's products through the finest level's stencil when it has one (the same matrix)
+            op = A if getattr(ml, "fine", None) is None else ml.fine
+            x, its, ok = _cg_multigrid_impl(op, b, rtol, budget, x0, apply)
             h.report(its, ok, stale)
             if stale and not ok:  # too slow on the old levels: rebuild them and go on from x
                 apply, ml = multigrid_preconditioner(A, grid, free, elements=elements)
