@@ -37,9 +37,13 @@ sensitive to other processes' load, but they count BLAS threads that spin.  Two 
   ``permute s``) and left out of the peer's solve and total.  On the linear
   beam voxflex also passes ``elements=model.stiffness_elements()``, as its own
   ``solve`` does for constant-tangent models: the first coarse level is then
-  summed from its voxel element matrices, the same matrix (to round-off) that
-  the peers' sparse products form from their assembled ones, so the cycle and
-  the iterations are the same; forming it is part of each code's solve time.
+  summed from its voxel element matrices, and the finest level's sweeps and
+  products are applied from the voxel stencil instead of the stored entries
+  (``multigrid.VoxelStencil``).  These are the same matrices (to round-off) that
+  the peers' sparse products form from their assembled ones, and the
+  Gauss-Seidel sweeps run in the same row order, so the cycle and the
+  iterations are the same.  What differs is how each code applies its own
+  operator, which is part of each code's solve time.
   Every run builds
   its hierarchy from its own matrix (``multigrid.clear_cache()`` at the start of
   each run, voxflex's and the peers'; Newton iterations within a run reuse the
@@ -343,13 +347,22 @@ def _once(fn):
     return r
 
 
+SETTLE_S = 0.5
+"""Pause before each timed run of :func:`_interleaved`: warp.fem's threads stay busy for 0.1-0.2 s
+after its call returns, and were charged to the CPU seconds of the code timed next (voxflex's linear
+multigrid run measured 0.39-0.51 CPU s for 0.26-0.39 s wall right after warp.fem, 0.41 for 0.41 after
+a 0.5 s pause)."""
+
+
 def _interleaved(fns, n):
     """Run every code's ``fn`` n times, round-robin (code A, B, C, A, B, C, ...), so that a slow spell of
     a shared machine falls on every code alike instead of on one code's back-to-back repeats (the host's
-    speed moved 2x within minutes: the same Jacobi-CG solve took 1.0 to 2.8 s).  Returns {code: summary}."""
+    speed moved 2x within minutes: the same Jacobi-CG solve took 1.0 to 2.8 s), each after a pause of
+    :data:`SETTLE_S`.  Returns {code: summary}."""
     runs = {code: [] for code in fns}
     for _ in range(n):
         for code, fn in fns.items():
+            time.sleep(SETTLE_S)
             runs[code].append(_once(fn))
     return {code: _summary(r) for code, r in runs.items()}
 

@@ -401,3 +401,16 @@ def test_stencil_finest_level_is_the_assembled_matrix():
                               max_coarse=40).stencil(beam.constant_stiffness_block(
                                   np.flatnonzero(np.repeat(beam.rest[:, 0] > 1e-9, 3))),
                                   beam.stiffness_elements()).interior_rows / (3 * beam.n_nodes)
+
+
+def test_elements_that_do_not_describe_the_matrix_cannot_pass_as_its_answer():
+    """Element matrices of another material give a stencil that is not A: the multigrid answer is then
+    refused against A itself and the direct solver answers (no wrong answer reported as converged)."""
+    model, K, free, A, b = _beam(16)
+    other = VoxelModel.from_image(LabelImage(np.ones((16, 4, 4)), spacing=(0.25, 0.25, 0.25)),
+                                  {1: material("hooke", young=3e4, poisson=0.3, strain="linear")})
+    mg.clear_cache()
+    x, info = solve_linear(A, b, method="multigrid", rtol=1e-8, grid=model.grid, free=free,
+                           elements=other.stiffness_elements())
+    assert np.linalg.norm(A @ x - b) <= 1e-8 * np.linalg.norm(b)
+    assert info.method == "direct" and info.fell_back

@@ -575,6 +575,8 @@ def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements=None):
             # CG's products through the finest level's stencil when it has one (the same matrix)
             op = A if getattr(ml, "fine", None) is None else ml.fine
             x, its, ok = _cg_multigrid_impl(op, b, rtol, budget, x0, apply)
+            if ok and op is not A and vnorm(A @ x - b) > 1.01 * rtol * vnorm(b):
+                ok = False  # the stencil is not this matrix (elements that do not describe A): fall back
             h.report(its, ok, stale)
             if stale and not ok:  # too slow on the old levels: rebuild them and go on from x
                 apply, ml = multigrid_preconditioner(A, grid, free, elements=elements)
