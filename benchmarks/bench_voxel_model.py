@@ -64,16 +64,17 @@ sensitive to other processes' load, but they count BLAS threads that spin.  Two 
   Neo-Hooke).
 
 Measured on 2026-12-02 after the stale coarse levels, the first coarse level from the element
-matrices, the compiled pattern and free-DOF gather and the single-precision cycle (``--repeat 3
---tables-only``, load average 0.7-1.1, CPU seconds min, ratio peer / voxflex): Jacobi-CG voxflex
-1.26, warp.fem 2.12 (1.68x), scikit-fem 8.66 (6.9x); linear multigrid-CG voxflex 0.47 (12
-iterations; assembly 0.04, solve 0.39), warp.fem 1.57 (3.32x, median 3.11x; wall 3.22x min, 3.67x
-median; assembly 0.90), scikit-fem 7.69 (16x); Neo-Hooke sparse LU voxflex 9.87, warp.fem 16.9
-(1.71x), scikit-fem 53.6 (5.4x); Neo-Hooke multigrid-CG voxflex 1.67 (31 Newton, 129 CG), warp.fem
-9.91 (5.93x, median 6.63x; wall 6.59x, 7.34x; 30 Newton, 125 CG), scikit-fem 52.4 (31x); best each:
-linear warp.fem 4.47x, Neo-Hooke ``auto`` 1.70 (warp.fem 9.94x).  A run just before, with the stale
-coarse levels only, read linear multigrid-CG voxflex 0.64, warp.fem 1.51 (2.35x) and Neo-Hooke
-multigrid-CG 1.79 against 9.86 (5.50x).
+matrices, the voxel stencil for the finest level, the compiled pattern and free-DOF gather and the
+single-precision cycle (``--repeat 3 --tables-only``, a 0.5 s pause before each timed run, load
+average 0.8-1.0, CPU seconds min, ratio peer / voxflex): Jacobi-CG voxflex 1.28, warp.fem 1.98
+(1.55x), scikit-fem 7.58 (5.9x); linear multigrid-CG voxflex 0.27 (12 iterations; assembly 0.04,
+solve 0.22), warp.fem 1.19 (4.32x, median 3.85x; wall 4.23x min, 3.79x median; assembly 0.74),
+scikit-fem 6.92 (25x); Neo-Hooke sparse LU voxflex 9.88, warp.fem 19.9 (2.01x), scikit-fem 56.3
+(5.7x); Neo-Hooke multigrid-CG voxflex 1.65 (31 Newton, 129 CG), warp.fem 11.1 (6.73x, median 6.49x;
+wall 7.51x, 7.21x; 30 Newton, 125 CG), scikit-fem 50.9 (31x); best each: linear warp.fem 7.20x,
+Neo-Hooke ``auto`` 1.75 (warp.fem 11.4x).  Runs earlier the same morning, before the stencil:
+linear multigrid-CG voxflex 0.47, warp.fem 1.57 (3.32x); with the stale coarse levels only 0.64
+against 1.51 (2.35x).
 
 Measured on 2026-12-02 after the cubic coarsening rule (``multigrid.MAX_COARSE_CUBIC``), the in-place
 material tangent and the half-computed voxel stiffness (``--repeat 3 --tables-only``, load average
@@ -162,7 +163,10 @@ Jacobi-CG 1686 before.  Measured with --big on this 2-core machine
 (shared, 38 % of the CPU for the run): 6,384,651 DOF, multigrid-CG 16
 iterations to 4.4e-9, solve 260 s wall, total 393 s, peak RSS 8.67 GB =
 1423 bytes/DOF (the 128x32x32 path before: 3041), reactions equal to the
-load on the free nodes to 7 digits.
+load on the free nodes to 7 digits.  Again on 2026-12-02, alone on the machine, after the element
+first level, the voxel stencil and the single-precision cycle (which stays double at this size):
+16 iterations, solve 104 s, total 113 s, peak 9.71 GB = 1595 bytes/DOF; the code before them, run
+in the same hour, 188 s and 197 s (its kernels compiled in the run), 9.08 GB = 1491 bytes/DOF.
 """
 
 from __future__ import annotations

@@ -355,18 +355,22 @@ class VoxelHierarchy:
         node_ijk[conn0.ravel()] = (ijk0[:, None, :] + CORNER_OFFSETS[None]).reshape(-1, 3)
         vox = np.full(int(np.prod(shape)), -1, dtype=np.int64)
         vox[_voxel_keys(ijk0, shape0)] = np.arange(len(ijk0))
-        around = np.empty((n0, 8), dtype=np.int64)  # voxel at node - corner v, or -1
+        # per node, one pass per voxel v around it (the voxel at node - corner v): node-length temporaries
+        pattern = np.zeros(n0, dtype=np.int64)  # bit v: that voxel exists
+        k0 = np.full(n0, -1, dtype=np.int64)  # the material and volume of the first existing one
+        s0 = np.zeros(n0)
+        uniform = np.ones(n0, dtype=bool)  # all existing ones share them
         for v in range(8):
             vi = node_ijk - CORNER_OFFSETS[v]
             inside = np.all((vi >= 0) & (vi < shape), axis=1)
-            around[:, v] = np.where(inside, vox[_voxel_keys(np.where(inside[:, None], vi, 0), shape0)], -1)
-        present = around >= 0
-        e = np.where(present, around, 0)
-        first = np.argmax(present, axis=1)  # every node has a voxel
-        k0 = kind[around[np.arange(n0), first]]
-        s0 = scale[around[np.arange(n0), first]]
-        uniform = np.all(~present | ((kind[e] == k0[:, None]) & (scale[e] == s0[:, None])), axis=1) & (k0 >= 0)
-        pattern = (present * (1 << np.arange(8))).sum(axis=1)  # which of the 8 voxels exist
+            ev = np.where(inside, vox[_voxel_keys(np.where(inside[:, None], vi, 0), shape0)], -1)
+            here = ev >= 0
+            ev[~here] = 0
+            new = here & (pattern == 0)
+            k0[new], s0[new] = kind[ev[new]], scale[ev[new]]
+            uniform &= ~here | ((kind[ev] == k0) & (scale[ev] == s0))
+            pattern |= here.astype(np.int64) << v
+        uniform &= k0 >= 0
         pos = np.full(3 * n0, -1, dtype=np.int64)
         pos[self.free] = np.arange(len(self.free))
         node_free = (pos[0::3] >= 0) & (pos[1::3] >= 0) & (pos[2::3] >= 0)
