@@ -50,8 +50,8 @@ Three more things make a solve cheaper without changing the operators:
   of 6, alternated);
 * the cycle runs in single precision (``precision="auto"``, up to
   :data:`SINGLE_MAX_ENTRIES` stored entries) while CG stays in double on A: a
-  cycle at 55k DOF took 16.5 against 21.6 ms (min of 40, alternated), the
-  same 12 iterations.
+  cycle at 55k DOF with the stored finest level took 16.5 against 21.6 ms
+  (min of 40, alternated), the same 12 iterations.
 
 The cycle, the smoothers (Gauss-Seidel by default, forward before
 and backward after the coarse correction,
@@ -305,7 +305,7 @@ class VoxelHierarchy:
         fixed DOFs that is ``sum_e scale_e U[kind_e, c_e]`` with the 8 products
         ``U = T_c^T units T_c`` computed once: a coarse voxel's matrix is a
         weighted sum of them.  Equal to the sparse product to round-off; on the
-        64x16x16 beam (55k DOF) 7-9 ms against 100-180 ms.
+        64x16x16 beam (55k DOF) 5-9 ms against 60-180 ms.
         """
         from ._voxel_kernels import scatter_blocks
 
@@ -697,20 +697,23 @@ def _galerkin_impl(A, P, R):
 class _CoarseSolver:
     """Sparse LU of the coarsest matrix (SuperLU, minimum-degree ordering), factorised at once.
 
-    A Newton run factors the coarsest level at every iteration (its tangent
-    changes), so this is paid once per iteration: on the neo-Hooke beam
+    A Newton run factors the coarsest level whenever it rebuilds its coarse
+    levels (at least every :data:`MAX_STALE_SOLVES` + 1 iterations; every
+    iteration before the stale reuse): on the neo-Hooke beam
     32x8x8 (7776 unknowns, coarsest level 1275 DOFs) a dense Cholesky took 25
     ms of each iteration, a quarter of it; the sparse LU of the same matrix
     11 ms (the 31-iteration run: 4.1 against 2.8 CPU s in one process), and
     the 243-DOF level that :data:`MAX_COARSE_CUBIC` now gives that beam 1 ms.
     Falls back to a pseudo-inverse when the coarse matrix is singular
-    (a coarse space that is not full rank on a few voxels).
+    (a coarse space that is not full rank on a few voxels).  With ``single``
+    (a single-precision cycle) the factorisation stays in double precision;
+    the right-hand side and the answer are cast.
     """
 
     def __init__(self, Ac, single: bool = False):
         import scipy.sparse.linalg as spla
 
-        self.single = single  # the cycle runs in single precision: cast the right-hand side and the answer
+        self.single = single
 
         Ac = sp.csc_matrix(0.5 * (Ac + Ac.T))
         self.lu = self.pinv = None
