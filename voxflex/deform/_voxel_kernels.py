@@ -354,6 +354,20 @@ def _stencil_gather(x, nbr, t, xl):
 
 
 @njit(fastmath={"reassoc", "contract"})
+def _stencil_rows(S, row0, xl):
+    """The products of stencil rows ``row0``, ``row0 + 1``, ``row0 + 2`` with the gathered values (one pass)."""
+    p0 = 0.0
+    p1 = 0.0
+    p2 = 0.0
+    for m in range(81):
+        xm = xl[m]
+        p0 += S[row0, m] * xm
+        p1 += S[row0 + 1, m] * xm
+        p2 += S[row0 + 2, m] * xm
+    return p0, p1, p2
+
+
+@njit(fastmath={"reassoc", "contract"})
 def stencil_sweep(x, b, node_of_row, nbr, kind, scale, S, b_row, b_ptr, b_idx, b_val, forward):
     """One pointwise Gauss-Seidel sweep on ``A x = b`` with A's rows given two ways, in place on x.
 
@@ -376,14 +390,7 @@ def stencil_sweep(x, b, node_of_row, nbr, kind, scale, S, b_row, b_ptr, b_idx, b
             s_t = scale[t]
             row0 = 3 * kind[t]
             # the 3 rows' products with the values before this node (independent of each other) ...
-            p0 = 0.0
-            p1 = 0.0
-            p2 = 0.0
-            for m in range(81):
-                xm = xl[m]
-                p0 += S[row0, m] * xm
-                p1 += S[row0 + 1, m] * xm
-                p2 += S[row0 + 2, m] * xm
+            p0, p1, p2 = _stencil_rows(S, row0, xl)
             # ... then the node's own components in sweep order, each seeing the earlier updates
             if forward:
                 u0 = (b[k0] - s_t * p0) / (s_t * S[row0, 39])
@@ -420,15 +427,7 @@ def stencil_matvec(x, node_of_row, nbr, kind, scale, S, b_row, b_ptr, b_idx, b_v
         t = node_of_row[k]
         if t >= 0:
             _stencil_gather(x, nbr, t, xl)
-            row0 = 3 * kind[t]
-            p0 = 0.0
-            p1 = 0.0
-            p2 = 0.0
-            for m in range(81):
-                xm = xl[m]
-                p0 += S[row0, m] * xm
-                p1 += S[row0 + 1, m] * xm
-                p2 += S[row0 + 2, m] * xm
+            p0, p1, p2 = _stencil_rows(S, 3 * kind[t], xl)
             y[k] = scale[t] * p0
             y[k + 1] = scale[t] * p1
             y[k + 2] = scale[t] * p2
