@@ -263,6 +263,8 @@ class VoxelHierarchy:
     coarse_free: list
     geometry: list = field(default_factory=list, repr=False)
     """(element ijk, element nodes, node count, shape) of the finest two levels (see :meth:`first_level`)."""
+    grid: TrilinearGrid | None = field(default=None, repr=False)
+    """The finest level's grid (its node corner indices and keys serve :meth:`stencil`)."""
     _last: tuple | None = field(default=None, repr=False)
     _plan: tuple | None = field(default=None, repr=False)
     _single_pr: list | None = field(default=None, repr=False)
@@ -346,13 +348,12 @@ class VoxelHierarchy:
     def stencil(self, A, elements):
         """The finest level as a :class:`VoxelStencil` (interior nodes from the element matrices' stencil,
         the other rows from A), or None when no node qualifies."""
-        ijk0, conn0, n0, shape0 = self.geometry[0]
+        ijk0, _, n0, shape0 = self.geometry[0]
         units = np.asarray(elements.units, dtype=np.float64)
         kind = np.asarray(elements.kind)
         scale = np.asarray(elements.scale, dtype=np.float64)
         shape = np.array(shape0)
-        node_ijk = np.empty((n0, 3), dtype=np.int64)
-        node_ijk[conn0.ravel()] = (ijk0[:, None, :] + CORNER_OFFSETS[None]).reshape(-1, 3)
+        node_ijk = self.grid.node_ijk
         vox = np.full(int(np.prod(shape)), -1, dtype=np.int64)
         vox[_voxel_keys(ijk0, shape0)] = np.arange(len(ijk0))
         # per node, one pass per voxel v around it (the voxel at node - corner v): node-length temporaries
@@ -375,11 +376,11 @@ class VoxelHierarchy:
         pos[self.free] = np.arange(len(self.free))
         node_free = (pos[0::3] >= 0) & (pos[1::3] >= 0) & (pos[2::3] >= 0)
         cshape = shape + 1
-        table = np.full(int(np.prod(cshape)), -1, dtype=np.int64)
-        table[(node_ijk[:, 0] * cshape[1] + node_ijk[:, 1]) * cshape[2] + node_ijk[:, 2]] = np.arange(n0)
+        table = np.full(int(np.prod(cshape)), -1, dtype=np.int64)  # node of a corner key (grid.node_key)
+        table[self.grid.node_key] = np.arange(n0)
         nodes = np.flatnonzero(uniform & node_free)
         offsets = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
-        key = (node_ijk[nodes, 0] * cshape[1] + node_ijk[nodes, 1]) * cshape[2] + node_ijk[nodes, 2]
+        key = self.grid.node_key[nodes]
         step = (offsets[:, 0] * cshape[1] + offsets[:, 1]) * cshape[2] + offsets[:, 2]
         idx = np.int32 if len(self.free) < np.iinfo(np.int32).max else np.int64
         nbr = np.empty((len(nodes), 27), dtype=idx)  # first free DOF of each neighbour
@@ -826,7 +827,7 @@ def _build_impl(grid, free, max_coarse, max_coarse_cubic, max_levels):
         kept.append(level_free)
         if len(geometry) < 2:
             geometry.append((ijk, conn, n_nodes, shape))
-    return VoxelHierarchy(Ps, Rs, shapes, free.copy(), kept, geometry)
+    return VoxelHierarchy(Ps, Rs, shapes, free.copy(), kept, geometry, grid)
 
 
 def multigrid_preconditioner(A, grid, free=None, *, smoother: str = "gauss-seidel", sweeps: int = 1,
