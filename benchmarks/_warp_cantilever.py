@@ -9,7 +9,7 @@ u_z at the tip-face centre (4, 0.5, 0.5), a grid node when nx is a multiple of 8
 
 warp.fem assembles (``fem.integrate`` -> ``warp.sparse`` BSR with 3x3 float64
 blocks); the linear systems are solved by scipy through
-``voxflex.deform.linear_solvers.solve_linear`` (``"cg"``: Jacobi-preconditioned
+``voxflex.deform.solve.linear.solve_linear`` (``"cg"``: Jacobi-preconditioned
 CG, ``"direct"``: ``splu(permc_spec="MMD_AT_PLUS_A")``), the same solvers the
 scikit-fem column of the benchmark uses, so the comparison isolates assembly.
 
@@ -41,7 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
-from voxflex.deform.linear_solvers import solve_linear
+from voxflex.deform.solve.linear import solve_linear
 from voxflex.errors import ConvergenceError, InputError, check_choice
 
 # set before warp.fem is imported (its import initializes warp): no per-module load log, and no adjoint
@@ -266,7 +266,7 @@ def warp_run(nx, young, poisson, kind, steps, linear_solver=None, *, rtol=1e-8, 
     steps : int
         Load steps (Neo-Hooke).
     linear_solver : {"cg", "direct", ...}, optional
-        Method of ``voxflex.deform.linear_solvers.solve_linear``; default "cg"
+        Method of ``voxflex.deform.solve.linear.solve_linear``; default "cg"
         for linear, "direct" for Neo-Hooke (as the benchmark's scikit-fem column).
     rtol : float
         Relative residual of the iterative solver (1e-8 as ``skfem_run``).

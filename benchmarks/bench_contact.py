@@ -56,11 +56,11 @@ import time
 
 import numpy as np
 
-from voxflex.deform import solvers as S
-from voxflex.deform.contact import ContactModel
-from voxflex.deform.materials import material
-from voxflex.deform.obstacles import Sphere
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.layers.contact import ContactModel
+from voxflex.deform.layers.obstacles import Sphere
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve import stepping as S
 from voxflex.image.label_image import LabelImage
 
 E, NU, R, DELTA = 1.0, 0.3, 1.0, 0.01

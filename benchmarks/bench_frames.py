@@ -6,7 +6,7 @@ and 10, 50, 200 frames with 1000 mid-point samples, it prints
 * precompute (seconds, one run): placement, natural-neighbour weights
   (blended), mid-point samples, the model's tables;
 * the free body's zero-energy modes of these samples (six when the samples
-  are enough: :func:`voxflex.deform.modes.zero_energy_modes`);
+  are enough: :func:`voxflex.deform.models.frames.modes.zero_energy_modes`);
 * one Newton iteration as the static solver runs it, split into assembly
   (energy, gradient and dense Hessian of a neo-Hooke material) and the solve
   (the free block ``H[free][:, free]`` as the solver takes it plus
@@ -17,7 +17,7 @@ and 10, 50, 200 frames with 1000 mid-point samples, it prints
 * the bare LAPACK Cholesky (factor + solve) of the free block with 1 and 2
   BLAS threads: what the product's one-thread choice is measured against;
 * the flop bound: m (432 P^2 + 1080 P) for assembly (the stiffness kernel's
-  count, :mod:`voxflex.deform._frame_kernels`) plus N^3 / 3 for the
+  count, :mod:`voxflex.deform.models.frames._kernels`) plus N^3 / 3 for the
   factorisation of the N = 12 (n - held) free unknowns, at this machine's
   measured GFLOP/s (numpy matmul of 2000^2, one BLAS thread).
 
@@ -148,10 +148,10 @@ def run(n_grid, counts, samples, parents, repeat, flops):
     import scipy.linalg as sla
     from threadpoolctl import threadpool_limits
 
-    from voxflex.deform.frame_model import FrameModel
-    from voxflex.deform.linear_solvers import solve_linear
-    from voxflex.deform.materials import material
-    from voxflex.deform.modes import zero_energy_modes
+    from voxflex.deform.materials.material import material
+    from voxflex.deform.models.frames.model import FrameModel
+    from voxflex.deform.models.frames.modes import zero_energy_modes
+    from voxflex.deform.solve.linear import solve_linear
     from voxflex.sampling import sample
     from voxflex.voronoi import place_frames, shape_function
     from voxflex.voronoi.shape_functions import keep_largest
@@ -188,7 +188,7 @@ def run(n_grid, counts, samples, parents, repeat, flops):
         def assemble():
             out["egh"] = model.energy_gradient_hessian(q)
 
-        from voxflex.deform.solvers import _FreeBlock
+        from voxflex.deform.solve.newton import _FreeBlock
 
         reduce = _FreeBlock(free, 12 * len(frames))
 

@@ -28,13 +28,21 @@ import sys
 import numpy as np
 
 from voxflex import build
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.frame_model import FrameModel
-from voxflex.deform.materials import material
-from voxflex.deform.solvers import SolverOptions, solve
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.frames.model import FrameModel
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.image.label_image import LabelImage
-from voxflex.scene import ElasticitySpec, FixedSpec, MaterialSpec, NodesSpec, ObjectSpec, Scene
+from voxflex.scene import (
+    ElasticitySpec,
+    FixedSpec,
+    MaterialSpec,
+    NodesSpec,
+    ObjectSpec,
+    Scene,
+)
 
 TIP = np.array([4.0, 0.5, 0.5])
 CLAMP = FixedRegion([-1.0, -1.0, -1.0], [1e-9, 2.0, 2.0])

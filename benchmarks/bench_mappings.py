@@ -20,8 +20,8 @@ import time
 
 import numpy as np
 
-from voxflex.deform.mappings import DeformationGradientMapping, PointMapping
-from voxflex.deform.nodes import AffineFrames, Points
+from voxflex.deform.chain.mappings import DeformationGradientMapping, PointMapping
+from voxflex.deform.chain.nodes import AffineFrames, Points
 from voxflex.voronoi.shape_functions import shepard
 
 

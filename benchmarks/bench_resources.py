@@ -22,10 +22,10 @@ import sys
 CHILD = r"""
 import json, resource, sys, time
 import numpy as np
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.materials import material
-from voxflex.deform.solvers import SolverOptions, solve
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.materials.material import material
+from voxflex.deform.solve.stepping import SolverOptions, solve
+from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.image.label_image import LabelImage
 
 nx, ny, nz, name, volumetric = sys.argv[1:6]

@@ -14,7 +14,7 @@ multiplies the saving by how often a solve does it:
 * ``H.diagonal()`` on every Hessian (now once per step);
 * ``np.setdiff1d`` of the fixed DOFs on every Jacobi-CG solve (now once per solve);
 * implicit Euler ``H + M / h^2`` (scipy's sparse sum, a new pattern per
-  iteration) against :class:`voxflex.deform.solvers._PatternAdd`.
+  iteration) against :class:`voxflex.deform.solve.newton._PatternAdd`.
 
     python benchmarks/bench_solver_waste.py [--repeat 5]
 
@@ -43,7 +43,7 @@ def _time(fn, repeat):
 
 
 def _beam(nx, mat):
-    from voxflex.deform.voxel_model import VoxelModel
+    from voxflex.deform.models.voxel.model import VoxelModel
     from voxflex.image.label_image import LabelImage
 
     n = nx // 4
@@ -52,8 +52,8 @@ def _beam(nx, mat):
 
 def _counted_solve(model_factory, predict):
     """The static neo-Hooke solve: records, Hessians built, solves, misses, evaluations, energy-only ones."""
-    from voxflex.deform import solvers
-    from voxflex.deform.boundary import FixedRegion
+    from voxflex.deform.solve import stepping as solvers
+    from voxflex.deform.solve.boundary import FixedRegion
 
     probs = []
     init = solvers._Problem.__init__
@@ -81,8 +81,8 @@ def _counted_solve(model_factory, predict):
 def main():
     import scipy.sparse as sp
 
-    from voxflex.deform.materials import material
-    from voxflex.deform.solvers import _PatternAdd
+    from voxflex.deform.materials.material import material
+    from voxflex.deform.solve.newton import _PatternAdd
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)

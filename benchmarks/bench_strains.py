@@ -3,7 +3,7 @@
 For every measure, times ``evaluate(F)`` (E + dE/dF) and ``evaluate(F, s)``
 (+ geometric term) on n samples (default 1e5) of random F near identity, and
 prints samples per second for the numba kernel and the numpy twin; then the
-3x3 SVD alone (``voxflex.deform._svd3``, Jacobi rotations, used by the polar,
+3x3 SVD alone (``voxflex.deform.materials._svd3``, Jacobi rotations, used by the polar,
 signed-SVD and principal-stretch kernels) against numpy's batched LAPACK SVD,
 with their worst reconstruction and orthogonality errors.
 
@@ -19,8 +19,8 @@ import time
 
 import numpy as np
 
-from voxflex.deform._svd3 import svd3
-from voxflex.deform.strains import STRAINS
+from voxflex.deform.materials._svd3 import svd3
+from voxflex.deform.materials.strains import STRAINS
 
 
 def _best(fn, repeat):

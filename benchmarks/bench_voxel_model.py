@@ -23,7 +23,7 @@ excluded as in the wall time) are given too, with their ratios: less
 sensitive to other processes' load, but they count BLAS threads that spin.  Two tables:
 
 * **same solver**: every code solves its own assembled matrices with the same
-  method and tolerance (``voxflex.deform.linear_solvers.solve_linear``): Jacobi-CG
+  method and tolerance (``voxflex.deform.solve.linear.solve_linear``): Jacobi-CG
   at rtol 1e-8 (linear beam), sparse LU with the MMD ordering (Neo-Hooke), and
   geometric multigrid-CG (both problems; voxflex's fastest solver for voxel
   grids), so the ratio is the model and assembly.  Multigrid needs the voxel
@@ -148,7 +148,7 @@ every solver.
 adds scipy's default splu ordering (slow: ~40 s); ``--memory 128x44x44`` only
 measures time and peak resident memory (``resource.getrusage``) of building,
 assembling and solving a linear beam of that many voxels in this fresh
-process, through ``voxflex.deform.solvers.solve`` (``--solver``, default
+process, through ``voxflex.deform.solve.stepping.solve`` (``--solver``, default
 Jacobi-CG), which takes the lean path for this constant-tangent static
 problem: ``VoxelModel.constant_stiffness_block`` (the free-DOF block
 assembled and compacted in place, no full matrix kept) and gradients
@@ -214,8 +214,8 @@ class VoxelOrder:
     """
 
     def __init__(self, nx, nodes, node_dofs, peer_free):
-        from voxflex.deform.materials import material
-        from voxflex.deform.voxel_model import VoxelModel
+        from voxflex.deform.materials.material import material
+        from voxflex.deform.models.voxel.model import VoxelModel
 
         model = VoxelModel.from_image(_beam_image(nx), {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
         self.model = model
@@ -249,7 +249,7 @@ class VoxelOrder:
         Asserts that ``A x = b`` to the solver's reported relative residual
         (times 1 + 1e-6, round-off of the two orders' sums) after reordering back.
         """
-        from voxflex.deform.linear_solvers import solve_linear
+        from voxflex.deform.solve.linear import solve_linear
 
         t = time.perf_counter()
         Aq = A[self.q][:, self.q]
@@ -309,7 +309,7 @@ def check_order(code, run):
 def newton_rtol(rn, rhs_norm, scale, tol=1e-8):
     """voxflex's inexact-Newton tolerance of a Newton solve (its forcing term ``min(0.1, |r| / scale)``,
     no tighter than the Newton tolerance needs), for the peers' multigrid-CG Neo-Hooke runs."""
-    from voxflex.deform.solvers import _forcing
+    from voxflex.deform.solve.newton import _forcing
 
     eta = max(_forcing(rn, None, None, scale), 0.5 * tol * scale / max(rhs_norm, 1e-300))
     return float(np.clip(eta, 1e-14, 0.5))
@@ -322,7 +322,7 @@ SHARED_SOLVERS = ("cg", "direct", "multigrid")
 def _free_solver(code):
     """``free_solver`` for ``warp_run``: nx -> the reordered multigrid-CG solve of ``code`` at nx, a
     fresh hierarchy for each run (``clear_cache`` as voxflex's runs)."""
-    from voxflex.deform import multigrid
+    from voxflex.deform.solve.multigrid import hierarchy as multigrid
 
     def make(nx):
         multigrid.clear_cache()
@@ -380,12 +380,12 @@ def voxflex_linear(nx, mat, linear_solver):
     """One linear static solve, timed like the peers: the free-DOF stiffness block, ``solve_linear``.
 
     The block comes from ``VoxelModel.constant_stiffness_block`` (what
-    ``voxflex.deform.solvers.solve`` takes for constant-tangent static problems):
+    ``voxflex.deform.solve.stepping.solve`` takes for constant-tangent static problems):
     its time is the "assemble" column (the peers' condensation is in their "solve").
     """
-    from voxflex.deform import multigrid
-    from voxflex.deform.linear_solvers import solve_linear
-    from voxflex.deform.voxel_model import VoxelModel
+    from voxflex.deform.models.voxel.model import VoxelModel
+    from voxflex.deform.solve.linear import solve_linear
+    from voxflex.deform.solve.multigrid import hierarchy as multigrid
 
     multigrid.clear_cache()  # every repeat builds its hierarchy (no reuse across timed runs)
     t0 = time.perf_counter()
@@ -408,10 +408,11 @@ def voxflex_linear(nx, mat, linear_solver):
 
 
 def voxflex_run(nx, mat, steps, linear_solver):
-    from voxflex.deform import multigrid
-    from voxflex.deform.boundary import FixedRegion
-    from voxflex.deform.solvers import SolverOptions, solve
-    from voxflex.deform.voxel_model import VoxelModel
+    from voxflex.deform.models.voxel.model import VoxelModel
+    from voxflex.deform.solve.boundary import FixedRegion
+    from voxflex.deform.solve.multigrid import hierarchy as multigrid
+    from voxflex.deform.solve.options import SolverOptions
+    from voxflex.deform.solve.stepping import solve
 
     multigrid.clear_cache()  # every repeat builds its hierarchy (no reuse across timed runs)
     notes = []
@@ -437,11 +438,19 @@ def voxflex_run(nx, mat, steps, linear_solver):
 def skfem_run(nx, young, poisson, kind, steps, linear_solver, forcing=False):
     """The cantilever in scikit-fem, timed like the others; ``forcing``: Newton solves at voxflex's
     inexact-Newton tolerance (:func:`newton_rtol`) instead of rtol 1e-8."""
-    from skfem import Basis, BilinearForm, ElementHex1, ElementVector, LinearForm, MeshHex, condense
+    from skfem import (
+        Basis,
+        BilinearForm,
+        ElementHex1,
+        ElementVector,
+        LinearForm,
+        MeshHex,
+        condense,
+    )
     from skfem.helpers import ddot, det, grad, inv, sym_grad, trace, transpose
 
-    from voxflex.deform import multigrid
-    from voxflex.deform.linear_solvers import solve_linear
+    from voxflex.deform.solve.linear import solve_linear
+    from voxflex.deform.solve.multigrid import hierarchy as multigrid
 
     order = None
     if linear_solver == "multigrid":  # voxflex's multigrid-CG on the reordered system (see VoxelOrder)
@@ -542,9 +551,10 @@ def skfem_run(nx, young, poisson, kind, steps, linear_solver, forcing=False):
 
 
 def solver_table(nx):
-    from voxflex.deform.linear_solvers import rigid_body_modes, solve_linear
-    from voxflex.deform.materials import material
-    from voxflex.deform.voxel_model import VoxelModel
+    from voxflex.deform.chain.rigid_modes import rigid_body_modes
+    from voxflex.deform.materials.material import material
+    from voxflex.deform.models.voxel.model import VoxelModel
+    from voxflex.deform.solve.linear import solve_linear
 
     model = VoxelModel.from_image(_beam_image(nx), {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
     K = model.hessian(model.rest)
@@ -562,16 +572,17 @@ def solver_table(nx):
 def memory_run(shape, linear_solver="cg"):
     """Peak resident memory after each phase of the linear beam of ``shape`` voxels (fresh process).
 
-    Through ``voxflex.deform.solvers.solve`` with ``linear_solver``: its lean
+    Through ``voxflex.deform.solve.stepping.solve`` with ``linear_solver``: its lean
     path for constant-tangent static problems (the free-DOF block assembled
     and compacted in place, gradients matrix-free).
     """
     import resource
 
-    from voxflex.deform.boundary import FixedRegion
-    from voxflex.deform.materials import material
-    from voxflex.deform.solvers import SolverOptions, solve
-    from voxflex.deform.voxel_model import VoxelModel
+    from voxflex.deform.materials.material import material
+    from voxflex.deform.models.voxel.model import VoxelModel
+    from voxflex.deform.solve.boundary import FixedRegion
+    from voxflex.deform.solve.options import SolverOptions
+    from voxflex.deform.solve.stepping import solve
     from voxflex.image.label_image import LabelImage
 
     def peak():
@@ -641,10 +652,10 @@ def scaling_series(sizes, repeat):
     import statistics
     import tracemalloc
 
-    from voxflex.deform import multigrid
-    from voxflex.deform.linear_solvers import solve_linear
-    from voxflex.deform.materials import material
-    from voxflex.deform.voxel_model import VoxelModel
+    from voxflex.deform.materials.material import material
+    from voxflex.deform.models.voxel.model import VoxelModel
+    from voxflex.deform.solve.linear import solve_linear
+    from voxflex.deform.solve.multigrid import hierarchy as multigrid
 
     hooke = material("hooke", young=1e4, poisson=0.3, strain="linear")
     print("\n| beam | DOF | solver | solve s (min / median) | iterations | peak traced MB | bytes/DOF |")
@@ -690,10 +701,11 @@ def plate_run(solvers, repeat, n=64):
     the edge x = 0 clamped, gravity, 5 load steps; each solver warmed on a 16x16x1 plate, then timed
     ``repeat`` times round-robin (:func:`_interleaved`): total (model and solve) and CPU seconds, min /
     median, Newton and linear iterations and the largest sag.  Jacobi-CG takes minutes a run."""
-    from voxflex.deform.boundary import FixedRegion
-    from voxflex.deform.materials import material
-    from voxflex.deform.solvers import SolverOptions, solve
-    from voxflex.deform.voxel_model import VoxelModel
+    from voxflex.deform.materials.material import material
+    from voxflex.deform.models.voxel.model import VoxelModel
+    from voxflex.deform.solve.boundary import FixedRegion
+    from voxflex.deform.solve.options import SolverOptions
+    from voxflex.deform.solve.stepping import solve
     from voxflex.image.label_image import LabelImage
 
     def run(m, solver):
@@ -761,7 +773,7 @@ def main():
             return
         memory_run((256, 90, 90), "multigrid")
         return
-    from voxflex.deform.materials import material
+    from voxflex.deform.materials.material import material
 
     nl, nn = (32, 16) if args.quick else (64, 32)
     hooke = material("hooke", young=1e4, poisson=0.3, strain="linear")
@@ -885,8 +897,8 @@ def main():
         import scipy.sparse as sp
         import scipy.sparse.linalg as spla
 
-        from voxflex.deform.materials import material as _m
-        from voxflex.deform.voxel_model import VoxelModel
+        from voxflex.deform.materials.material import material as _m
+        from voxflex.deform.models.voxel.model import VoxelModel
 
         model = VoxelModel.from_image(_beam_image(nl), {1: _m("hooke", young=1e4, poisson=0.3, strain="linear")})
         free = np.flatnonzero(np.repeat(model.rest[:, 0] > 1e-9, 3))

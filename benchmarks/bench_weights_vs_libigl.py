@@ -127,9 +127,17 @@ def cantilever(n_frames, igl):
     from dataclasses import replace
 
     import voxflex as vf
-    from voxflex.deform.frame_model import FrameModel
-    from voxflex.scene import (ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec,
-                               Scene)
+    from voxflex.deform.models.frames.model import FrameModel
+    from voxflex.scene import (
+        ElasticitySpec,
+        FixedSpec,
+        LoadSpec,
+        MaterialSpec,
+        NodesSpec,
+        ObjectSpec,
+        ProbeSpec,
+        Scene,
+    )
 
     scene = Scene(object=ObjectSpec(shape="box", size=(0.2, 0.2, 0.6), voxel_size=0.02), nodes=NodesSpec(kind="voxel"),
                   materials=(MaterialSpec(model="hooke", young=1e5, poisson=0.3, strain="linear"),),

@@ -4,7 +4,7 @@
 
 A bar of 4 x 1 x 1 voxels (0.1 x 0.025 x 0.025 m; Hooke with the linear
 strain, E = 200 GPa, nu = 0.3) wrapped in
-:class:`voxflex.deform.plasticity.PlasticMaterial` (von Mises on the strain,
+:class:`voxflex.deform.layers.plasticity.PlasticMaterial` (von Mises on the strain,
 yield strain eps_y = sigma_y / (3 mu) for sigma_y = 250 MPa, hardening
 H = 0.05) lies on the symmetry planes x = 0, y = 0, z = 0 and is stretched
 by its end face x = L (displacement control), so the stress is uniaxial and
@@ -30,10 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.materials import material
-from voxflex.deform.plasticity import PlasticMaterial, equilibrate
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.layers.plasticity import PlasticMaterial
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.solve.equilibrium import equilibrate
 from voxflex.image.label_image import LabelImage
 
 E, NU, SIGMA_Y, H = 200e9, 0.3, 250e6, 0.05

@@ -1,4 +1,4 @@
-"""Derivative-contract cases of the cable layer (voxflex.deform.cables).
+"""Derivative-contract cases of the cable layer (voxflex.deform.layers.cables).
 
 As for contact: x is the node state q (n, d), y the cables' energy as a (1,)
 array (the CableModel's total energy minus its inner model's, so a wrong cable
@@ -21,11 +21,11 @@ cable; an affine-frame model with a polyline cable.
 from __future__ import annotations
 
 import numpy as np
-
 from contract import MappingCase
-from voxflex.deform.cables import Cable, CableModel
-from voxflex.deform.materials import material
-from voxflex.deform.voxel_model import VoxelModel
+
+from voxflex.deform.layers.cables import Cable, CableModel
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.image.label_image import LabelImage
 
 
@@ -35,7 +35,7 @@ def _voxel_bar():
 
 
 def _frame_model():
-    from voxflex.deform.frame_model import FrameModel
+    from voxflex.deform.models.frames.model import FrameModel
     from voxflex.voronoi.shape_functions import shepard
 
     frames = np.array([[0.5, 0.5, 0.5], [1.5, 0.5, 0.5], [2.5, 0.5, 0.5], [3.5, 0.5, 0.5]])

@@ -1,4 +1,4 @@
-"""Derivative-contract cases of the contact barrier (voxflex.deform.contact).
+"""Derivative-contract cases of the contact barrier (voxflex.deform.layers.contact).
 
 x is the node state q (n, d), y the barrier energy as a (1,) array: the total
 energy of the ContactModel minus its inner model's (so a wrong barrier term
@@ -19,12 +19,12 @@ and an affine-frame model against a plane.
 from __future__ import annotations
 
 import numpy as np
-
 from contract import MappingCase
-from voxflex.deform.contact import ContactModel
-from voxflex.deform.materials import material
-from voxflex.deform.obstacles import Box, DistanceField, Plane, Sphere
-from voxflex.deform.voxel_model import VoxelModel
+
+from voxflex.deform.layers.contact import ContactModel
+from voxflex.deform.layers.obstacles import Box, DistanceField, Plane, Sphere
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.image.label_image import LabelImage
 
 DHAT = 0.2
@@ -36,7 +36,7 @@ def _voxel_model():
 
 
 def _frame_model():
-    from voxflex.deform.frame_model import FrameModel
+    from voxflex.deform.models.frames.model import FrameModel
     from voxflex.voronoi.shape_functions import shepard
 
     frames = np.array([[0.5, 0.5, 0.5], [1.5, 0.5, 1.5], [1.5, 1.5, 0.5], [0.5, 1.5, 1.5]])

@@ -1,4 +1,4 @@
-"""Derivative-contract cases of the material-level elaston energy (voxflex.deform.elaston).
+"""Derivative-contract cases of the material-level elaston energy (voxflex.deform.materials.elaston).
 
 x packs (F, dF) per elaston as (n, 36) (F's 9 entries, then dF's 27, C order), y is the
 integrated energy (n,).  jvp = gradient . v, vjp = u * gradient, geometric = u * (Hessian v);
@@ -9,11 +9,11 @@ the Hessian.  Three elastons near identity with a moderate gradient, off-centre 
 from __future__ import annotations
 
 import numpy as np
-
 from contract import MappingCase
-from voxflex.deform.elaston import material_elaston_energy
+
+from voxflex.deform.materials.elaston import material_elaston_energy
+from voxflex.deform.materials.material import material
 from voxflex.sampling.moments import box_moments
-from voxflex.deform.materials import material
 
 
 def _setup(n=3, seed=21):

@@ -1,18 +1,18 @@
 """Derivative-contract cases of the spring, rigid-frame and membrane mappings (see ``contract.py``).
 
-* springs (voxflex.deform.spring_mappings): 6 random points, 7 edges (one of
+* springs (voxflex.deform.chain.spring): 6 random points, 7 edges (one of
   them duplicated in reverse) for distances and extensions, and 3 point-to-target
   edges; x is the point array, edges stay far from zero length (>= 0.1 in a unit
   box: the geometric term grows as 1/l, so the finite-difference truncation
   error stays ~ (h/l)^2 << 1e-6).
-* rigid frames (voxflex.deform.rigid_mappings): x is a (v, ω) increment applied
+* rigid frames (voxflex.deform.chain.rigid): x is a (v, ω) increment applied
   to a random state through ``RigidFrames.integrate`` (as in
   contract_mappings.py); rotation angles up to ~2.5 rad (below π, where the
   logarithm jumps) and one small angle (1e-6 rad, the series branch of J_l⁻¹).
   The relative mapping is checked composed with the logarithm (its output is a
   rigid frame), which exercises its jvp, vjp and geometric term and the chain
   rule ``K = K_rel(J_logᵀ u) + J_relᵀ K_log(u) J_rel``.
-* membranes (voxflex.deform.membrane): the triangle mapping on a random
+* membranes (voxflex.deform.chain.membrane): the triangle mapping on a random
   4-triangle fan (constant J), and the StVK membrane as a map F -> ψ(F) per
   triangle (jvp = P : v, vjp = u P, geometric = u A : v), which checks stress
   against the energy and tangent against the stress.
@@ -25,10 +25,10 @@ from __future__ import annotations
 import numpy as np
 from contract import MappingCase
 
-from voxflex.deform.membrane import StVKMembrane, TriangleDeformationMapping
-from voxflex.deform.nodes import RigidFrames
-from voxflex.deform.rigid_mappings import LogRigidMapping, RelativeRigidMapping
-from voxflex.deform.spring_mappings import DistanceMapping, ExtensionMapping
+from voxflex.deform.chain.membrane import StVKMembrane, TriangleDeformationMapping
+from voxflex.deform.chain.nodes import RigidFrames
+from voxflex.deform.chain.rigid import LogRigidMapping, RelativeRigidMapping
+from voxflex.deform.chain.spring import DistanceMapping, ExtensionMapping
 
 
 def _points(rng, n):

@@ -11,9 +11,9 @@ eps = 1e-6, see contract.py) applies unchanged.
 from __future__ import annotations
 
 import numpy as np
-
 from contract import MaterialCase
-from voxflex.deform.materials import material
+
+from voxflex.deform.materials.material import material
 
 
 def _rotation(rng):

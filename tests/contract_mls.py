@@ -1,4 +1,4 @@
-"""Derivative-contract cases of the moving-least-squares mapping (voxflex.deform.mls).
+"""Derivative-contract cases of the moving-least-squares mapping (voxflex.deform.chain.mls).
 
 Point nodes (6 nodes, Schaefer's affine MLS of the origins) and affine frames (5
 frames, radius 0.2 m) map linearly, so their Jacobian is declared constant and
@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 from contract import MappingCase
 
-from voxflex.deform.mls import MovingLeastSquaresMapping
-from voxflex.deform.nodes import AffineFrames, Points, RigidFrames
+from voxflex.deform.chain.mls import MovingLeastSquaresMapping
+from voxflex.deform.chain.nodes import AffineFrames, Points, RigidFrames
 from voxflex.voronoi.shape_functions import shepard
 
 

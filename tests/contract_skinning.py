@@ -1,4 +1,4 @@
-"""Derivative-contract cases of dual-quaternion skinning (voxflex.deform.skinning).
+"""Derivative-contract cases of dual-quaternion skinning (voxflex.deform.chain.skinning).
 
 x is a (v, ω) increment of 4 rigid frames applied to a random state through
 ``RigidFrames.integrate`` (as for the other rigid-frame mappings), y the
@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 from contract import MappingCase
 
-from voxflex.deform.nodes import RigidFrames
-from voxflex.deform.skinning import DualQuaternionSkinning
+from voxflex.deform.chain.nodes import RigidFrames
+from voxflex.deform.chain.skinning import DualQuaternionSkinning
 from voxflex.voronoi.shape_functions import shepard
 
 

@@ -1,4 +1,4 @@
-"""Derivative-contract cases of the strain measures (voxflex.deform.strains).
+"""Derivative-contract cases of the strain measures (voxflex.deform.materials.strains).
 
 x is a batch F (n, 3, 3), y the strain vectors (n, m).  jvp / vjp / geometric
 are contractions of ``jacobian`` and ``geometric``; the harness checks them
@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-
 from contract import MappingCase
-from voxflex.deform.strains import STRAINS
+
+from voxflex.deform.materials.strains import STRAINS
 
 
 def _rotation(v):

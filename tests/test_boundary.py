@@ -5,9 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.boundary import FixedRegion, ForceRegion, fixed_dofs, prescribed_positions, region_forces
-from voxflex.deform.materials import material
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.boundary import (
+    FixedRegion,
+    ForceRegion,
+    fixed_dofs,
+    prescribed_positions,
+    region_forces,
+)
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 
@@ -49,8 +55,8 @@ def test_fixed_dofs_components_and_prescribed_rotation():
 def test_transform_at_rigid_screw_and_linear_otherwise():
     """Rigid maps move along their screw motion: rigid at every fraction, exact at the ends, a
     one-parameter group (T(a) T(b) = T(a + b), 1e-14); other maps interpolate linearly."""
-    from voxflex.deform.model import transform_at
-    from voxflex.deform.nodes import rotation_exp
+    from voxflex.deform.chain.nodes import rotation_exp
+    from voxflex.deform.models.motion import transform_at
 
     R = rotation_exp(np.array([[0.3, -0.2, 0.9]]))[0]
     T = np.hstack([R, np.array([[0.4], [-1.0], [2.0]])])

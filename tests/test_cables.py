@@ -1,4 +1,4 @@
-"""Cables (voxflex.deform.cables): the law, validation, scene keys, results and the cable-driven bar.
+"""Cables (voxflex.deform.layers.cables): the law, validation, scene keys, results and the cable-driven bar.
 
 Derivatives are checked by the shared contract (tests/contract_cables.py).
 Here the oracles are the scalar law in closed form, exact statics of the
@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 import voxflex as vf
-from voxflex.deform.cables import Cable, CableModel, cable_law, with_cables
-from voxflex.deform.contact import ContactModel
-from voxflex.deform.materials import material
-from voxflex.deform.obstacles import Plane
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.layers.cables import Cable, CableModel, cable_law, with_cables
+from voxflex.deform.layers.contact import ContactModel
+from voxflex.deform.layers.obstacles import Plane
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 from voxflex.result import Result

@@ -11,10 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.materials import material
-from voxflex.deform.solvers import SolverOptions, solve
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.image.label_image import LabelImage
 
 TIP = np.array([4.0, 0.5, 0.5])
@@ -51,7 +52,16 @@ def test_linear_cantilever_matches_peer_libraries(nx, expected):
 def skfem_neo_hooke_tip(nx, young, poisson, steps, tol=1e-12):
     """u_z at the tip with compressible Neo-Hooke W = mu/2 (I1-3) - mu ln J + lam/2 (ln J)^2."""
     skfem = pytest.importorskip("skfem")
-    from skfem import Basis, BilinearForm, ElementHex1, ElementVector, LinearForm, MeshHex, condense, solve
+    from skfem import (
+        Basis,
+        BilinearForm,
+        ElementHex1,
+        ElementVector,
+        LinearForm,
+        MeshHex,
+        condense,
+        solve,
+    )
     from skfem.helpers import ddot, det, grad, inv, transpose
 
     mu = young / (2 * (1 + poisson))

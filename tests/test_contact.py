@@ -10,24 +10,29 @@ tests/contract_contact.py.
 The solver calls ``ContactModel.begin_step`` once per step (one line the
 solver owner adds); until it does, the stepped runs here go through the
 solver's own Newton (``_Problem``, ``_newton``) in :func:`_run`, which is
-``voxflex.deform.solvers.solve`` with that line and without the static
+``voxflex.deform.solve.stepping.solve`` with that line and without the static
 support check (a body resting on an obstacle is held by contact, not by
 fixed DOFs).
 """
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
 import voxflex as vf
-from voxflex.deform import solvers as _solvers
-from voxflex.deform.contact import ContactModel, barrier, collision_points, with_contact
-from voxflex.deform.materials import material
-from voxflex.deform.obstacles import Box, DistanceField, Plane, Sphere, obstacle
-from voxflex.deform.solvers import ConvergenceError, SolverOptions
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.layers.contact import (
+    ContactModel,
+    barrier,
+    collision_points,
+    with_contact,
+)
+from voxflex.deform.layers.obstacles import Box, DistanceField, Plane, Sphere, obstacle
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve import stepping as _solvers
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import ConvergenceError
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 
@@ -311,7 +316,7 @@ def test_begin_step_refuses_an_impossible_start():
 # frames
 # ---------------------------------------------------------------------------
 def test_affine_frames_rest_on_a_plane_with_their_weight():
-    from voxflex.deform.frame_model import FrameModel
+    from voxflex.deform.models.frames.model import FrameModel
     from voxflex.voronoi.shape_functions import shepard
 
     frames = np.array([[0.05, 0.05, 0.05], [0.15, 0.15, 0.05], [0.1, 0.1, 0.15], [0.15, 0.05, 0.15]])
@@ -340,8 +345,17 @@ def test_affine_frames_rest_on_a_plane_with_their_weight():
 # scene wiring
 # ---------------------------------------------------------------------------
 def _scene(obstacles=(), **solver):
-    from voxflex.scene import (ContactSpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ObstacleSpec,
-                               Scene, SolverSpec)
+    from voxflex.scene import (
+        ContactSpec,
+        FixedSpec,
+        LoadSpec,
+        MaterialSpec,
+        NodesSpec,
+        ObjectSpec,
+        ObstacleSpec,
+        Scene,
+        SolverSpec,
+    )
 
     return Scene(
         object=ObjectSpec(shape="box", size=(0.4, 0.1, 0.1), voxel_size=0.05, origin=(0.0, 0.0, 0.01)),

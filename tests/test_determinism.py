@@ -12,9 +12,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.linear_solvers import METHODS, rigid_body_modes, solve_linear
-from voxflex.deform.materials import material
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.chain.rigid_modes import rigid_body_modes
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.linear import METHODS, solve_linear
 from voxflex.image.label_image import LabelImage
 
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform import laws as L
-from voxflex.deform.elaston import elaston_energy
-from voxflex.sampling.moments import box_moments
+from voxflex.deform.materials import laws as L
+from voxflex.deform.materials.elaston import elaston_energy
 from voxflex.errors import InputError
+from voxflex.sampling.moments import box_moments
 
 HOOKE = L.HookeLaw(L.isotropic_stiffness(1.3, 2.1))
 ORTHO = L.HookeLaw(L.orthotropic_stiffness(3.0, 2.0, 1.0, 0.2, 0.1, 0.3, 0.7, 0.5, 0.4))
@@ -152,8 +152,8 @@ def test_bad_input():
 
 
 # ------------------------------------------------------------------------ material level: (F, dF)
-from voxflex.deform.elaston import material_elaston_energy  # noqa: E402
-from voxflex.deform.materials import MATERIALS, material  # noqa: E402
+from voxflex.deform.materials.elaston import material_elaston_energy  # noqa: E402
+from voxflex.deform.materials.material import MATERIALS, material  # noqa: E402
 
 
 def _material(name, strain=None):

@@ -1,4 +1,4 @@
-"""The solvers' post-convergence hook (voxflex.deform.model.end_step).
+"""The solvers' post-convergence hook (voxflex.deform.models.protocol.end_step).
 
 Oracle: a layer over a linear voxel bar that asks for ``k`` re-solves of every
 step (its hook returns True k times, then False) must see the hook called
@@ -13,11 +13,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.materials import material
-from voxflex.deform.model import END_STEP_PASSES, ModelLayer, end_step
-from voxflex.deform.solvers import SolverOptions, solve
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.layers.base import ModelLayer
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.protocol import END_STEP_PASSES, end_step
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.errors import ConvergenceError
 from voxflex.image.label_image import LabelImage
 

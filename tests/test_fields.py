@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 import voxflex as vf
-from voxflex.deform import fields as vff
+from voxflex.deform.models import fields as vff
 from voxflex.result import Result, describe_result
 from voxflex.scene import Scene
 

@@ -12,13 +12,21 @@ import numpy as np
 import pytest
 
 from voxflex import build
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.frame_model import FrameModel
-from voxflex.deform.materials import material
-from voxflex.deform.solvers import SolverOptions, solve
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.frames.model import FrameModel
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
-from voxflex.scene import ElasticitySpec, FixedSpec, MaterialSpec, NodesSpec, ObjectSpec, Scene
+from voxflex.scene import (
+    ElasticitySpec,
+    FixedSpec,
+    MaterialSpec,
+    NodesSpec,
+    ObjectSpec,
+    Scene,
+)
 from voxflex.voronoi import place_frames, shape_function
 
 AFFINE = np.array([[1.1, 0.2, 0.0, 0.03], [-0.1, 0.95, 0.05, -0.02], [0.0, 0.1, 1.05, 0.04]])

@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 
 import voxflex as vf
-from voxflex.deform.frame_model import FrameModel, voxel_samples
-from voxflex.deform.materials import material
-from voxflex.deform.solvers import SolverOptions, solve
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.frames.model import FrameModel
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.image.label_image import LabelImage
 from voxflex.voronoi.shape_functions import shepard
 
@@ -86,7 +87,7 @@ def test_gradient_and_hessian_against_finite_differences(name, kw, quadrature):
 def test_elaston_hessian_by_chunks(monkeypatch):
     """The elastons' dense Hessian blocks summed one elaston at a time equal the default chunks (round-off
     of the summation order), and the Hessian is the finite difference of the gradient (above)."""
-    import voxflex.deform.frame_model as fm
+    import voxflex.deform.models.frames.model as fm
 
     model = _model(material("stvk", young=1e3, poisson=0.3), quadrature="elaston")
     q = _perturbed(model)
@@ -140,7 +141,7 @@ def test_mass_matrices_carry_the_mass_and_momentum():
 def test_implicit_euler_with_frames_never_gains_energy():
     """A clamped bar released from a bent state: total energy never increases (backward Euler dissipates)."""
     model = _model(material("neo-hookean", young=1e3, poisson=0.3))
-    from voxflex.deform.boundary import FixedRegion
+    from voxflex.deform.solve.boundary import FixedRegion
 
     clamp = FixedRegion([-1, -1, -1], [0.3, 2, 2])
     q0 = model.rest.copy()
@@ -156,8 +157,8 @@ def test_structured_kernels_equal_their_numpy_twins_and_the_generic_chain():
     """F, forces and stiffness of the I3 (x) G kernels equal the numpy twins and the generic
     DeformationGradientMapping chain (J^T w P, J^T w A J) to 1e-12 relative (round-off of sums of
     a few hundred terms is ~1e-15; a wrong index gives O(1) errors)."""
-    from voxflex.deform import _frame_kernels as K
-    from voxflex.deform.mappings import DeformationGradientMapping
+    from voxflex.deform.chain.mappings import DeformationGradientMapping
+    from voxflex.deform.models.frames import _kernels as K
 
     model = _model(material("neo-hookean", young=1e3, poisson=0.3), quadrature="midpoint")
     q = _perturbed(model, 0.05)
@@ -189,7 +190,7 @@ def test_structured_kernels_equal_their_numpy_twins_and_the_generic_chain():
 def test_pair_tables_sort_parents_and_list_each_coupled_pair_once():
     """frame_pairs against a brute-force set of the frame pairs sharing a sample; parents given in
     any order (and padded) give the same stiffness as sorted ones (to round-off)."""
-    from voxflex.deform import _frame_kernels as K
+    from voxflex.deform.models.frames import _kernels as K
 
     rng = np.random.default_rng(7)
     n, m, P = 9, 40, 4
@@ -215,7 +216,7 @@ def test_two_materials_assemble_like_the_generic_chain():
     """Two labels with different materials (the per-label gather / scatter path): energy, gradient
     and Hessian equal sum vol W, J^T (vol P) and J^T (vol A) J of the generic mapping, to 1e-12
     relative (round-off only)."""
-    from voxflex.deform.mappings import DeformationGradientMapping
+    from voxflex.deform.chain.mappings import DeformationGradientMapping
 
     labels = np.ones((6, 2, 2), dtype=np.uint8)
     labels[3:] = 2

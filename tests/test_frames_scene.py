@@ -16,8 +16,16 @@ import pytest
 
 import voxflex as vf
 from voxflex.result import Result
-from voxflex.scene import (ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec,
-                           Scene, SolverSpec)
+from voxflex.scene import (
+    ElasticitySpec,
+    FixedSpec,
+    LoadSpec,
+    MaterialSpec,
+    NodesSpec,
+    ObjectSpec,
+    ProbeSpec,
+    Scene,
+)
 
 
 def _bar(h=0.1, **kw):
@@ -70,8 +78,9 @@ def test_released_frame_beam_never_gains_energy():
                 elasticity=ElasticitySpec(strain="linear", quadrature="midpoint", samples=200))
     bent = vf.simulate(replace(base, loads=(LoadSpec(kind="gravity", vector=(50.0, 0.0, 0.0)),)), progress=False)
     model = vf.model(base)
-    from voxflex.deform.boundary import FixedRegion
-    from voxflex.deform.solvers import SolverOptions, solve
+    from voxflex.deform.solve.boundary import FixedRegion
+    from voxflex.deform.solve.options import SolverOptions
+    from voxflex.deform.solve.stepping import solve
 
     records = solve(model, fixed=[FixedRegion([-1e9] * 3, [1e9, 1e9, 1e-6])], densities={1: 1000.0},
                     options=SolverOptions(kind="implicit-euler", dt=0.002, steps=20), q0=bent.nodes_state[-1])
@@ -87,7 +96,7 @@ def test_a_static_frame_scene_with_zero_energy_modes_is_refused_before_solving()
     SpuriousModesWarning."""
     from pathlib import Path
 
-    from voxflex.deform.modes import SpuriousModesWarning
+    from voxflex.deform.models.frames.modes import SpuriousModesWarning
     from voxflex.errors import InputError
     from voxflex.scene import Scene
 
@@ -109,7 +118,7 @@ def test_a_static_frame_scene_with_a_near_zero_energy_mode_is_refused(tmp_path, 
     the cached precompute, so a second run judges it alike without recomputing it."""
     from pathlib import Path
 
-    from voxflex.deform.modes import SpuriousModesWarning
+    from voxflex.deform.models.frames.modes import SpuriousModesWarning
     from voxflex.errors import InputError
     from voxflex.scene import Scene
 

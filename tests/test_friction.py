@@ -1,4 +1,4 @@
-"""Coulomb friction of the collision layer (lagged, smoothed: voxflex.deform.contact).
+"""Coulomb friction of the collision layer (lagged, smoothed: voxflex.deform.layers.contact).
 
 Oracles: the analytic block on an incline, a box on a plane inclined by alpha
 (here the plane is horizontal and gravity tilted by alpha about y: the same
@@ -25,11 +25,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.contact import ContactModel, friction_mollifier
-from voxflex.deform.materials import material
-from voxflex.deform.obstacles import Plane, Sphere
-from voxflex.deform.solvers import SolverOptions, solve
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.layers.contact import ContactModel, friction_mollifier
+from voxflex.deform.layers.obstacles import Plane, Sphere
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 
@@ -58,7 +59,7 @@ def _box(mu, *, young=1e7, z0=None, obstacle=None, **kwargs):
 
 
 def _frames_box(mu):
-    from voxflex.deform.frame_model import FrameModel
+    from voxflex.deform.models.frames.model import FrameModel
     from voxflex.voronoi.shape_functions import shepard
 
     z0 = _gap()
@@ -277,9 +278,17 @@ def test_friction_and_slip_are_validated():
 def test_a_scene_with_friction_slides_down_its_incline():
     """The incline through the scene path: [[obstacle]] friction = 0.2, gravity tilted by alpha, vf.simulate."""
     import voxflex as vf
-    from voxflex.deform.contact import with_contact
-    from voxflex.scene import (ContactSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ObstacleSpec, Scene,
-                               SolverSpec)
+    from voxflex.deform.layers.contact import with_contact
+    from voxflex.scene import (
+        ContactSpec,
+        LoadSpec,
+        MaterialSpec,
+        NodesSpec,
+        ObjectSpec,
+        ObstacleSpec,
+        Scene,
+        SolverSpec,
+    )
 
     mu, dt = 0.2, 0.01
     scene = Scene(

@@ -14,11 +14,11 @@ import pytest
 
 from voxflex.errors import InputError
 from voxflex.image import LabelImage
-from voxflex.voronoi import shape_function
 from voxflex.voronoi import _march as M
-from voxflex.voronoi.natural_neighbour import natural_naive, natural_weights
-from voxflex.voronoi.geodesic import _prepare
+from voxflex.voronoi import shape_function
 from voxflex.voronoi._sight import frame_distances
+from voxflex.voronoi.geodesic import _prepare
+from voxflex.voronoi.natural_neighbour import natural_naive, natural_weights
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform import laws as L
+from voxflex.deform.materials import laws as L
 from voxflex.errors import InputError
 
 LAWS = {

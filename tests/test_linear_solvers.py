@@ -5,9 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.linear_solvers import DENSE_MAX, DIRECT_MAX, choose_method, rigid_body_modes, solve_linear
-from voxflex.deform.materials import material
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.chain.rigid_modes import rigid_body_modes
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.linear import (
+    DENSE_MAX,
+    DIRECT_MAX,
+    choose_method,
+    solve_linear,
+)
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 
@@ -52,7 +58,7 @@ def test_auto_selection_and_errors():
     assert choose_method(DIRECT_MAX + 1) == "cg"
     # with the voxel grid, multigrid-CG beyond the direct range (the grid only changes the large-system choice)
     model, _, free, _, _ = _system()
-    from voxflex.deform.linear_solvers import MULTIGRID_MIN
+    from voxflex.deform.solve.linear import MULTIGRID_MIN
 
     assert choose_method(MULTIGRID_MIN + 1, grid=model.grid) == "multigrid"
     assert choose_method(MULTIGRID_MIN, grid=model.grid) == "direct"
@@ -70,7 +76,7 @@ def test_auto_selection_and_errors():
 def test_cg_detects_an_indefinite_matrix_and_falls_back():
     import scipy.sparse as sp
 
-    from voxflex.deform.linear_solvers import vdot, vnorm
+    from voxflex._linalg import vdot, vnorm
 
     # positive diagonal, eigenvalues 3 and -1: CG meets non-positive curvature, the direct solve takes over
     A = sp.kron(sp.identity(50), sp.csr_matrix([[1.0, 2.0], [2.0, 1.0]]), format="csr")
@@ -84,7 +90,7 @@ def test_cg_detects_an_indefinite_matrix_and_falls_back():
 
 
 def test_cg_on_free_dofs_equals_cg_on_the_submatrix():
-    from voxflex.deform.linear_solvers import cg_on_free_dofs
+    from voxflex.deform.solve.linear import cg_on_free_dofs
 
     model, K, free, A, b = _system()
     ref, _ = solve_linear(A, b, method="cholesky")
@@ -106,7 +112,7 @@ def test_free_block_equals_fancy_indexing_in_blocks_and_in_place(monkeypatch):
     by the numpy twin with row blocks smaller than the matrix; in place it reuses A's buffers."""
     import scipy.sparse as sp
 
-    import voxflex.deform.linear_solvers as ls
+    import voxflex._linalg as ls
 
     model, K, free, A, b = _system()
     ref = K[free][:, free].tocsr()
@@ -142,7 +148,7 @@ def test_mixed_precision_cholesky_reaches_the_double_solution(monkeypatch):
     # above MIXED_MIN the dense path factors in float32 and refines in float64: the residual must reach
     # the rtol asked (1e-10 by default, 1e-13 here too) or the round-off of a double solve, and the answer
     # LAPACK's double solve to cond * rtol * 10 (the forward error such a relative residual allows)
-    from voxflex.deform import linear_solvers as ls
+    from voxflex.deform.solve import linear as ls
 
     n = ls.MIXED_MIN + 20
     b = np.random.default_rng(1).standard_normal(n)
@@ -165,7 +171,7 @@ def test_mixed_precision_cholesky_reaches_the_double_solution(monkeypatch):
 def test_mixed_precision_cholesky_falls_back_when_single_precision_cannot_refine(monkeypatch):
     # cond 1e9 > 1/eps_single: the float32 factor is useless (or fails); the double Cholesky answers, with a
     # residual at the round-off of LAPACK's general double solve (within 10x)
-    from voxflex.deform import linear_solvers as ls
+    from voxflex.deform.solve import linear as ls
 
     n = ls.MIXED_MIN + 20
     A = _spd(n, 1e9, seed=2)

@@ -13,10 +13,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.materials import material
-from voxflex.deform.solvers import SolverOptions, solve
-from voxflex.deform.voxel_model import VoxelModel, effective_lame, nearly_incompressible
+from voxflex.deform.materials.fbar import effective_lame, nearly_incompressible
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 
@@ -156,7 +158,16 @@ def _tip(nx, mat, **kw):
 def _skfem_quadratic_tip(nx, poisson):
     """u_z at the tip by scikit-fem's 27-node quadratic hexahedra (they barely lock at nu = 0.45)."""
     pytest.importorskip("skfem")
-    from skfem import Basis, ElementHex2, ElementVector, LinearForm, MeshHex, asm, condense, solve as fem_solve
+    from skfem import (
+        Basis,
+        ElementHex2,
+        ElementVector,
+        LinearForm,
+        MeshHex,
+        asm,
+        condense,
+    )
+    from skfem import solve as fem_solve
     from skfem.models.elasticity import lame_parameters, linear_elasticity
 
     ny = nx // 4

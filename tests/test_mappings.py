@@ -16,13 +16,13 @@ from scipy.spatial.transform import Rotation
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from contract_mappings import padded_shepard  # noqa: E402
 
-from voxflex.deform.mappings import (  # noqa: E402
+from voxflex.deform.chain.mappings import (
     MAPPINGS,
     DeformationGradientMapping,
     DeformationGradientWithGradientMapping,
     PointMapping,
 )
-from voxflex.deform.nodes import AffineFrames, Points, RigidFrames, skew  # noqa: E402
+from voxflex.deform.chain.nodes import AffineFrames, Points, RigidFrames, skew  # noqa: E402
 from voxflex.errors import InputError  # noqa: E402
 from voxflex.voronoi.shape_functions import ShapeValues, shepard  # noqa: E402
 
@@ -278,7 +278,7 @@ def test_threaded_split_equals_numpy_twin(monkeypatch):
     """The forward and Jacobian kernels split over threads by child ranges give the twin's result (1e-12)."""
     import numba
 
-    import voxflex.deform.mappings as mappings
+    import voxflex.deform.chain.mappings as mappings
 
     monkeypatch.setattr(mappings, "_MIN_CHILDREN_PER_THREAD", 4)
     monkeypatch.setattr(numba, "get_num_threads", lambda: 3)

@@ -1,11 +1,11 @@
-"""Triangle deformation mapping and StVK membrane (voxflex.deform.membrane); derivatives are in the contract."""
+"""Triangle deformation mapping and StVK membrane (voxflex.deform.chain.membrane); derivatives are in the contract."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from voxflex.deform.membrane import StVKMembrane, TriangleDeformationMapping
+from voxflex.deform.chain.membrane import StVKMembrane, TriangleDeformationMapping
 from voxflex.errors import InputError
 
 

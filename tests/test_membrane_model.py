@@ -1,20 +1,21 @@
-"""The membrane model (voxflex.deform.membrane_model): derivatives, invariants, zero-energy modes,
+"""The membrane model (voxflex.deform.models.membrane.model): derivatives, invariants, zero-energy modes,
 the pressure potential, mass, Hencky's inflated disk under refinement, and the scene refusals."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from hencky import hencky_coefficient
 
 import voxflex as vf
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.membrane import StVKMembrane
-from voxflex.deform.membrane_model import MembraneModel, disk_mesh, open_rim, rectangle_mesh
-from voxflex.deform.solvers import SolverOptions, solve
+from voxflex.deform.chain.membrane import StVKMembrane
+from voxflex.deform.models.membrane.model import MembraneModel
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.errors import InputError
+from voxflex.rasterize.membrane_mesh import disk_mesh, open_rim, rectangle_mesh
 from voxflex.scene import Scene
-
-from hencky import hencky_coefficient
 
 E, NU, H = 1.0e6, 0.3, 1.0e-3
 

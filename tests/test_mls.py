@@ -1,4 +1,4 @@
-"""The moving-least-squares mapping (voxflex.deform.mls): exact reproduction of affine and rigid
+"""The moving-least-squares mapping (voxflex.deform.chain.mls): exact reproduction of affine and rigid
 motions, its limits, its input checks, and a comparison with linear blend skinning on a bent bar.
 
 The derivatives (J against finite differences, the adjoint identity, the geometric stiffness) are
@@ -12,10 +12,10 @@ import doctest
 import numpy as np
 import pytest
 
-from voxflex.deform import mls as mls_module
-from voxflex.deform.mappings import PointMapping
-from voxflex.deform.mls import MovingLeastSquaresMapping
-from voxflex.deform.nodes import AffineFrames, Points, RigidFrames, rotation_exp
+from voxflex.deform.chain import mls as mls_module
+from voxflex.deform.chain.mappings import PointMapping
+from voxflex.deform.chain.mls import MovingLeastSquaresMapping
+from voxflex.deform.chain.nodes import AffineFrames, Points, RigidFrames, rotation_exp
 from voxflex.errors import InputError
 from voxflex.voronoi.shape_functions import ShapeValues, shepard
 

@@ -20,10 +20,10 @@ import pytest
 
 import voxflex as vf
 from voxflex.build import build_image
-from voxflex.deform.frame_model import FrameModel
-from voxflex.deform.materials import material
-from voxflex.deform.model import Model, PointMap
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.frames.model import FrameModel
+from voxflex.deform.models.protocol import Model, PointMap
+from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.result import Result
 from voxflex.scene import FixedSpec, LoadSpec, ProbeSpec, Scene
 from voxflex.voronoi.shape_functions import shepard

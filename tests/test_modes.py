@@ -19,16 +19,16 @@ import pytest
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from sampling_standin import ShepardSF, frames_in, two_label_block  # noqa: E402
 
-from voxflex.deform.modes import (  # noqa: E402
+from voxflex.deform.chain.nodes import skew  # noqa: E402
+from voxflex.deform.models.frames.modes import (
     SOFT_RATIO,
     SpuriousModesWarning,
-    _rigid_modes as rigid_basis,
     check_modes,
     free_body_stiffness,
     softest_mode,
     zero_energy_modes,
 )
-from voxflex.deform.nodes import skew  # noqa: E402
+from voxflex.deform.models.frames.modes import _rigid_modes as rigid_basis
 from voxflex.image import LabelImage  # noqa: E402
 from voxflex.sampling import sample  # noqa: E402
 
@@ -109,9 +109,9 @@ def test_point_stiffness_kernel_equals_the_sparse_product(body):
     # with the deformation-gradient mapping (round-off: 1e-12 of |K|)
     import scipy.sparse as sp
 
-    from voxflex.deform.mappings import DeformationGradientMapping
-    from voxflex.deform.modes import _unit_hooke_F
-    from voxflex.deform.nodes import AffineFrames
+    from voxflex.deform.chain.mappings import DeformationGradientMapping
+    from voxflex.deform.chain.nodes import AffineFrames
+    from voxflex.deform.models.frames.modes import _unit_hooke_F
 
     image, frames, sf = body
     s = sample(image, sf, kind="midpoint", count=40)
@@ -137,7 +137,7 @@ def test_softest_mode_separates_sound_and_under_integrated_quadratures(body):
     image, frames, sf = body
     every = sample(image, sf, kind="gauss-legendre", count=1)
     assert softest_mode(frames, every, every) == pytest.approx(1.0, rel=1e-8)
-    from voxflex.deform.frame_model import voxel_samples
+    from voxflex.sampling.voxel import voxel_samples
 
     mid = voxel_samples(image, sf, rule="midpoint")
     ratio = softest_mode(frames, mid, every)

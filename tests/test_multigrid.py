@@ -7,13 +7,14 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from voxflex.deform import multigrid as mg
-from voxflex.deform.linear_solvers import solve_linear
-from voxflex.deform.materials import material
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.elements import ElementMatrices
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.linear import solve_linear
+from voxflex.deform.solve.multigrid import hierarchy as mg
 from voxflex.errors import InputError
+from voxflex.image.grid import TrilinearGrid
 from voxflex.image.label_image import LabelImage
-from voxflex.voronoi.trilinear import TrilinearGrid
 
 
 def _beam(nx, poisson=0.3):
@@ -143,7 +144,7 @@ def test_single_precision_cycle_meets_rtol_and_agrees_with_double():
 
 
 def _pcg_with(A, b, apply):
-    from voxflex.deform.linear_solvers import _cg_multigrid_impl
+    from voxflex.deform.solve.linear import _cg_multigrid_impl
 
     return _cg_multigrid_impl(A, b, 1e-8, 200, None, apply)
 
@@ -171,7 +172,7 @@ def test_multigrid_solve_agrees_with_direct():
     assert h.solver(A.copy()) is ml and mg.hierarchy(model.grid, free.copy()) is h
     assert mg.hierarchy(model.grid, free[1:]) is not h
     # auto picks multigrid on large voxel systems when it has the grid, and Jacobi-CG without it
-    from voxflex.deform.linear_solvers import DIRECT_MAX, choose_method
+    from voxflex.deform.solve.linear import DIRECT_MAX, choose_method
 
     assert choose_method(DIRECT_MAX + 1, grid=model.grid) == "multigrid"
     assert choose_method(DIRECT_MAX + 1) == "cg"
@@ -346,7 +347,7 @@ def test_first_level_from_element_matrices_equals_the_galerkin_product():
         x, info = solve_linear(A, b, method="multigrid", rtol=1e-8, grid=model.grid, free=free, elements=elements)
         assert info.method == "multigrid" and np.linalg.norm(A @ x - b) <= 1.01e-8 * np.linalg.norm(b)
     with pytest.raises(InputError, match="elements must hold"):
-        h.first_level(mg.ElementMatrices(elements.units, elements.kind[1:], elements.scale[1:]))
+        h.first_level(ElementMatrices(elements.units, elements.kind[1:], elements.scale[1:]))
     nonlinear = VoxelModel.from_image(LabelImage(np.ones((4, 2, 2))), {1: material("neo-hookean", young=1e3,
                                                                                     poisson=0.3)})
     assert nonlinear.stiffness_elements() is None  # no constant stiffness to describe
@@ -355,8 +356,9 @@ def test_first_level_from_element_matrices_equals_the_galerkin_product():
 def test_lean_static_solve_uses_the_element_matrices():
     """solve() on a constant-tangent voxel model (the lean path) hands multigrid the element matrices: the
     hierarchy then holds the first level's plan, and the answer is the direct solve's."""
-    from voxflex.deform.boundary import FixedRegion
-    from voxflex.deform.solvers import SolverOptions, solve
+    from voxflex.deform.solve.boundary import FixedRegion
+    from voxflex.deform.solve.options import SolverOptions
+    from voxflex.deform.solve.stepping import solve
 
     tips = {}
     for method in ("multigrid", "direct"):

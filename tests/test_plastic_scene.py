@@ -26,9 +26,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import voxflex as vf
-from voxflex.deform.boundary import FixedRegion, fixed_dofs
-from voxflex.deform.plasticity import PlasticModel
-from voxflex.deform.solvers import SolverOptions, solve
+from voxflex.deform.layers.plasticity import PlasticModel
+from voxflex.deform.solve.boundary import FixedRegion, fixed_dofs
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.errors import InputError
 from voxflex.result import Result, describe_result
 from voxflex.scene import Scene

@@ -1,4 +1,4 @@
-"""Plasticity by a rest-strain mapping (voxflex.deform.plasticity).
+"""Plasticity by a rest-strain mapping (voxflex.deform.layers.plasticity).
 
 Oracle: a bar of 4 x 1 x 1 unit voxels (Hooke, linear strain, E = 1 Pa,
 nu = 0.3, 2x2x2 Gauss) on symmetry planes x = 0 (x held), y = 0 (y held),
@@ -9,7 +9,7 @@ sigma = 3 mu (eps_y + H eps) / (1 + 3 mu H / E) in loading (eps the axial
 strain), elastic unloading with slope E, and a permanent set eps_p = eps - sigma / E
 when the end is released.
 
-Each load level is solved by voxflex.deform.plasticity.equilibrate (one static step from
+Each load level is solved by voxflex.deform.solve.equilibrium.equilibrate (one static step from
 the previous state): the solver's post-convergence hook (PlasticModel.end_step)
 return-maps the plastic state and re-solves the level until e_p stops changing
 (the staggered scheme of the module); the fixed point is the exact incremental
@@ -25,10 +25,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.materials import material
-from voxflex.deform.plasticity import PlasticMaterial, equilibrate, von_mises_strain
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.layers.plasticity import PlasticMaterial, von_mises_strain
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.solve.equilibrium import equilibrate
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 
@@ -142,8 +143,9 @@ def test_load_ramp_in_one_solve_commits_each_step():
     is committed) the end force is the closed form at its strain, and the layer's measures are the
     committed state's (yield counts from the closed form: none before the first yield, all 32 Gauss
     points after, the stress being uniform)."""
-    from voxflex.deform.plasticity import PlasticModel
-    from voxflex.deform.solvers import SolverOptions, solve
+    from voxflex.deform.layers.plasticity import PlasticModel
+    from voxflex.deform.solve.options import SolverOptions
+    from voxflex.deform.solve.stepping import solve
 
     model, mat = _bar()
     layer = PlasticModel(model)
@@ -167,7 +169,7 @@ def test_load_ramp_in_one_solve_commits_each_step():
 
 
 def test_layer_refuses_models_it_cannot_track():
-    from voxflex.deform.plasticity import PlasticModel
+    from voxflex.deform.layers.plasticity import PlasticModel
 
     base = material("hooke", young=E, poisson=NU, strain="linear")
     image = LabelImage(np.ones((4, 1, 1), dtype=np.uint8))

@@ -14,7 +14,8 @@ import numpy as np
 import voxflex as vf
 from voxflex import _progress
 from voxflex.cli import main
-from voxflex.deform.solvers import SolverOptions, solve
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.scene import Scene
 
 SCENE = """
@@ -43,7 +44,7 @@ steps = 2
 
 def test_newton_callback_sees_every_iterate():
     from voxflex.build import model as build_model
-    from voxflex.deform.boundary import FixedRegion
+    from voxflex.deform.solve.boundary import FixedRegion
 
     scene = Scene.from_toml_text(SCENE)
     model = build_model(scene)

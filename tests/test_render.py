@@ -97,8 +97,8 @@ def test_step_zero_has_no_displacement_colour_range(default_result, tmp_path):
 
 def test_animation_and_folder_outputs(tmp_path):
     from PIL import Image
-
     from test_result import hand_result
+
     from voxflex.rendering import render
 
     r = hand_result(T=3)
@@ -122,6 +122,7 @@ def test_mp4_without_ffmpeg_says_what_to_do(tmp_path):
     except ImportError:
         pass
     from test_result import hand_result
+
     from voxflex.rendering import render
 
     with pytest.raises(InputError, match="imageio-ffmpeg.*gif"):
@@ -131,6 +132,7 @@ def test_mp4_without_ffmpeg_says_what_to_do(tmp_path):
 
 def test_render_cli(tmp_path, capsys):
     from test_result import hand_result
+
     from voxflex.cli import main
 
     hand_result().save(tmp_path / "r.h5")
@@ -285,6 +287,7 @@ def test_gravity_arrow_and_triad_are_drawn(default_result):
 
 def test_a_result_without_gravity_has_no_arrow(tmp_path):
     from test_result import hand_result
+
     from voxflex import rendering
 
     r = hand_result()
@@ -295,6 +298,7 @@ def test_a_result_without_gravity_has_no_arrow(tmp_path):
 
 def test_affine_frames_are_drawn_as_dots():
     from test_result import hand_result
+
     from voxflex.rendering import render_frames
     from voxflex.result import Result
 
@@ -316,6 +320,7 @@ def test_affine_frames_are_drawn_as_dots():
 
 def test_colour_by_a_field(tmp_path):
     from test_result import hand_result
+
     from voxflex.rendering import render, render_frames
 
     r = hand_result(T=2)
@@ -351,8 +356,8 @@ def test_bad_view_options_are_one_line_errors(default_result, tmp_path):
 
 def test_render_cli_view_options(tmp_path):
     from PIL import Image
-
     from test_result import hand_result
+
     from voxflex.cli import main
 
     hand_result().save(tmp_path / "r.h5")
@@ -530,9 +535,8 @@ def test_a_plane_obstacle_is_a_patch_under_the_body():
     extent = (every.max(axis=0) - every.min(axis=0)).max()
     assert np.ptp(pts, axis=0).max() == pytest.approx(1.5 * extent, rel=1e-6)
     # and the picture has it: in the iso view the patch is a band of grey-brown under the coloured ball
-    from voxflex.rendering import render_frames
-
     import voxflex.rendering as rendering
+    from voxflex.rendering import render_frames
 
     def grey(image):  # neither white background nor colour-mapped: the patch (and the title's text)
         rgb = image.reshape(-1, 3).astype(int)

@@ -1,7 +1,7 @@
 """Rigid frames ([nodes] kind = "rigid"): 6-DOF frames, the affine frame model restricted to rotations.
 
 Oracles: central finite differences (rotation derivatives, gradient, Hessian
-with its geometric stiffness), Rodrigues' formula of voxflex.deform.nodes
+with its geometric stiffness), Rodrigues' formula of voxflex.deform.chain.nodes
 (an independent implementation of R), exact rigid motions (zero energy,
 points moved by the rigid map), the linearity of the gravity potential in the
 state, minimisation over a subspace (rigid frames are a subset of the affine
@@ -21,14 +21,27 @@ import numpy as np
 import pytest
 
 import voxflex as vf
-from voxflex.deform.materials import material
-from voxflex.deform.nodes import rotation_exp, skew
-from voxflex.deform.rigid_frame_model import RigidFrameModel, rotation_derivatives, wrap_rotation_vectors
+from voxflex.deform.chain.nodes import rotation_exp, skew
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.rigid.model import (
+    RigidFrameModel,
+    rotation_derivatives,
+    wrap_rotation_vectors,
+)
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 from voxflex.result import Result
-from voxflex.scene import (ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec,
-                           Scene, SolverSpec)
+from voxflex.scene import (
+    ElasticitySpec,
+    FixedSpec,
+    LoadSpec,
+    MaterialSpec,
+    NodesSpec,
+    ObjectSpec,
+    ProbeSpec,
+    Scene,
+    SolverSpec,
+)
 from voxflex.voronoi.shape_functions import shepard
 
 FRAMES = np.array([[0.25, 0.5, 0.5], [1.5, 0.25, 0.25], [1.5, 0.75, 0.75], [2.75, 0.5, 0.5], [2.0, 0.5, 0.9]])

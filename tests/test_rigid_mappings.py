@@ -1,12 +1,16 @@
-"""Log-rigid and relative-rigid mappings (voxflex.deform.rigid_mappings); derivatives are in the contract."""
+"""Log-rigid and relative-rigid mappings (voxflex.deform.chain.rigid); derivatives are in the contract."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from voxflex.deform.nodes import RigidFrames, rotation_exp
-from voxflex.deform.rigid_mappings import LogRigidMapping, RelativeRigidMapping, rotation_log
+from voxflex.deform.chain.nodes import RigidFrames, rotation_exp
+from voxflex.deform.chain.rigid import (
+    LogRigidMapping,
+    RelativeRigidMapping,
+    rotation_log,
+)
 from voxflex.errors import InputError
 
 

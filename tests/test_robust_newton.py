@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.materials import material
-from voxflex.deform.solvers import SolverOptions, solve
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.errors import ConvergenceError
 from voxflex.image.label_image import LabelImage
 
@@ -26,7 +27,7 @@ def test_a_failed_load_step_is_cut_and_reaches_the_same_equilibrium(monkeypatch)
     Newton iterations per attempt and no continuation of an attempt: the first attempt fails, the cut
     increments converge, and the answer equals five well-resolved load steps to the solver tolerance
     (1e-6 relative)."""
-    import voxflex.deform.solvers as S
+    import voxflex.deform.solve.stepping as S
 
     monkeypatch.setattr(S, "MAX_CONTINUATIONS", 0)
     model = _beam()
@@ -49,7 +50,7 @@ def test_an_attempt_out_of_iterations_continues_from_its_last_iterate():
     continue from their last iterates (no load cut) and reach the answer of one long attempt
     (max_iterations = 800) to the solver tolerance; without continuation they are cut, and the cut
     increments (smaller loads, the same rotation-bound count) run out of cuts."""
-    import voxflex.deform.solvers as S
+    import voxflex.deform.solve.stepping as S
 
     kw = dict(fixed=[CLAMP], gravity=[0, 0, -9.81], densities={1: 1.0, 2: 1.0})
     model = _two_part_beam(1e6)
@@ -89,7 +90,7 @@ def test_inertia_counts_the_eigenvalues_below_a_shift():
     nearest below it (1e-8 relative); with a 1e6 spread of the diagonal too."""
     import scipy.sparse as sp
 
-    from voxflex.deform.solvers import _below
+    from voxflex.deform.solve.stepping import _below
 
     rng = np.random.default_rng(3)
     n = 600
@@ -170,7 +171,7 @@ def test_psd_projection_against_an_eigen_decomposition(backend):
     """The projection of symmetric 9x9 tangents: equal to V max(lambda, 0) V^T from numpy's eigh
     (1e-12 of the largest eigenvalue: round-off of two eigen-solvers), PSD, idempotent, exactly
     unchanged for a positive definite input, and the compiled kernel equals its numpy twin."""
-    from voxflex.deform.materials import project_psd
+    from voxflex.deform.materials.material import project_psd
 
     rng = np.random.default_rng(7)
     B = rng.standard_normal((40, 9, 9))
@@ -200,8 +201,8 @@ def test_the_projected_hessian_is_psd_where_the_exact_one_is_not():
     """A neo-Hooke block (2x2x2 voxels) squeezed to 40 % of its length with a shear: the exact
     Hessian has negative eigenvalues; with the tangents projected (voxel model, and through the
     contact layer's forwarding) every eigenvalue is >= -1e-10 of the largest (round-off)."""
-    from voxflex.deform.contact import ContactModel
-    from voxflex.deform.obstacles import Plane
+    from voxflex.deform.layers.contact import ContactModel
+    from voxflex.deform.layers.obstacles import Plane
 
     model = VoxelModel.from_image(LabelImage(np.ones((2, 2, 2), dtype=np.uint8), spacing=(0.5, 0.5, 0.5)),
                                   {1: material("neo-hookean", young=1e3, poisson=0.3)})
@@ -247,7 +248,7 @@ def test_projection_on_demand_saves_iterations_on_a_buckling_column():
 def test_the_projected_hessian_of_an_affine_frame_model_is_psd():
     """Affine frames (F linear in the frames' 12 DOFs): the model squeezed as in the voxel test has
     a Hessian with negative eigenvalues; projected, every eigenvalue is >= -1e-10 of the largest."""
-    from voxflex.deform.frame_model import FrameModel
+    from voxflex.deform.models.frames.model import FrameModel
     from voxflex.voronoi.shape_functions import shepard
 
     image = LabelImage(np.ones((6, 2, 2), dtype=np.uint8), spacing=(0.5, 0.5, 0.5))
@@ -297,7 +298,6 @@ def test_a_run_stopped_at_the_round_off_floor_says_so(tmp_path):
     that floor, far above a tolerance of 1e-12: simulate() must warn (RoundoffWarning, naming the residual),
     and a well-conditioned run at the same tolerance must not."""
     import warnings
-    from dataclasses import replace
 
     import voxflex as vf
     from voxflex.scene import Scene

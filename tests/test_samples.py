@@ -20,12 +20,17 @@ import pytest
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from sampling_standin import ShepardSF, frames_in, two_label_block  # noqa: E402
 
-from voxflex.deform.elaston import elaston_energy  # noqa: E402
-from voxflex.deform.laws import HookeLaw, isotropic_stiffness  # noqa: E402
+from voxflex.deform.materials.elaston import elaston_energy  # noqa: E402
+from voxflex.deform.materials.laws import HookeLaw, isotropic_stiffness  # noqa: E402
 from voxflex.errors import InputError  # noqa: E402
 from voxflex.sampling import Samples, sample  # noqa: E402
 from voxflex.sampling.quadrature import gauss_legendre_cube  # noqa: E402
-from voxflex.sampling.volume_moments import EXPONENT_INDEX, EXPONENTS, box_moment_table, monomials  # noqa: E402
+from voxflex.sampling.volume_moments import (  # noqa: E402
+    EXPONENT_INDEX,
+    EXPONENTS,
+    box_moment_table,
+    monomials,
+)
 
 
 def _subcell_rule():

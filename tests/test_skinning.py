@@ -1,4 +1,4 @@
-"""Dual-quaternion skinning (voxflex.deform.skinning).
+"""Dual-quaternion skinning (voxflex.deform.chain.skinning).
 
 The shared derivative contract (tests/contract_skinning.py) checks all its
 derivatives, the geometric stiffness included; here apply / jvp / vjp / jacobian
@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.mappings import PointMapping
-from voxflex.deform.nodes import RigidFrames
-from voxflex.deform.skinning import DualQuaternionSkinning
+from voxflex.deform.chain.mappings import PointMapping
+from voxflex.deform.chain.nodes import RigidFrames
+from voxflex.deform.chain.skinning import DualQuaternionSkinning
 from voxflex.voronoi.shape_functions import shepard
 
 
@@ -50,7 +50,7 @@ def test_rest_and_common_rigid_motion_and_single_parent():
     dqs = DualQuaternionSkinning(frames, sv)
     np.testing.assert_allclose(dqs.apply(frames.rest), sv.rest, atol=1e-14)
     # every frame moved by the same rigid motion x -> R x + c: the points follow it exactly
-    from voxflex.deform.nodes import rotation_exp
+    from voxflex.deform.chain.nodes import rotation_exp
 
     R = rotation_exp(np.array([[0.4, -1.1, 0.7]]))[0]
     c = np.array([0.3, -2.0, 1.0])

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from voxflex.deform.boundary import FixedRegion, ForceRegion
-from voxflex.deform.materials import material
-from voxflex.deform.solvers import SolverOptions, solve
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve.boundary import FixedRegion, ForceRegion
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.errors import ConvergenceError, InputError
 from voxflex.image.label_image import LabelImage
 
@@ -128,7 +129,7 @@ def test_implicit_euler_free_vibration_never_gains_energy():
 
 
 def test_non_convergence_and_bad_input_are_reported(monkeypatch):
-    import voxflex.deform.solvers as S
+    import voxflex.deform.solve.stepping as S
 
     monkeypatch.setattr(S, "MAX_CONTINUATIONS", 0)  # 2 iterations per attempt, no attempt continued: it fails
     model = _block(2, material("neo-hookean", young=1e3, poisson=0.3))
@@ -149,7 +150,7 @@ def test_non_convergence_and_bad_input_are_reported(monkeypatch):
 def test_free_block_gather_equals_scipy_slicing_and_follows_pattern_changes():
     import scipy.sparse as sp
 
-    from voxflex.deform.solvers import _FreeBlock
+    from voxflex.deform.solve.newton import _FreeBlock
 
     rng = np.random.default_rng(0)
     N = 40

@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from voxflex.deform import solvers as _solvers
-from voxflex.deform.boundary import FixedRegion
-from voxflex.deform.materials import material
-from voxflex.deform.solvers import SolverOptions, solve
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
+from voxflex.deform.solve import newton as _solvers
+from voxflex.deform.solve.boundary import FixedRegion
+from voxflex.deform.solve.options import SolverOptions
+from voxflex.deform.solve.stepping import solve
 from voxflex.image.label_image import LabelImage
 
 CLAMP = FixedRegion([-1, -1, -1], [1e-9, 2, 2])

@@ -1,11 +1,11 @@
-"""Distance and extension mappings (voxflex.deform.spring_mappings); derivatives are in the contract."""
+"""Distance and extension mappings (voxflex.deform.chain.spring); derivatives are in the contract."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from voxflex.deform.spring_mappings import DistanceMapping, ExtensionMapping
+from voxflex.deform.chain.spring import DistanceMapping, ExtensionMapping
 from voxflex.errors import InputError
 
 

@@ -16,7 +16,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from contract import MappingCase, check_mapping  # noqa: E402
 from contract_strains import _rotation, sample_F  # noqa: E402
 
-import voxflex.deform.strains as vs  # noqa: E402
+import voxflex.deform.materials.strains as vs
 from voxflex.errors import InputError  # noqa: E402
 
 # the fixed non-trivial F of the hand computations

@@ -163,8 +163,9 @@ def test_the_streamed_file_equals_the_in_memory_run(runs):
 
 
 def test_the_sink_leaves_the_solver_states_unchanged(model):
-    from voxflex.deform.boundary import FixedRegion
-    from voxflex.deform.solvers import SolverOptions, solve
+    from voxflex.deform.solve.boundary import FixedRegion
+    from voxflex.deform.solve.options import SolverOptions
+    from voxflex.deform.solve.stepping import solve
 
     scene = _scene(40)
     held = _run(model, 40)
@@ -300,7 +301,9 @@ def test_resources_bound_streamed_runs_by_the_disk_not_the_steps(runs, tmp_path,
 
 
 def test_a_failed_run_records_its_last_converged_step_whatever_every(tmp_path):
-    from test_partial_results import SCENE as SQUEEZE  # converges at steps 1 and 2 of 5, fails at step 3
+    from test_partial_results import (
+        SCENE as SQUEEZE,  # converges at steps 1 and 2 of 5, fails at step 3
+    )
 
     out = tmp_path / "bar.h5"
     with pytest.raises(vf.ConvergenceError, match="step 3/5"):
@@ -343,7 +346,7 @@ def test_each_recorded_state_evaluates_the_sample_fields_once(tmp_path):
     # the inversion check and the output fields of a state share one model.sample_fields(q): with
     # fields asked, a run of T steps recorded every 2 evaluates them once per step (T + 1 states with the
     # rest state), not twice for the recorded ones; the fields equal those computed afresh
-    from voxflex.deform.fields import model_fields
+    from voxflex.deform.models.fields import model_fields
 
     m = vf.model(_scene(6))
     calls = []

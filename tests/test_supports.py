@@ -3,7 +3,7 @@
 Each case used to "converge" to displacements of 1e11-1e13 m with exit status 0
 (issue: never report garbage as success).  The check is a rank test of the
 rigid motions of every material component against the fixed DOFs (and the
-nodes it shares with held components), see voxflex/deform/supports.py.
+nodes it shares with held components), see voxflex/deform/solve/supports.py.
 """
 
 from __future__ import annotations
@@ -16,10 +16,19 @@ import pytest
 
 import voxflex as vf
 from voxflex.build import ComponentsDroppedWarning
-from voxflex.deform.supports import unsupported_components
+from voxflex.deform.solve.supports import unsupported_components
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
-from voxflex.scene import FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene, SolverSpec
+from voxflex.scene import (
+    FixedSpec,
+    LoadSpec,
+    MaterialSpec,
+    NodesSpec,
+    ObjectSpec,
+    ProbeSpec,
+    Scene,
+    SolverSpec,
+)
 
 BIG = 1e9
 CLAMP = FixedSpec(min=(-BIG, -BIG, -BIG), max=(1e-6, BIG, BIG))
@@ -75,7 +84,7 @@ def test_well_posed_scenes_pass_the_check(tmp_path):
     labels[2, 1, 2] = 1  # on top of the bar's last voxel (a shared face): one component
     scene = _image_scene(tmp_path, labels)
     model = vf.model(scene)
-    from voxflex.deform.boundary import FixedRegion, fixed_dofs
+    from voxflex.deform.solve.boundary import FixedRegion, fixed_dofs
 
     dofs, _ = fixed_dofs(model, [FixedRegion(np.array(CLAMP.min), np.array(CLAMP.max))])
     assert unsupported_components(model, dofs) == []
@@ -111,10 +120,11 @@ def test_islands_can_be_dropped_with_a_warning(tmp_path):
 
 def test_the_frame_model_is_checked_too():
     """Frames: a bar with no frame held, and one with a single frame held in x only, are refused."""
-    from voxflex.deform.boundary import FixedRegion
-    from voxflex.deform.frame_model import FrameModel
-    from voxflex.deform.materials import material
-    from voxflex.deform.solvers import SolverOptions, solve
+    from voxflex.deform.materials.material import material
+    from voxflex.deform.models.frames.model import FrameModel
+    from voxflex.deform.solve.boundary import FixedRegion
+    from voxflex.deform.solve.options import SolverOptions
+    from voxflex.deform.solve.stepping import solve
     from voxflex.voronoi.shape_functions import shepard
 
     image = LabelImage(np.ones((4, 1, 1), dtype=np.uint8))

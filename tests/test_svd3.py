@@ -1,4 +1,4 @@
-"""3x3 SVD by Jacobi rotations (voxflex.deform._svd3): accuracy against numpy's LAPACK SVD and exact constructions.
+"""3x3 SVD by Jacobi rotations (voxflex.deform.materials._svd3): accuracy against numpy's LAPACK SVD and exact constructions.
 
 Tolerances: the algorithm is backward stable with errors of a few ulps of |F|
 (measured ~2e-15); the brief's targets are reconstruction and orthogonality
@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform._svd3 import np_svd3, svd3
+from voxflex.deform.materials._svd3 import np_svd3, svd3
 from voxflex.errors import InputError
 
 REC_TOL = 1e-13  # |U diag(sig) V^T - F| / max|F|

@@ -6,9 +6,14 @@ import numpy as np
 import pytest
 
 from voxflex.errors import InputError
+from voxflex.image.grid import CORNER_OFFSETS, TrilinearGrid, trilinear_weights
 from voxflex.image.label_image import LabelImage
-from voxflex.sampling.quadrature import gauss_legendre_cube, midpoint_cube, unit_cube_rule
-from voxflex.voronoi.trilinear import CORNER_OFFSETS, TrilinearGrid, trilinear_weights
+from voxflex.sampling.quadrature import (
+    gauss_legendre_cube,
+    midpoint_cube,
+    unit_cube_rule,
+)
+from voxflex.voronoi.trilinear import trilinear_quadrature_values, trilinear_values
 
 
 def _rotation(angle=0.3):
@@ -70,7 +75,7 @@ def test_node_numbering_and_world_gradients():
     assert np.allclose(grid.node_positions, image.index_to_world(grid.node_ijk))
     # world gradients at quadrature points reproduce the gradient of any affine field exactly
     local, qw = unit_cube_rule("gauss-legendre")
-    sv = grid.quadrature_shape_values(local, hessian=True)
+    sv = trilinear_quadrature_values(grid, local, hessian=True)
     A = np.array([[1.0, 2.0, -1.0], [0.5, -3.0, 0.2], [0.0, 1.0, 4.0]])
     field = grid.node_positions @ A.T + 0.7
     grad = np.einsum("mai,maj->mij", field[sv.index], sv.dw)
@@ -82,7 +87,7 @@ def test_node_numbering_and_world_gradients():
     for k in range(3):
         e = np.zeros(3)
         e[k] = h
-        sp, sm = grid.shape_values(pts + e), grid.shape_values(pts - e)
+        sp, sm = trilinear_values(grid, pts + e), trilinear_values(grid, pts - e)
         assert np.array_equal(sp.index, sv.index[:5])
         assert np.allclose((sp.dw - sm.dw) / (2 * h), sv.ddw[:5, :, :, k], atol=1e-6 * np.abs(sv.ddw).max())
 
@@ -91,14 +96,14 @@ def test_locate_points_on_faces_and_outside():
     image, grid = _grid()
     # a point on the far face of the last voxel of the x row (outside the image box's interior)
     tip = image.index_to_world([[3.0, 0.5, 0.5]])
-    sv = grid.shape_values(tip)
+    sv = trilinear_values(grid, tip)
     assert np.allclose(np.einsum("ma,mai->mi", sv.w, grid.node_positions[sv.index]), tip, atol=1e-12)
     # a corner node shared by several voxels
     node = grid.node_positions[[7]]
-    sv = grid.shape_values(node)
+    sv = trilinear_values(grid, node)
     assert np.isclose(sv.w.max(), 1.0, atol=1e-12)
     # (0, 1.5, 1.5) is in an empty voxel
     with pytest.raises(InputError, match="outside the material"):
-        grid.shape_values(image.index_to_world([[0.5, 1.5, 1.5]]))
+        trilinear_values(grid, image.index_to_world([[0.5, 1.5, 1.5]]))
     with pytest.raises(InputError, match="outside the material"):
-        grid.shape_values(image.index_to_world([[-0.5, 0.5, 0.5]]))
+        trilinear_values(grid, image.index_to_world([[-0.5, 0.5, 0.5]]))

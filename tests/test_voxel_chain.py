@@ -14,12 +14,13 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from voxflex.deform.mappings import DeformationGradientMapping
-from voxflex.deform.materials import material
-from voxflex.deform.nodes import Points
-from voxflex.deform.voxel_model import VoxelModel
+from voxflex.deform.chain.mappings import DeformationGradientMapping
+from voxflex.deform.chain.nodes import Points
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.image import LabelImage
 from voxflex.sampling.quadrature import unit_cube_rule
+from voxflex.voronoi.trilinear import trilinear_quadrature_values
 
 
 def _model_and_chain(quadrature):
@@ -30,7 +31,7 @@ def _model_and_chain(quadrature):
     mats = {1: material("neo-hookean", young=1e4, poisson=0.3), 2: material("stvk", young=3e4, poisson=0.2)}
     model = VoxelModel.from_image(image, mats, quadrature=quadrature)
     local, weights = unit_cube_rule(quadrature)
-    shape = model.grid.quadrature_shape_values(local)
+    shape = trilinear_quadrature_values(model.grid, local)
     mapping = DeformationGradientMapping(Points(model.rest), shape)
     vol = (model.element_volume[:, None] * weights[None, :]).ravel()
     label = np.repeat(model.element_label, len(weights))

@@ -5,12 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform import _voxel_kernels as kern
-from voxflex.deform.materials import material
-from voxflex.deform.voxel_model import VoxelModel, tangent_is_constant
+from voxflex.deform.materials.material import material
+from voxflex.deform.models.voxel import _kernels as kern
+from voxflex.deform.models.voxel.model import VoxelModel, tangent_is_constant
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 from voxflex.sampling.quadrature import unit_cube_rule
+from voxflex.voronoi.trilinear import trilinear_quadrature_values
 
 
 class _SmallStrainHooke:
@@ -153,7 +154,7 @@ def test_mass_matrices_and_gravity():
     A = np.array([[0.3, -1.0, 0.2], [0.5, 0.1, 0.0], [0.0, 0.7, -0.4]])
     v = (model.rest @ A.T).ravel()
     local, qw = unit_cube_rule("gauss-legendre")
-    sv = model.grid.quadrature_shape_values(local)
+    sv = trilinear_quadrature_values(model.grid, local)
     ms = np.repeat(model.element_masses(dens), 8) * np.tile(qw, model.n_elements)
     assert v @ (Mc @ v) == pytest.approx(np.sum(ms * np.sum((sv.rest @ A.T) ** 2, axis=1)), rel=1e-12)
     g = np.array([0.0, -9.81, 1.0])

@@ -270,7 +270,7 @@ def _obstacles(result) -> list:
         return []
     import pyvista as pv
 
-    from .deform.obstacles import obstacle
+    from .deform.layers.obstacles import obstacle
 
     every = np.concatenate([result.surface_rest, result.surface_positions.reshape(-1, 3)])
     size = 1.5 * float((every.max(axis=0) - every.min(axis=0)).max())

@@ -265,9 +265,9 @@ def _object_size(obj, h=None):
 
 def _material_class(scene) -> str:
     """"constant", "nonlinear" or "reduced": the costliest material class of the scene's labels."""
-    from .deform.materials import material
-    from .deform.voxel_model import nearly_incompressible, tangent_is_constant
-
+    from .deform.materials.fbar import nearly_incompressible
+    from .deform.materials.material import material
+    from .deform.models.voxel.model import tangent_is_constant
     from .errors import InputError
 
     worst = "constant"
@@ -310,8 +310,7 @@ def estimate(scene, *, output=None, keep="auto", every: int = 1) -> Estimate:
     InputError
         Not a Scene, a bad ``keep`` or ``every``, or its object cannot be read (missing image or mesh file).
     """
-    from .scene import check_every, check_keep
-    from .scene import Scene
+    from .scene import Scene, check_every, check_keep
 
     if not isinstance(scene, Scene):
         raise InputError(f"estimate needs a Scene (vf.Scene.from_toml(path)), got {type(scene).__name__}")

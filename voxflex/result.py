@@ -172,7 +172,7 @@ class Result:
         (``/plasticity/yielded_samples``, ``/plasticity/max_strain``); None without plasticity.
     fields : dict name -> (T, F, ...) float
         Result fields on the surface triangles (``/surface/fields/NAME``): what renders colour by
-        (names of :data:`voxflex.deform.fields.FIELD_NAMES`).
+        (names of :data:`voxflex.deform.models.fields.FIELD_NAMES`).
     cell_fields : dict name -> (T, C, ...) float
         The same fields per cell (``/fields/NAME``): C voxels or C samples, see ``cell_location``.
     cell_location : str
@@ -577,8 +577,8 @@ class Result:
         """The voxels as hexahedral cells at every state with :attr:`cell_fields` as cell data."""
         import pyvista as pv
 
+        from .image.grid import CORNER_OFFSETS, TrilinearGrid
         from .image.label_image import LabelImage
-        from .voronoi.trilinear import CORNER_OFFSETS, TrilinearGrid
 
         image = LabelImage(self.image_labels, spacing=self.image_spacing, origin=self.image_origin,
                            direction=self.image_direction)

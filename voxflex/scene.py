@@ -35,19 +35,27 @@ import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from .deform.boundary import FORCE_KINDS, PRESSURE_KIND
-from .deform.linear_solvers import METHODS as LINEAR_SOLVERS
-from .deform.materials import MATERIALS, MODEL_CONSTANTS, POISSON_RANGE, check_constants
-from .deform.model import NODE_KINDS as _NODE_KINDS
-from .deform.obstacles import OBSTACLE_KINDS
-from .deform.contact import POINT_RULES as CONTACT_POINT_RULES
-from .deform.cables import Cable
-from .deform.fields import check_field_names
-from .deform.membrane_model import MEMBRANE_NODE_KIND, MEMBRANE_SHAPES, RIMS as MEMBRANE_RIMS
-from .deform.solvers import KINDS as SOLVER_KINDS, MASS_KINDS, TANGENT_PROJECTIONS
-from .deform.strains import STRAINS
-from .deform.voxel_model import HOURGLASS, VOLUMETRIC
+from .deform.layers.cables import Cable
+from .deform.layers.contact import POINT_RULES as CONTACT_POINT_RULES
+from .deform.layers.obstacles import OBSTACLE_KINDS
+from .deform.materials.material import (
+    MATERIALS,
+    MODEL_CONSTANTS,
+    POISSON_RANGE,
+    check_constants,
+)
+from .deform.materials.strains import STRAINS
+from .deform.models.fields import check_field_names
+from .deform.models.membrane.model import MEMBRANE_NODE_KIND
+from .deform.models.membrane.model import RIMS as MEMBRANE_RIMS
+from .deform.models.protocol import NODE_KINDS as _NODE_KINDS
+from .deform.models.voxel.model import HOURGLASS, VOLUMETRIC
+from .deform.solve.boundary import FORCE_KINDS, PRESSURE_KIND
+from .deform.solve.linear import METHODS as LINEAR_SOLVERS
+from .deform.solve.options import KINDS as SOLVER_KINDS
+from .deform.solve.options import MASS_KINDS, TANGENT_PROJECTIONS
 from .errors import InputError, check_choice, did_you_mean
+from .rasterize.membrane_mesh import MEMBRANE_SHAPES
 from .rasterize.primitives import PRIMITIVES
 from .sampling.quadrature import QUADRATURES
 from .voronoi.shape_functions import SHAPE_FUNCTION_KINDS, VOXEL_SHAPE_FUNCTIONS
@@ -286,7 +294,7 @@ class MaterialSpec:
     model's own constants (``constants``, written as plain keys in TOML);
     ``density`` in kg/m^3; ``strain`` overrides ``[elasticity] strain`` for this
     label.  ``yield_strain`` makes the label plastic (von Mises on the strain,
-    :class:`~voxflex.deform.plasticity.PlasticMaterial`) with the linear
+    :class:`~voxflex.deform.layers.plasticity.PlasticMaterial`) with the linear
     ``hardening`` modulus (dimensionless, default 0: perfectly plastic).
     """
 
@@ -335,7 +343,7 @@ class MaterialSpec:
         object.__setattr__(self, "constants", tuple(sorted(constants.items())))
 
     def material_kwargs(self, default_strain: str | None = None) -> dict:
-        """Keyword arguments for :func:`voxflex.deform.materials.material` (besides the name)."""
+        """Keyword arguments for :func:`voxflex.deform.materials.material.material` (besides the name)."""
         kwargs = dict(self.constants)
         if self.young is not None:
             kwargs["young"] = self.young
@@ -401,7 +409,7 @@ class ElasticitySpec:
     ``quadrature`` defaults to the node kind's own (resolved by :class:`Scene`):
     ``"gauss-legendre"`` (2x2x2 per voxel) for voxel nodes, ``"midpoint"``
     (``samples`` regions) for frames.  ``samples`` defaults to 20
-    per frame (``voxflex.build.SAMPLES_PER_FRAME``, resolved where the frame count is known)."""
+    per frame (``voxflex.deform.models.frames.build.SAMPLES_PER_FRAME``, resolved where the frame count is known)."""
 
     quadrature: str | None = None
     samples: int | None = None
@@ -514,7 +522,7 @@ class SolverSpec:
     ``mass`` (``lumped`` or ``consistent``, implicit Euler), ``check_stability``
     (test every converged state for a negative tangent eigenvalue), ``tangent_projection``
     (per-sample tangents projected to positive semi-definite far from equilibrium).  The keys mirror
-    :class:`voxflex.deform.solvers.SolverOptions` one for one."""
+    :class:`voxflex.deform.solve.options.SolverOptions` one for one."""
 
     kind: str = "static"
     dt: float = 0.01
@@ -591,7 +599,7 @@ def check_every(every, where: str = "every") -> int:
 @dataclass(frozen=True)
 class OutputSpec:
     """``[output]``: ``file`` — the result file (.h5) written after the run (resolved like mesh paths);
-    ``fields`` — the result fields computed at every state (names of :data:`voxflex.deform.fields.FIELD_NAMES`);
+    ``fields`` — the result fields computed at every state (names of :data:`voxflex.deform.models.fields.FIELD_NAMES`);
     ``every`` — record every k-th step (and the rest state and the last step); ``keep`` — which recorded
     states the returned result holds in memory (``"auto"``, ``"all"``, ``"last"`` or a number N; the file
     has every recorded state).  The command line's ``--every`` / ``--keep`` override the last two."""
@@ -625,7 +633,7 @@ class ObstacleSpec:
     ``"sphere"`` (``center``, ``radius``), ``"box"`` (``min``, ``max``) or ``"sdf"``
     (``file``: a label image, or an ``.npz`` signed-distance image with
     ``distance``, ``spacing``, ``origin``; resolved like mesh paths); metres.
-    ``friction`` is the Coulomb coefficient (lagged, smoothed friction: :mod:`voxflex.deform.contact`);
+    ``friction`` is the Coulomb coefficient (lagged, smoothed friction: :mod:`voxflex.deform.layers.contact`);
     ``motion`` a rigid 3x4 map ``[R | t]`` the obstacle reaches at the end of the
     run (interpolated over the steps).
     """
@@ -668,7 +676,7 @@ class ObstacleSpec:
             object.__setattr__(self, "motion", tuple(_vector(t, "motion", r, 4) for r in rows))
 
     def parameters(self) -> dict:
-        """Keyword arguments of :func:`voxflex.deform.obstacles.obstacle` (besides the kind)."""
+        """Keyword arguments of :func:`voxflex.deform.layers.obstacles.obstacle` (besides the kind)."""
         out = {k: getattr(self, k) for k in _OBSTACLE_KEYS[self.kind]}
         out["friction"] = self.friction
         if self.motion is not None:
@@ -708,7 +716,7 @@ class ContactSpec:
 
 @dataclass(frozen=True)
 class CableSpec:
-    """``[[cable]]``: a tension-only cable through material points (:mod:`voxflex.deform.cables`).
+    """``[[cable]]``: a tension-only cable through material points (:mod:`voxflex.deform.layers.cables`).
 
     ``points`` the rest positions (m) of the material points it runs through, in
     order (it slides through them without friction: one tension along the whole
@@ -754,7 +762,7 @@ class CableSpec:
 
 @dataclass(frozen=True)
 class MembraneSpec:
-    """``[membrane]``: the sheet of ``[nodes] kind = "membrane"`` (:mod:`voxflex.deform.membrane_model`).
+    """``[membrane]``: the sheet of ``[nodes] kind = "membrane"`` (:mod:`voxflex.deform.models.membrane.model`).
 
     ``thickness`` h (m, required); ``rim``: ``"clamped"`` holds every vertex of the
     mesh's open rim (the edges only one triangle uses) in place, ``"free"`` (the

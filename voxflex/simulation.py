@@ -2,14 +2,14 @@
 
 The model comes from :func:`voxflex.build.model` (the registry keyed by
 ``[nodes] kind``), or is given; everything here talks to it through the model
-protocol (:mod:`voxflex.deform.model`).  Layers are built only when needed:
+protocol (:mod:`voxflex.deform.models.protocol`).  Layers are built only when needed:
 the mass matrix only for dynamics (the solver builds it), densities only for
 gravity or dynamics, probe mappings only for probes, the boundary surface
 once (the result file always carries it).
 
 Beyond positions the result carries, per state, the inversion statistics
 (samples with det F <= 0 and the smallest det F) and the fields ``[output]
-fields`` asks for (:mod:`voxflex.deform.fields`; reactions of the fixed
+fields`` asks for (:mod:`voxflex.deform.models.fields`; reactions of the fixed
 regions).  A run whose later step fails still returns its converged steps:
 the result file is written marked incomplete and the error is raised after.
 
@@ -133,10 +133,12 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
         else:
             raise InputError(f"simulate needs a Scene or a scene file path, got {type(scene).__name__}")
     from . import _progress
-    from .build import build_image, model as build_model
     from ._atomic import atomic_path
-    from .deform.boundary import FORCE_KINDS, FixedRegion, ForceRegion
-    from .deform.solvers import SolverOptions, solve
+    from .build import build_image
+    from .build import model as build_model
+    from .deform.solve.boundary import FORCE_KINDS, FixedRegion, ForceRegion
+    from .deform.solve.options import SolverOptions
+    from .deform.solve.stepping import solve
     from .scene import check_every, check_keep
 
     keep = scene.output.keep if keep is None else check_keep(keep)
@@ -290,9 +292,9 @@ class _Recorder:
 
     def __init__(self, scene, image, model, probe_map, *, fixed, forces, densities, options, keep, every,
                  streamed):
-        from .deform.cables import CableModel
-        from .deform.contact import ContactModel
-        from .deform.plasticity import PlasticModel
+        from .deform.layers.cables import CableModel
+        from .deform.layers.contact import ContactModel
+        from .deform.layers.plasticity import PlasticModel
 
         self.scene, self.image, self.model, self.probe_map = scene, image, model, probe_map
         self._layer = None  # (q, model.sample_fields(q)) of the state being recorded
@@ -395,7 +397,7 @@ class _Recorder:
         return t / (s.steps * s.dt) if s.kind == "implicit-euler" else t
 
     def _row(self, k, rec, prev, inversion) -> dict:
-        from .deform.fields import model_fields
+        from .deform.models.fields import model_fields
 
         q = np.asarray(rec.q, dtype=float)
         row = {"time": float(rec.time)}
@@ -493,7 +495,7 @@ class _Reactions:
     """
 
     def __init__(self, model, scene, fixed, forces, densities, options):
-        from .deform.boundary import fixed_dofs, region_forces
+        from .deform.solve.boundary import fixed_dofs, region_forces
 
         self.model, self.options, self.n = model, options, len(fixed)
         self.dofs, self.owner = fixed_dofs(model, fixed)

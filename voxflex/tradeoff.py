@@ -572,9 +572,8 @@ _WARMED: set = set()  # warm-up keys already run in this process (one per worker
 @contextlib.contextmanager
 def _pinned():
     """BLAS and OpenMP at one thread, numba at one thread: timings of one core, results independent of threads."""
-    from threadpoolctl import threadpool_limits
-
     import numba
+    from threadpoolctl import threadpool_limits
 
     before = numba.get_num_threads()
     with threadpool_limits(limits=1):

@@ -1,7 +1,7 @@
 """Deformation core: nodes, mappings, strains, materials, models, mass, solvers.
 
 Models (the voxel model, the frame model) satisfy one protocol
-(:mod:`voxflex.deform.model`) through which solvers, loads and boundary
+(:mod:`voxflex.deform.models.protocol`) through which solvers, loads and boundary
 conditions reach them.
 
 The chain  nodes --J--> deformation gradients F --J--> strains --> energy.
@@ -16,55 +16,41 @@ in (or wait for) the others.
 
 from __future__ import annotations
 
-import importlib
+from .._lazy import lazy
 
-_LAZY = {
-    "material": "voxflex.deform.materials",
-    "Material": "voxflex.deform.materials",
-    "MATERIALS": "voxflex.deform.materials",
-    "strain": "voxflex.deform.strains",
-    "get_strain": "voxflex.deform.strains",
-    "STRAINS": "voxflex.deform.strains",
-    "Points": "voxflex.deform.nodes",
-    "AffineFrames": "voxflex.deform.nodes",
-    "RigidFrames": "voxflex.deform.nodes",
-    "PointMapping": "voxflex.deform.mappings",
-    "DeformationGradientMapping": "voxflex.deform.mappings",
-    "DeformationGradientWithGradientMapping": "voxflex.deform.mappings",
-    "Model": "voxflex.deform.model",
-    "VoxelModel": "voxflex.deform.voxel_model",
-    "FrameModel": "voxflex.deform.frame_model",
-    "RigidFrameModel": "voxflex.deform.rigid_frame_model",
-    "ContactModel": "voxflex.deform.contact",
-    "with_contact": "voxflex.deform.contact",
-    "CableModel": "voxflex.deform.cables",
-    "with_cables": "voxflex.deform.cables",
-    "obstacle": "voxflex.deform.obstacles",
-    "DistanceMapping": "voxflex.deform.spring_mappings",
-    "ExtensionMapping": "voxflex.deform.spring_mappings",
-    "LogRigidMapping": "voxflex.deform.rigid_mappings",
-    "RelativeRigidMapping": "voxflex.deform.rigid_mappings",
-    "TriangleDeformationMapping": "voxflex.deform.membrane",
-    "StVKMembrane": "voxflex.deform.membrane",
-    "DualQuaternionSkinning": "voxflex.deform.skinning",
-    "MovingLeastSquaresMapping": "voxflex.deform.mls",
-    "PlasticMaterial": "voxflex.deform.plasticity",
-    "SolverOptions": "voxflex.deform.solvers",
-    "solve": "voxflex.deform.solvers",
-    "FixedRegion": "voxflex.deform.boundary",
-    "ForceRegion": "voxflex.deform.boundary",
-}
-
-__all__ = list(_LAZY)
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'voxflex.deform' has no attribute '{name}'")
-
-
-def __dir__():
-    return sorted(__all__)
+__getattr__, __dir__, __all__ = lazy(__name__, {
+    "material": "voxflex.deform.materials.material",
+    "Material": "voxflex.deform.materials.material",
+    "MATERIALS": "voxflex.deform.materials.material",
+    "strain": "voxflex.deform.materials.strains",
+    "get_strain": "voxflex.deform.materials.strains",
+    "STRAINS": "voxflex.deform.materials.strains",
+    "Points": "voxflex.deform.chain.nodes",
+    "AffineFrames": "voxflex.deform.chain.nodes",
+    "RigidFrames": "voxflex.deform.chain.nodes",
+    "PointMapping": "voxflex.deform.chain.mappings",
+    "DeformationGradientMapping": "voxflex.deform.chain.mappings",
+    "DeformationGradientWithGradientMapping": "voxflex.deform.chain.mappings",
+    "Model": "voxflex.deform.models.protocol",
+    "VoxelModel": "voxflex.deform.models.voxel.model",
+    "FrameModel": "voxflex.deform.models.frames.model",
+    "RigidFrameModel": "voxflex.deform.models.rigid.model",
+    "ContactModel": "voxflex.deform.layers.contact",
+    "with_contact": "voxflex.deform.layers.contact",
+    "CableModel": "voxflex.deform.layers.cables",
+    "with_cables": "voxflex.deform.layers.cables",
+    "obstacle": "voxflex.deform.layers.obstacles",
+    "DistanceMapping": "voxflex.deform.chain.spring",
+    "ExtensionMapping": "voxflex.deform.chain.spring",
+    "LogRigidMapping": "voxflex.deform.chain.rigid",
+    "RelativeRigidMapping": "voxflex.deform.chain.rigid",
+    "TriangleDeformationMapping": "voxflex.deform.chain.membrane",
+    "StVKMembrane": "voxflex.deform.chain.membrane",
+    "DualQuaternionSkinning": "voxflex.deform.chain.skinning",
+    "MovingLeastSquaresMapping": "voxflex.deform.chain.mls",
+    "PlasticMaterial": "voxflex.deform.layers.plasticity",
+    "SolverOptions": "voxflex.deform.solve.options",
+    "solve": "voxflex.deform.solve.stepping",
+    "FixedRegion": "voxflex.deform.solve.boundary",
+    "ForceRegion": "voxflex.deform.solve.boundary",
+})

@@ -263,7 +263,11 @@ def _quiet_vtk():
     """
     import warnings
 
-    from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
+    from vtkmodules.vtkCommonCore import (
+        vtkLogger,
+        vtkOutputWindow,
+        vtkStringOutputWindow,
+    )
 
     report = _VtkReport()
     cutoff = vtkLogger.GetCurrentVerbosityCutoff()  # no getter for stderr alone; equal without file sinks

@@ -9,25 +9,11 @@ Public names are imported lazily.
 
 from __future__ import annotations
 
-import importlib
+from .._lazy import lazy
 
-_LAZY = {
+__getattr__, __dir__, __all__ = lazy(__name__, {
     "sample": "voxflex.sampling.sampler",
     "SamplingCountWarning": "voxflex.sampling.sampler",
     "Samples": "voxflex.sampling.samples",
     "KINDS": "voxflex.sampling.samples",
-}
-
-__all__ = list(_LAZY)
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'voxflex.sampling' has no attribute '{name}'")
-
-
-def __dir__():
-    return sorted(__all__)
+})

@@ -1,6 +1,6 @@
 """Volume moments of simple regions about sample points (the elastons' V, M1, M2).
 
-An elaston (:mod:`voxflex.deform.elaston`) integrates a strain field that
+An elaston (:mod:`voxflex.deform.materials.elaston`) integrates a strain field that
 varies linearly over its region from the region's volume ``V``, first moment
 ``M1 = int (x - x0) dV`` and second moment ``M2 = int (x - x0)(x - x0)^T dV``.
 

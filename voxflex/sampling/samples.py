@@ -1,7 +1,7 @@
 """The :class:`Samples` container: integration samples of a label image.
 
 Produced by :func:`voxflex.sampling.sample`; consumed by the frame model (energy
-and mass integration) and by :func:`voxflex.deform.modes.zero_energy_modes`.
+and mass integration) and by :func:`voxflex.deform.models.frames.modes.zero_energy_modes`.
 """
 
 from __future__ import annotations

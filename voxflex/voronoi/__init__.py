@@ -11,7 +11,7 @@ The stage takes a label image and returns shape functions:
   and Shepard weights at any material point, as :class:`ShapeValues`.
 
 The full-resolution voxel model uses trilinear shape functions
-(:mod:`voxflex.voronoi.trilinear`).
+(:mod:`voxflex.image.grid`).
 """
 
 from .geodesic import geodesic_distance

@@ -6,7 +6,7 @@ collision or visual points, quadrature samples).  Child ``c`` depends on at most
 indices (padded with ``-1``), the values ``w``, the gradients ``dw`` with
 respect to the child's rest position ``X`` and optionally the Hessians ``ddw``.
 Any shape function (Shepard, natural neighbours, trilinear voxel weights)
-produces one; the mappings of :mod:`voxflex.deform.mappings` consume it.
+produces one; the mappings of :mod:`voxflex.deform.chain.mappings` consume it.
 
 Example
 -------

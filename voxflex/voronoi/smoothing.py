@@ -34,8 +34,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError
 from .._jit import njit
+from ..errors import InputError
 from .shape_functions import ShapeValues
 
 __all__ = ["SmoothWeights"]

@@ -1,0 +1,33 @@
+"""Compiled kernel of :func:`voxflex._linalg.free_block` (the free-DOF gather of a CSR matrix)."""
+
+from __future__ import annotations
+
+from ._jit import njit
+
+
+@njit
+def free_block_kernel(indptr, indices, data, newcol, free, out_indptr, out_indices, out_data):
+    """Gather ``A[free][:, free]`` of a CSR matrix (free sorted): rows ``free[k]``, columns ``newcol >= 0``.
+
+    ``newcol`` (N,) maps a column to its place among the free ones (-1: dropped).
+    Writes ``out_indptr`` (F + 1,), and the kept entries into ``out_indices``
+    and ``out_data`` in row order; these may be ``indices`` and ``data``
+    themselves (an in-place compaction: entry e is only ever moved to a
+    position at or before e).  Returns the number of entries kept; with
+    ``out_indices`` of length 0 it only counts them (and fills ``out_indptr``).
+    Plain twin: ``linear_solvers._free_block_impl``.
+    """
+    count_only = len(out_indices) == 0
+    w = 0
+    out_indptr[0] = 0
+    for k in range(len(free)):
+        r = free[k]
+        for e in range(indptr[r], indptr[r + 1]):
+            c = newcol[indices[e]]
+            if c >= 0:
+                if not count_only:
+                    out_indices[w] = c
+                    out_data[w] = data[e]
+                w += 1
+        out_indptr[k + 1] = w
+    return w

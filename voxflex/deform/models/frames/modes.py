@@ -1,0 +1,227 @@
+"""Rank check of a frame model's quadrature: count the zero-energy modes of a free body.
+
+A free body of affine frames integrated with linear isotropic elasticity at
+the samples has exactly six zero-energy modes (three translations, three
+infinitesimal rotations) when the samples are enough; with too few samples
+the stiffness ``K = sum_s J_s^T (V_s C) J_s`` is rank-deficient and the extra
+null vectors are spurious (hourglass) modes.  Each mid-point sample adds at most
+6 to the rank (the symmetric strain components); an elaston with gradient
+terms adds at most 24 (strain and its gradient).
+
+>>> import numpy as np                                              # doctest: +SKIP
+>>> zero_energy_modes(frames, samples)                              # doctest: +SKIP
+6
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ....errors import InputError
+from ...chain.mappings import DeformationGradientWithGradientMapping
+from ...chain.nodes import AffineFrames
+
+__all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness", "softest_mode",
+           "SOFT_RATIO"]
+
+
+class SpuriousModesWarning(UserWarning):
+    """The samples leave zero-energy modes beyond the six rigid ones."""
+
+
+def _unit_hooke_F() -> np.ndarray:
+    """(9, 9) tangent d2W/dF2 of ``W = mu |sym(F)|^2 + lambda/2 tr(F)^2`` with mu = lambda = 1."""
+    I = np.eye(3)
+    C = np.einsum("ij,kl->ijkl", I, I) + np.einsum("ik,jl->ijkl", I, I) + np.einsum("il,jk->ijkl", I, I)
+    return C.reshape(9, 9)
+
+
+def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.ndarray:
+    """Dense stiffness (12n, 12n) of affine frames at rest with unit linear isotropic elasticity at the samples.
+
+    Parameters
+    ----------
+    frames : (n, 3) float
+        Rest positions of the frames [m].
+    samples : Samples
+        Integration samples (their ``values`` are the shape functions on these frames).
+    gradient : bool, optional
+        Include the strain-gradient terms of elastons (``∇F`` with the moments
+        M1, M2); default: when ``samples.kind == "elaston"`` and the values have Hessians.
+
+    Returns
+    -------
+    (12n, 12n) float, symmetric positive semi-definite [Pa m^3].
+    """
+    X = np.asarray(frames, dtype=np.float64)
+    if X.ndim != 2 or X.shape[1] != 3:
+        raise InputError(f"frames must be an (n, 3) array, got shape {X.shape}")
+    for attr in ("values", "volume"):
+        if not hasattr(samples, attr):
+            raise InputError(f"samples must be a voxflex Samples (missing '{attr}'); build them with vf.sample")
+    values = samples.values
+    if gradient is None:
+        gradient = getattr(samples, "kind", None) == "elaston" and values.ddw is not None
+    if gradient and not (hasattr(samples, "M1") and hasattr(samples, "M2")):
+        raise InputError("gradient terms need the samples' moments M1 and M2 (elastons from vf.sample)")
+    C = _unit_hooke_F()
+    V = np.asarray(samples.volume, dtype=np.float64)
+    m = len(V)
+    if not gradient:
+        return _point_stiffness(X, values, V, C)
+    nodes = AffineFrames(X)
+    mapping = DeformationGradientWithGradientMapping(nodes, values)
+    M1, M2 = np.asarray(samples.M1), np.asarray(samples.M2)
+    # E = 1/2 int C[dF(x)]^2, dF(x) = F + ∇F (x - p): blocks over (F 9 | ∇F 27 = (ij)*3 + a)
+    H = np.zeros((m, 36, 36))
+    H[:, :9, :9] = V[:, None, None] * C
+    FdF = np.einsum("pq,sb->spqb", C, M1).reshape(m, 9, 27)
+    H[:, :9, 9:] = FdF
+    H[:, 9:, :9] = FdF.transpose(0, 2, 1)
+    H[:, 9:, 9:] = np.einsum("pq,sab->spaqb", C, M2).reshape(m, 27, 27)
+    J = mapping.jacobian(nodes.rest)
+    import scipy.sparse as sp
+
+    Hb = sp.block_diag(list(H), format="csr") if m else sp.csr_matrix((0, 0))
+    assert Hb.shape[0] == J.shape[0] == m * 36
+    K = (J.T @ Hb @ J).toarray()
+    return 0.5 * (K + K.T)
+
+
+def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None) -> int:
+    """Number of zero eigenvalues of the free-body stiffness (six for a sound quadrature).
+
+    Parameters
+    ----------
+    frames : (n, 3) float
+        Rest positions of the frames [m].
+    samples : Samples
+    tol : float, keyword-only
+        An eigenvalue counts as zero below ``tol * max eigenvalue``.
+    gradient : bool, optional
+        See :func:`free_body_stiffness`.
+    stiffness : (12n, 12n) float, optional
+        ``free_body_stiffness(frames, samples, gradient=gradient)`` when the caller has it.
+
+    Returns
+    -------
+    int
+    """
+    tol = float(tol)
+    if not 0 < tol < 1:
+        raise InputError(f"tol must be in (0, 1), got {tol}")
+    K = free_body_stiffness(frames, samples, gradient=gradient) if stiffness is None else stiffness
+    from ...._blas import one_thread
+
+    with one_thread():  # threaded BLAS stalls on small dense work here
+        ev = np.linalg.eigvalsh(K)
+    top = float(ev.max()) if ev.size else 0.0
+    if top <= 0:
+        return int(ev.size)
+    return int((ev < tol * top).sum())
+
+
+def _point_stiffness(frames, values, volume, C) -> np.ndarray:
+    """``sum_s V_s J_s^T C J_s`` (12n, 12n) of point samples by the frame model's compiled pair-block
+    kernel (equal to the sparse product ``J^T blockdiag(V C) J`` to round-off, 5x faster at 800 samples)."""
+    from . import _kernels as K
+
+    n = len(frames)
+    G = K.frame_tables(values, frames)
+    tables = K.frame_pairs(np.asarray(values.index), G, n)
+    A = np.ascontiguousarray(np.broadcast_to(C.reshape(3, 3, 3, 3), (len(volume), 3, 3, 3, 3)))
+    return K.frame_stiffness_dense(tables[0], tables[1], A, n, volume, tables)
+
+
+SOFT_RATIO = 0.02
+"""A deformation mode whose energy at the samples is below this fraction of its energy with one
+mid-point sample in every voxel is a spurious near-zero-energy mode (:func:`softest_mode`).
+
+Measured on the documented sweeps (``docs/tradeoff.md``; smallest ratio over the free DOFs): the
+configurations with tip errors of 97 % (cantilever 32x8x8, 40 frames, 100 samples), 283 % (capsule,
+40 frames, 100 samples) and 225 Newton iterations (cantilever 16x4x4, 40 frames, 200 samples) have
+0.0035, 0.0064 and 0.0009.  The 40 mid-point and elaston configurations the sweeps keep measure
+0.039 - 1 (the default scene: 0.30).  The ratio does not catch every poor model: 40 frames on 100
+elastons of the capsule measure 0.056 and are 57 % off."""
+
+
+def softest_mode(frames, samples, reference, free=None, *, stiffness=None) -> float | None:
+    """How much softer the samples make the softest deformation than a finer quadrature does.
+
+    The smallest ``lambda`` of ``K_s v = lambda K_ref v`` over the DOFs ``free``, with the two
+    stiffnesses of unit linear isotropic elasticity at the samples and at the reference samples
+    (one mid-point sample per voxel: :func:`voxflex.sampling.voxel.voxel_samples`).  Spurious
+    (hourglass) modes that under-integration leaves nearly free have ``lambda`` near 0; a sound
+    quadrature 0.1 - 1.  Without ``free`` the six rigid modes, zero in both, are deflated (given
+    unit ratio).  None when the reference itself leaves a zero-energy mode among those DOFs.
+
+    Parameters
+    ----------
+    frames : (n, 3) float
+    samples, reference : Samples
+        Their values on these frames.
+    free : (F,) int, optional
+        The DOFs the scene does not hold (default all: a free body).
+    stiffness : (12n, 12n) float, optional
+        ``free_body_stiffness(frames, samples)`` when the caller has it.
+
+    Returns
+    -------
+    float or None
+    """
+    import scipy.linalg as sla
+
+    from ...._blas import one_thread
+
+    Ks = free_body_stiffness(frames, samples) if stiffness is None else stiffness
+    Kr = free_body_stiffness(frames, reference)
+    if free is None:
+        R = _rigid_modes(np.asarray(frames, dtype=np.float64))
+        scale = np.trace(Kr) / len(Kr)
+        Ks = Ks + scale * (R @ R.T)
+        Kr = Kr + scale * (R @ R.T)
+    else:
+        free = np.asarray(free, dtype=np.int64)
+        Ks, Kr = Ks[np.ix_(free, free)], Kr[np.ix_(free, free)]
+    if Ks.size == 0:
+        return None
+    with one_thread():
+        try:
+            lam = sla.eigh(Ks, Kr, eigvals_only=True, subset_by_index=[0, 0], check_finite=False)
+        except np.linalg.LinAlgError:  # the reference is singular there
+            return None
+    return float(lam[0])
+
+
+def _rigid_modes(frames) -> np.ndarray:
+    """(12n, 6) orthonormal basis of the affine frames' rigid motions (:meth:`AffineFrames.rigid_modes`)."""
+    Q, _ = np.linalg.qr(AffineFrames(frames).rigid_modes())
+    return Q
+
+
+def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None) -> int:
+    """Count zero-energy modes and warn (:class:`SpuriousModesWarning`) when there are more than six.
+
+    The warning names how many samples to add at least (each mid-point sample
+    removes at most 6 modes, an elaston with gradient terms at most 24).
+    ``stiffness``: the free-body stiffness when the caller has it (see :func:`zero_energy_modes`).
+
+    Returns
+    -------
+    int : the number of zero-energy modes.
+    """
+    if gradient is None:
+        gradient = getattr(samples, "kind", None) == "elaston" and samples.values.ddw is not None
+    zero = zero_energy_modes(frames, samples, tol=tol, gradient=gradient, stiffness=stiffness)
+    if zero > 6:
+        per = 24 if gradient else 6
+        add = -(-(zero - 6) // per)
+        warnings.warn(
+            f"the quadrature leaves {zero - 6} spurious zero-energy modes ({zero} zero eigenvalues, a free body has 6); "
+            f"add at least {add} samples (each adds at most {per} independent strain components)",
+            SpuriousModesWarning,
+            stacklevel=2,
+        )
+    return zero

@@ -1,0 +1,579 @@
+"""Newton's method on the free DOFs of one step (statics or an implicit-Euler step).
+
+Inexact Newton with an energy line search, load-level scaled tolerances,
+round-off floors, tangent projection on demand and the choice of the linear
+solver per Newton system; :mod:`voxflex.deform.solve.stepping` drives it over
+load steps and time steps.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..._linalg import vdot, vnorm
+from ...errors import ConvergenceError
+from .linear import cg_on_free_dofs, choose_method, solve_linear
+
+ARMIJO = 1e-4
+
+
+MAX_HALVINGS = 30
+
+
+DENSE_AUTO_MAX = 6000  # unknowns up to which a nearly dense Hessian goes to dense Cholesky under "auto"
+
+
+DENSE_FILL = 0.2  # fraction of non-zeros above which a Hessian counts as nearly dense
+
+
+ROUNDOFF = 1e-11  # relative energy slack of the line search (differences of Pi below it are round-off)
+
+
+NOISE = 1e-7  # relative energy change under which a full Newton step that cuts the residual is accepted
+
+
+class _Problem:
+    """The potential of one step over the increment ``delta`` (N,) from the step's start ``base``.
+
+    The state is ``base + delta``.  Inertia and damping see ``delta`` plus the
+    differences ``base - xhat`` and ``base - xn`` computed once, never the
+    difference of two absolute states: with tiny time steps ``M / h^2`` would
+    otherwise amplify the round-off of the positions (eps |x|) into forces
+    that swamp the physics.
+    """
+
+    def __init__(self, model, f, base, M=None, h=None, xhat=None, xn=None, D=None, *, block=None, adder=None):
+        self.model = model
+        self.f = f
+        self.M = M
+        self.h = h
+        self.base = base
+        self.off_hat = None if xhat is None else base - xhat
+        self.off_n = None if xn is None else base - xn
+        self.D = D
+        self.rest = np.asarray(model.rest, dtype=float).ravel()
+        self.shape = np.shape(model.rest)
+        self.constant = bool(model.constant_tangent)
+        self.work0 = vdot(f, base - self.rest)
+        self.elastic_diagonal = None
+        self.negative_curvature = False  # set by Newton when a direction of negative curvature was met
+        self.on_iteration = None  # optional callable(dict) told about every Newton iterate (progress, logs)
+        # the lean static path of constant-tangent models: the free-DOF block (F, F) assembled once by the
+        # model, no full Hessian ever built (gradients then matrix-free); Newton solves with it
+        self.block = block
+        self.elements = None
+        if block is not None:
+            self.elastic_diagonal = block.diagonal()  # of the free DOFs only (what the round-off floor reads)
+            # the block's matrix as voxel element matrices: multigrid forms its first coarse level from them
+            elements = getattr(model, "stiffness_elements", None)
+            self.elements = elements() if callable(elements) else None
+        # the inertia (and damping) matrix of the step, M / h^2 + D / h, built once, added to each Hessian
+        self.inertia = None
+        if M is not None:
+            self.inertia = sp.csr_matrix(M / h**2 if D is None else M / h**2 + D / h)
+        self._adder = adder if adder is not None else _PatternAdd()
+        # waste counters (benchmarks, tests): model evaluations, Hessians assembled, Hessians solved (Newton
+        # counts them) and the iterates whose Hessian the line search skipped but which needed one after all
+        self.evaluations = 0
+        self.energy_only = 0
+        self.hessians = 0
+        self.solves = 0
+        self.hessian_misses = 0
+        self.projected = 0  # Hessians built from projected tangents
+
+    def __call__(self, delta, hessian=True, gradient=True, project=False):
+        q = (self.base + delta).reshape(self.shape)
+        hessian = hessian and self.block is None
+        self.evaluations += 1
+        self.hessians += bool(hessian and gradient)
+        self.energy_only += not gradient
+        setter = getattr(self.model, "set_tangent_projection", None) if project and hessian and gradient else None
+        if setter is not None:
+            self.projected += bool(setter(True))
+            try:
+                E, g, H = self.model.energy_gradient_hessian(q, hessian=True)
+            finally:
+                setter(False)  # the model's Hessians stay exact outside this call (stability check, damping)
+        else:
+            E, g, H = self.model.energy_gradient_hessian(q, hessian=hessian) if gradient else (
+                self.model.energy(q), None, None)
+        work = self.work0 + vdot(self.f, delta)
+        pot = E - work
+        mag = abs(E) + abs(work)
+        if H is not None and self.elastic_diagonal is None:
+            self.elastic_diagonal = H.diagonal()  # read once, at the step's start (the round-off floor)
+        if g is not None:
+            g = g.ravel() - self.f
+        if self.M is not None:
+            dx = delta + self.off_hat
+            Mdx = self.M @ dx
+            kin = 0.5 * vdot(dx, Mdx) / self.h**2
+            pot += kin
+            mag += kin
+            if g is not None:
+                g = g + Mdx / self.h**2
+            if self.D is not None:
+                dn = delta + self.off_n
+                Ddn = self.D @ dn
+                damp = 0.5 * vdot(dn, Ddn) / self.h
+                pot += damp
+                mag += damp
+                if g is not None:
+                    g = g + Ddn / self.h
+            if H is not None:
+                H = self._adder(H, self.inertia)
+        if H is not None and not isinstance(H, np.ndarray):
+            H = sp.csr_matrix(H)
+        return pot, E, g, H, mag
+
+
+class _PatternAdd:
+    """``H + S`` for Hessians H that share one sparsity pattern and a fixed sparse S inside it.
+
+    scipy's sparse sum merges the two patterns on every call (a new CSR per
+    Newton iteration of implicit Euler); here the positions of S's entries in
+    H's pattern are found once per (pattern, S) and each call is a copy of
+    H's values plus a scatter-add.  Dense Hessians (frame models) get S's dense
+    form, made once.  Falls back to the plain sum when S has an entry outside H's pattern.
+    """
+
+    def __init__(self):
+        self._key = None
+        self._pos = None
+        self._dense = None
+
+    def __call__(self, H, S):
+        if isinstance(H, np.ndarray):
+            if self._dense is None or self._dense[0] is not S:
+                self._dense = (S, S.toarray())
+            return H + self._dense[1]
+        H = sp.csr_matrix(H)
+        if not H.has_canonical_format:
+            return H + S
+        if not self._same(H, S):
+            self._pos = _positions_in(H, S)
+            self._key = (H.indptr, H.indices, S.indptr.copy(), S.indices.copy())
+        if self._pos is None:
+            return H + S
+        data = H.data.copy()  # never write into the model's arrays (a constant model shares its cached data)
+        np.add.at(data, self._pos, S.data)
+        return sp.csr_matrix((data, H.indices, H.indptr), shape=H.shape)
+
+
+    def _same(self, H, S) -> bool:
+        """Whether H and S have the patterns the cached positions were found for (S's may be a new matrix)."""
+        if self._key is None:
+            return False
+        hp, hi, sp_, si = self._key
+        if len(hi) != len(H.indices) or len(hp) != len(H.indptr) or len(si) != len(S.indices) or \
+                len(sp_) != len(S.indptr):
+            return False
+        same_h = (hp is H.indptr and hi is H.indices) or (np.array_equal(hp, H.indptr) and np.array_equal(hi, H.indices))
+        return same_h and np.array_equal(sp_, S.indptr) and np.array_equal(si, S.indices)
+
+
+def _positions_in(H, S):
+    """Index (S.nnz,) of each stored entry of the CSR S in the canonical CSR H's data, or None when one is missing."""
+    S = sp.csr_matrix(S)
+    rows = np.repeat(np.arange(S.shape[0]), np.diff(S.indptr))
+    cols = S.indices
+    starts, ends = H.indptr[rows], H.indptr[rows + 1]
+    # binary search of each column inside its row of H (indices sorted per row): global offsets into H.indices
+    keys = rows.astype(np.int64) * H.shape[1] + cols
+    hrows = np.repeat(np.arange(H.shape[0], dtype=np.int64), np.diff(H.indptr))
+    hkeys = hrows * H.shape[1] + H.indices
+    pos = np.searchsorted(hkeys, keys)
+    ok = (pos < len(hkeys)) & (pos >= starts) & (pos < ends)
+    ok[ok] = hkeys[pos[ok]] == keys[ok]
+    return pos if bool(np.all(ok)) else None
+
+
+def _predict_converged(rn, rn_last, target, floor) -> bool:
+    """Whether a full Newton step from an iterate of residual ``rn`` (after ``rn_last``) should converge.
+
+    The linear-rate estimate ``rn * (rn / rn_last)`` (Newton's rate is at
+    least that good once it contracts) against the stopping threshold.  The
+    iterate is then evaluated without its Hessian, which would never be
+    solved; a wrong guess costs one extra gradient pass (the Hessian is then
+    assembled in a second pass).
+    """
+    if rn_last is None or not rn < 0.5 * rn_last:
+        return False
+    return rn * (rn / rn_last) <= max(target, floor)
+
+
+def _project_tangents(mode, step_length, indefinite, projected) -> bool:
+    """Whether the next Hessian is built from tangents projected to PSD (:data:`TANGENT_PROJECTIONS`).
+
+    ``auto``: the exact tangent, unless the last exact one was indefinite along
+    Newton's step (negative curvature, or not a descent direction); then the
+    projected one until a step is accepted in full (no line-search cut), where
+    the exact tangent takes over again and keeps Newton's quadratic rate.
+    Measured (``benchmarks/bench_robust_newton.py``): projecting from the
+    start of every step until a full step halved the residual cost 13 % more
+    iterations on the neo-Hooke cantilever and 29 % (with 3 load cuts) on a
+    buckling column; projecting always, 2.6 times as many on the cantilever
+    and no convergence on the column (linear rate near the solution).
+    """
+    if mode != "auto":
+        return mode == "always"
+    return indefinite or (projected and step_length < 1.0)
+
+
+def _forcing(rn, rn_prev, eta_prev, scale):
+    """Relative tolerance of the inexact Newton step (the forcing term): ``min(0.1, |r| / scale)``.
+
+    Measured on the Neo-Hooke beam (E = 1e3, 32x8x8, 5 load steps, Jacobi-CG),
+    Newton / CG iterations: this 34 / 3969; Eisenstat-Walker choice 2 (gamma
+    0.9, alpha 2) 34 / 3942; ``min(0.1, sqrt(rel))`` 40 / 3995;
+    ``min(0.01, rel)`` 31 / 4866; fixed 1e-3 32 / 4909; 1e-6 (near-exact
+    Newton) 30 / 5352.  A Newton iteration (assembly and line search) costs
+    about as much as 100 CG iterations here, so the tighter choices save
+    iterations but not time; the looser one loses both.
+    """
+    return min(0.1, rn / max(scale, 1e-300))
+
+
+_BUILD_CHUNK = 1 << 24
+
+
+DENSE_RUNS_MAX = 24
+
+
+"""Runs of consecutive free DOFs up to which a dense free block is gathered by slice copies (runs²
+copies of contiguous rows) rather than two fancy-indexing passes."""
+
+
+class _FreeBlock:
+    """Extracts ``H[free][:, free]`` by a data gather with an index map built once per pattern.
+
+    The model's Hessians share one CSR pattern, so scipy's two fancy-indexing
+    passes per Newton iteration (each copying the matrix) are replaced by
+    ``data[sel]``; the map is rebuilt only when the pattern changes.
+    """
+
+    def __init__(self, free, size):
+        self.free = np.asarray(free, dtype=np.int64)
+        if np.any(np.diff(self.free) <= 0):
+            raise ValueError("free DOFs must be sorted and unique")  # internal: solve() passes setdiff1d
+        self.size = int(size)
+        self.direct_only = False  # set once an "auto" iterative solve fell back to direct in this run
+        self.fixed = np.setdiff1d(np.arange(self.size), self.free)  # once, not per Jacobi-CG solve
+        # runs of consecutive free DOFs (start in the block, start in H, length): a dense block is
+        # gathered by runs x runs slice copies (held frames leave a few runs of 12 DOFs)
+        cut = np.flatnonzero(np.diff(self.free) != 1) + 1
+        starts = np.concatenate([[0], cut]).astype(np.int64)
+        ends = np.concatenate([cut, [len(self.free)]]).astype(np.int64)
+        self.runs = [(int(a), int(self.free[a]), int(b - a)) for a, b in zip(starts, ends)] if len(self.free) else []
+        self._indptr = None
+        self._indices = None
+
+    def _build(self, H):
+        N = self.size
+        isfree = np.zeros(N, dtype=bool)
+        isfree[self.free] = True
+        idx = np.int32 if max(H.nnz, N) < np.iinfo(np.int32).max else np.int64
+        colpos = np.full(N, -1, dtype=idx)
+        colpos[self.free] = np.arange(len(self.free), dtype=idx)
+        rowfree = np.repeat(isfree, np.diff(H.indptr))
+        parts = []
+        for s in range(0, H.nnz, _BUILD_CHUNK):  # chunks keep the int64 temporaries small
+            keep = rowfree[s : s + _BUILD_CHUNK] & isfree[H.indices[s : s + _BUILD_CHUNK]]
+            parts.append((np.flatnonzero(keep) + s).astype(idx))
+        del rowfree
+        self.sel = np.concatenate(parts) if parts else np.zeros(0, dtype=idx)
+        counts = np.diff(np.searchsorted(self.sel, H.indptr))[self.free]
+        self.indptr_ff = np.zeros(len(self.free) + 1, dtype=idx)
+        np.cumsum(counts, out=self.indptr_ff[1:])
+        self.indices_ff = colpos[H.indices[self.sel]]
+        # views, not copies: the model's Hessians share its pattern arrays, nobody writes into them
+        self._indptr = H.indptr
+        self._indices = H.indices
+
+    def _same_pattern(self, H) -> bool:
+        a, b = self._indices, H.indices
+        if a is None or len(a) != len(b) or len(self._indptr) != len(H.indptr):
+            return False
+        if a.__array_interface__["data"][0] == b.__array_interface__["data"][0] and a.dtype == b.dtype and \
+                self._indptr.__array_interface__["data"][0] == H.indptr.__array_interface__["data"][0]:
+            return True
+        return bool(np.array_equal(self._indptr, H.indptr) and np.array_equal(a, b))
+
+    def __call__(self, H) -> sp.csr_matrix:
+        """``H[free][:, free]`` of a CSR matrix H (N, N) with sorted indices."""
+        if isinstance(H, np.ndarray):  # a dense Hessian (reduced models)
+            if len(self.runs) > DENSE_RUNS_MAX:
+                return H.take(self.free, 0).take(self.free, 1)  # 0.54-0.68 ms at 552 of 600 (np.ix_: 1.3)
+            nf = len(self.free)
+            out = np.empty((nf, nf))
+            for oi, hi, li in self.runs:  # 0.2 ms at 552 of 600 with 5 runs
+                for oj, hj, lj in self.runs:
+                    out[oi:oi + li, oj:oj + lj] = H[hi:hi + li, hj:hj + lj]
+            return out
+        H = sp.csr_matrix(H)
+        if not self._same_pattern(H):
+            if not H.has_canonical_format:
+                H = H.copy()  # never reorder the caller's arrays in place
+                H.sum_duplicates()
+            self._build(H)
+        nf = len(self.free)
+        return sp.csr_matrix((H.data[self.sel], self.indices_ff, self.indptr_ff), shape=(nf, nf))
+
+
+def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=None, elements=None):
+    """Solve ``H[free][:, free] d = rhs``; returns d, info and the submatrix when it was built.
+
+    Jacobi-CG (``"cg"``, and ``"auto"`` on large systems without a voxel grid)
+    runs on H itself with the fixed DOFs masked; the other methods (and CG's
+    direct fallback) take the submatrix from ``reduce``.  ``grid`` is the
+    model's :attr:`dof_grid` (voxel models): with it ``auto`` picks sparse LU or
+    geometric-multigrid CG (see :func:`voxflex.deform.solve.linear.choose_method`).
+    ``block``: the submatrix itself (the lean path; H is then None), solved as given;
+    ``elements``: its matrix as voxel element matrices (multigrid's first coarse level).
+    """
+    method = options.linear_solver
+    if method == "auto" and getattr(reduce, "direct_only", False):
+        method = "direct"  # an iterative solve of this run already fell back: do not pay for it again
+    if block is not None:
+        if method == "auto":
+            nf = len(free)
+            dense = nf <= DENSE_AUTO_MAX and block.nnz >= DENSE_FILL * nf**2
+            method = "cholesky" if dense else choose_method(nf, grid=grid)
+        nn = near_null if method == "amg" else None
+        mg = method == "multigrid"
+        d, info = solve_linear(block, rhs, method=method, rtol=eta, near_null=nn, grid=grid if mg else None,
+                               free=free if mg else None, elements=elements if mg else None)
+        return d, info, block
+    if isinstance(H, np.ndarray):
+        # a dense Hessian (frame models): dense Cholesky unless a sparse method was asked for
+        if method in ("auto", "cholesky"):
+            Hff = reduce(H)
+            d, info = solve_linear(Hff, rhs, method="cholesky")
+            return d, info, Hff
+        H = sp.csr_matrix(H)
+    if method == "auto":
+        nf = len(free)
+        # a reduced model's stiffness is small and nearly dense (frames couple through shared
+        # material): a dense Cholesky beats sparse LU there (measured in benchmarks/bench_frames.py)
+        dense = nf <= DENSE_AUTO_MAX and H.nnz >= DENSE_FILL * H.shape[0] ** 2  # H is sparse here
+        method = "cholesky" if dense else choose_method(nf, grid=grid)
+    if method == "cg":
+        d, info = cg_on_free_dofs(H, rhs, free, rtol=eta, fixed=reduce.fixed)
+        if d is not None:
+            return d, info, None
+        Hff = reduce(H)
+        d, direct = solve_linear(Hff, rhs, method="direct")
+        direct.note = f"cg stopped after {info.iterations} iterations above rtol {eta:.1e}; fell back to direct"
+        direct.fell_back = True
+        direct.iterations = info.iterations
+        return d, direct, Hff
+    Hff = reduce(H)
+    nn = near_null if method == "amg" else None
+    d, info = solve_linear(Hff, rhs, method=method, rtol=eta, near_null=nn,
+                           grid=grid if method == "multigrid" else None, free=free if method == "multigrid" else None)
+    return d, info, Hff
+
+
+def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=None, scale0: float = 0.0):
+    """Minimise ``problem`` over the free DOFs of the increment ``x`` with the fixed ones moved to ``x_fixed``.
+
+    The convergence test is ``|r_free| <= tolerance * scale`` with ``scale`` the
+    largest of the external forces, the first residual and the reactions of the
+    step's first two iterations (frozen then, so that a diverging iterate cannot
+    raise it), or the round-off floor ``16 eps |diag(K) X|`` of the elastic
+    stiffness at the step's start and the step's start state (frozen likewise).
+
+    ``scale0`` carries the scale of an earlier attempt at the same step over to its
+    continuation (see :func:`_static_increment`), so a continued solve is judged as
+    the first one would have been.
+
+    Returns the increment, iterations, relative residual, linear iterations, solver name, halvings.
+    When the iterations run out, the ConvergenceError carries ``iterate`` (the last
+    increment), ``scale`` and ``progress`` (whether the potential fell over the attempt)
+    for a continuation.
+    """
+    if reduce is None:
+        reduce = _FreeBlock(free, len(x))
+    tol = options.tolerance
+    fnorm = vnorm(problem.f)
+    delta_c = x_fixed - x[fixed]
+    moving = len(fixed) > 0 and bool(np.any(delta_c != 0))
+    lin_its = 0
+    halvings_total = 0
+    solver_used = ""
+    scale = max(fnorm, scale0)
+    rn_prev, eta_prev = None, None
+    cached = None  # (x, problem(x)) of an accepted full step whose gradient the line search evaluated
+    step_length, last_lin, t_last = 0.0, 0, time.perf_counter()
+    lean = problem.block is not None
+    history = []  # residuals of the iterates so far (Newton's rate)
+    pot_start = None  # the potential at the attempt's first iterate
+    indefinite = project = False  # the last tangent was indefinite along the step / was projected
+    for it in range(options.max_iterations + 1):
+        # the Hessian of an iterate where Newton's rate predicts convergence would never be solved: skip it
+        # (built below after all when the iterate does not converge)
+        skip = len(history) >= 2 and step_length == 1.0 and _predict_converged(
+            history[-1], history[-2], tol * scale, floor)
+        project = not moving and _project_tangents(options.tangent_projection, step_length, indefinite, project)
+        if cached is not None and cached[0] is x:
+            pot, E, g, H, mag = cached[1]
+        else:
+            pot, E, g, H, mag = problem(x, hessian=not skip, project=project)
+        cached = None
+        if not np.isfinite(pot) or not np.all(np.isfinite(g)):
+            raise ConvergenceError(f"{label}: the energy is not finite at iteration {it} (inverted material?)")
+        if it == 0:
+            pot_start = pot
+        r = g[free]
+        rn = vnorm(r)
+        history.append(rn)
+        if it == 0:
+            scale = max(scale, rn)
+            # round-off floor: the elastic forces come from absolute positions, known to eps |x|, so
+            # the residual cannot drop below ~eps |diag(K)| |x|; taken at the step's start and frozen
+            diag = problem.elastic_diagonal if lean else problem.elastic_diagonal[free]
+            floor = 16.0 * np.finfo(float).eps * vnorm(diag * np.abs(problem.base[free]))
+        if it <= 1:
+            scale = max(scale, vnorm(g[fixed]) if len(fixed) else 0.0)
+        rel = rn / scale if scale > 0 else 0.0
+        if problem.on_iteration is not None:
+            now = time.perf_counter()
+            problem.on_iteration({"label": label, "iteration": it, "residual": rel, "step_length": step_length,
+                                  "linear_solver": solver_used, "linear_iterations": last_lin,
+                                  "seconds": now - t_last})
+            t_last = now
+        if not moving and (scale == 0.0 or rn <= max(tol * scale, floor)):
+            return x, it, rel, lin_its, solver_used, halvings_total
+        if it == options.max_iterations:
+            break
+        if H is None and not lean:
+            # the Hessian was skipped (Newton predicted convergence here) or not built by the line search
+            problem.hessian_misses += skip
+            pot, E, g, H, mag = problem(x, hessian=True, project=project)
+        rhs = -r
+        if moving:
+            if lean:
+                # constant tangent: K_fc delta_c = r(x with the fixed DOFs moved) - r(x), matrix-free
+                x_moved = x.copy()
+                x_moved[fixed] = x_fixed
+                rhs = -problem(x_moved, hessian=False)[2][free]
+            else:
+                dc = np.zeros(len(x))
+                dc[fixed] = delta_c
+                rhs = rhs - (H @ dc)[free]  # = H[free][:, fixed] @ delta_c
+        rhs_n = vnorm(rhs)
+        floor_eta = 0.5 * tol * scale / max(rhs_n, 1e-300)  # no need to solve beyond the Newton tolerance
+        if problem.constant:
+            eta = floor_eta
+        else:
+            eta = max(_forcing(rn, rn_prev, eta_prev, scale), floor_eta)
+        eta = float(np.clip(eta, 1e-14, 0.5))
+        rn_prev, eta_prev = rn, eta
+        d, info, Hff = _solve_free(H, rhs, free, reduce, options, eta, near_null, problem.model.dof_grid,
+                                   block=problem.block, elements=problem.elements)
+        lin_its += info.iterations
+        last_lin = info.iterations
+        problem.solves += 1
+        solver_used = info.method + (f" ({info.note})" if info.note else "")
+        if options.linear_solver == "auto" and info.fell_back:
+            # high stiffness contrast or near-incompressibility defeated the iterative solver once:
+            # the rest of the run goes straight to the direct solver (a two-bone limb with a 1e5
+            # contrast took 394 s with repeated fallbacks, 6.8 s direct)
+            reduce.direct_only = True
+        if moving:
+            # predictor: move the fixed DOFs to their targets, carry the interior along
+            x_new = x.copy()
+            x_new[fixed] = x_fixed
+            alpha = 1.0
+            for _ in range(MAX_HALVINGS):
+                x_try = x_new.copy()
+                x_try[free] += alpha * d
+                if np.isfinite(problem(x_try, hessian=False, gradient=False)[0]):
+                    break
+                alpha *= 0.5
+                halvings_total += 1
+            else:
+                raise ConvergenceError(
+                    f"{label}: every predictor step to the prescribed positions gives a non-finite energy "
+                    f"({MAX_HALVINGS} halvings); use more load steps"
+                )
+            x = x_try
+            moving = False
+            step_length = alpha
+            continue
+        slope = vdot(r, d)
+        if Hff is not None:
+            curvature = vdot(d, Hff @ d)
+        else:
+            dfull = np.zeros(len(x))
+            dfull[free] = d
+            curvature = vdot(d, (H @ dfull)[free])
+        indefinite = False
+        if curvature < 0:
+            problem.negative_curvature = True
+            indefinite = True
+        if slope >= 0:
+            # not a descent direction (indefinite tangent): regularise with a scaled identity, direct solve
+            Hff = reduce(H) if Hff is None else Hff
+            diag = np.abs(Hff.diagonal())
+            mu = 1e-4 * float(np.mean(diag)) if len(diag) else 1.0
+            for _ in range(12):
+                shift = mu * np.eye(Hff.shape[0]) if isinstance(Hff, np.ndarray) else mu * sp.identity(Hff.shape[0], format="csr")
+                d, info = solve_linear(Hff + shift, rhs, method="cholesky" if isinstance(Hff, np.ndarray) else "direct")
+                slope = vdot(r, d)
+                if slope < 0:
+                    break
+                mu *= 10.0
+            else:
+                raise ConvergenceError(f"{label}: no descent direction found at iteration {it} (tangent indefinite)")
+            solver_used = "direct (shifted: tangent indefinite)"
+            indefinite = True
+        if not options.line_search:
+            x = x.copy()
+            x[free] += d
+            step_length = 1.0
+            continue
+        H = Hff = None  # release them before the next Hessian is built (peak memory)
+        alpha = 1.0
+        accepted = False
+        for _ in range(MAX_HALVINGS):
+            x_try = x.copy()
+            x_try[free] += alpha * d
+            # trials by their energy alone: a rejected full step costs no gradient nor Hessian (the
+            # accepted iterate gets its gradient and Hessian at the top of the next iteration)
+            pot_try = problem(x_try, hessian=False, gradient=False)[0]
+            trial = None
+            if np.isfinite(pot_try) and pot_try <= pot + ARMIJO * alpha * slope + ROUNDOFF * mag:
+                accepted = True
+            elif alpha == 1.0 and np.isfinite(pot_try) and pot_try - pot <= NOISE * mag:
+                # near a solution of a high-contrast problem the energy's decrease (~|r|^2 / k_soft) falls
+                # below the round-off of the stiff parts' energy (~eps E_stiff V): judge the full Newton
+                # step by the residual it leaves instead, when the energy stays flat to NOISE
+                trial = problem(x_try, hessian=False)
+                accepted = vnorm(trial[2][free]) <= 0.9 * rn
+            if accepted:
+                if trial is not None:
+                    cached = (x_try, trial)
+                break
+            alpha *= 0.5
+            halvings_total += 1
+        if not accepted:
+            raise ConvergenceError(
+                f"{label}: line search failed at Newton iteration {it} (relative residual {rel:.2e}, "
+                f"{MAX_HALVINGS} halvings, linear solver {solver_used}); use more load steps or a smaller dt"
+            )
+        x = x_try
+        step_length = alpha
+    exc = ConvergenceError(
+        f"{label}: Newton did not converge in {options.max_iterations} iterations: relative residual {rel:.2e} "
+        f"(tolerance {tol:.1e}), {halvings_total} line-search halvings, linear solver {solver_used} "
+        f"({lin_its} linear iterations); use more load steps, a smaller dt or more iterations"
+    )
+    # the line search lowered the potential at every iteration: that is the progress (the residual of slow,
+    # rotation-bound solves rises a thousandfold on the way, so it cannot judge)
+    exc.iterate, exc.scale, exc.progress = x, scale, pot_start is not None and pot < pot_start
+    exc.effort = (options.max_iterations, lin_its, halvings_total)
+    raise exc

@@ -1,0 +1,121 @@
+"""The solver's options (``[solver]`` in a scene) and the record of a converged step."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...errors import InputError, check_choice
+from .linear import METHODS
+
+__all__ = ["SolverOptions", "StepRecord"]
+
+
+KINDS = ("static", "implicit-euler")
+
+
+MASS_KINDS = ("lumped", "consistent")
+
+
+TANGENT_PROJECTIONS = ("auto", "always", "never")
+
+
+"""``tangent_projection`` choices: per-sample tangents projected to positive semi-definite after the
+exact tangent was indefinite along a Newton step, until a full step (``auto``, see
+:func:`_project_tangents`), at every iterate, or never."""
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Solver settings.
+
+    Parameters
+    ----------
+    kind : {"static", "implicit-euler"}
+    steps : int
+        Static: load increments; implicit Euler: time steps.
+    dt : float (s)
+        Time step (implicit Euler).
+    tolerance : float
+        Newton stops when ``|r_free| <= tolerance * scale``, with ``scale`` the
+        largest of the external forces, the first residual of the step and the
+        reactions on the fixed DOFs (N).
+    max_iterations : int
+        Newton iterations per attempt at a step (static attempts that run out after
+        lowering the potential continue, see :data:`MAX_CONTINUATIONS`).
+    line_search : bool
+        Backtracking Armijo line search on the (incremental) potential.
+    linear_solver : {"auto", "cholesky", "direct", "cg", "amg"}
+        See :mod:`voxflex.deform.solve.linear`.
+    rayleigh_mass, rayleigh_stiffness : float
+        Damping ``D = rayleigh_mass * M + rayleigh_stiffness * K`` (1/s and s).
+    mass : {"lumped", "consistent"}
+        Mass matrix of implicit Euler.
+    check_stability : bool
+        Check every converged state for a negative eigenvalue of the free
+        tangent (always done when Newton met negative curvature).
+    tangent_projection : {"auto", "always", "never"}
+        Hessians built from per-sample tangents dP/dF projected to positive
+        semi-definite (negative eigenvalues set to 0; the assembled Hessian is
+        then PSD and every Newton direction descends): ``auto`` uses the exact
+        tangent until it is indefinite along a Newton step, then the projected
+        one until a step is accepted in full (the exact tangent near the
+        solution keeps quadratic convergence); models or labels without
+        projection (rigid frames, F-bar labels, elastons) stay exact.
+    """
+
+    kind: str = "static"
+    steps: int = 1
+    dt: float = 0.01
+    tolerance: float = 1e-8
+    max_iterations: int = 50
+    line_search: bool = True
+    linear_solver: str = "auto"
+    rayleigh_mass: float = 0.0
+    rayleigh_stiffness: float = 0.0
+    mass: str = "lumped"
+    check_stability: bool = False
+    tangent_projection: str = "auto"
+
+    def __post_init__(self):
+        check_choice("solver kind", self.kind, KINDS)
+        check_choice("tangent projection", self.tangent_projection, TANGENT_PROJECTIONS)
+        check_choice("linear solver", self.linear_solver, METHODS)
+        check_choice("mass", self.mass, MASS_KINDS)
+        if int(self.steps) != self.steps or self.steps < 1:
+            raise InputError(f"solver steps must be a positive integer, got {self.steps!r}")
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise InputError(f"time step dt must be > 0 (s), got {self.dt!r}")
+        if not (np.isfinite(self.tolerance) and 0 < self.tolerance < 1):
+            raise InputError(f"solver tolerance must be in (0, 1), got {self.tolerance!r}")
+        if int(self.max_iterations) != self.max_iterations or self.max_iterations < 1:
+            raise InputError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
+        for name in ("rayleigh_mass", "rayleigh_stiffness"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError(f"{name} must be >= 0, got {v!r}")
+
+
+@dataclass
+class StepRecord:
+    """State after one step (the first record is the rest state at time 0).
+
+    ``time`` is the load factor for statics, seconds for dynamics; ``q`` (n, d)
+    the node state (positions in m for point nodes); ``v`` (n, d) its velocity or None (statics);
+    energies in J; ``residual`` the final relative residual; ``linear_iterations``
+    summed over the step's Newton iterations (0 for direct solvers).
+    """
+
+    time: float
+    q: np.ndarray
+    v: np.ndarray | None
+    newton_iterations: int
+    seconds: float
+    elastic_energy: float
+    kinetic_energy: float
+    residual: float
+    linear_iterations: int = 0
+    linear_solver: str = ""
+    line_search_halvings: int = 0
+    load_cuts: int = 0

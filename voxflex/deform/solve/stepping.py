@@ -1,0 +1,429 @@
+"""Static and implicit-Euler solvers for any :class:`~voxflex.deform.models.protocol.Model`.
+
+Statics: the equilibrium ``dE/dq = f`` is the minimum of the total potential
+``Pi(q) = E(q) - f . (q - X)``, found by Newton's method with a backtracking
+(Armijo) line search on Pi, under load stepping: step k of ``steps`` applies
+the load factor ``s = k / steps`` to the forces and to the prescribed motions.
+
+Dynamics: backward (implicit) Euler.  With ``xhat = q_n + h v_n`` the new
+positions minimise the incremental potential
+
+    Phi(q) = 1/(2h^2) |q - xhat|_M^2 + 1/(2h) |q - q_n|_D^2 + E(q) - f . q,
+
+with Rayleigh damping ``D = alpha M + beta K(q_n)`` (the stiffness frozen at
+the start of the step so that Phi is a true potential); then
+``v_{n+1} = (q_{n+1} - q_n) / h``.  Backward Euler dissipates: a single mode of
+frequency w loses the factor ``1 / (1 + w^2 h^2)`` of its energy per step.
+
+Fixed DOFs are eliminated (the system is reduced to the free DOFs), never
+penalised.  When prescribed DOFs move, the first Newton iteration of a step is
+the linearised predictor ``K_ff dq_f = -r_f - K_fc dq_c``, which carries the
+interior along with the boundary and avoids inverted voxels.
+
+Non-convergence raises :class:`~voxflex.errors.ConvergenceError` stating the
+step, the iterations, the residual, the line search and the linear solver.
+
+Hot path.  A static problem of a constant-tangent model that assembles its
+own free-DOF block (the voxel model's ``constant_stiffness_block``) takes the
+lean path: that block is built once, compacted in place, and every solve uses
+it; the full stiffness is never built nor cached and gradients are
+matrix-free (linear beam 128x32x32, ``auto`` = multigrid-CG: peak resident
+memory 3443 -> 2122 bytes/DOF).  Implicit Euler adds ``M/h^2 + D/h``, built
+once per step, into each Hessian's own pattern (positions found once)
+instead of a sparse sum per iteration.  The line search judges its trials
+by the energy alone (a rejected full step costs no gradient nor Hessian), and
+an iterate where Newton's rate predicts convergence is evaluated without
+its Hessian (:func:`_predict_converged`): on the neo-Hooke beam 32x8x8
+(5 steps, sparse LU, 30 solves) 40 Hessians were built, now 32
+(``benchmarks/bench_solver_waste.py``).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..._linalg import vdot
+from ...errors import ConvergenceError, InputError
+from ..models.protocol import END_STEP_PASSES, end_step
+from .boundary import (
+    FixedRegion,
+    ForceRegion,
+    fixed_dofs,
+    prescribed_positions,
+    region_forces,
+)
+from .newton import _FreeBlock, _newton, _PatternAdd, _Problem
+from .options import SolverOptions, StepRecord
+from .supports import check_supports
+
+__all__ = ["solve"]
+
+
+MAX_CUTS = 8
+
+
+"""Static load increments are halved at most this many times (to 1/256 of a step) before giving up."""
+
+
+MAX_CONTINUATIONS = 7
+
+
+"""A static Newton attempt that runs out of iterations after lowering the potential continues from its
+last iterate, at most this many times (so up to 8 x
+``max_iterations`` per increment), before the increment is cut.  Measured on a neo-Hooke beam whose tip
+half is 1e6 times stiffer (16x4x4, gravity, 5 steps): each step needs 150-250 iterations, as the stiff half
+turns by linear updates; cutting the increment does not lower that count, so cutting failed (8 cuts)
+where continuing converges."""
+
+
+def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, options, near_null, reduce, label,
+                      on_iteration=None, block=None):
+    """Equilibrium at load factor ``s1`` from the converged state ``x`` at ``s0``, cutting the increment.
+
+    A failed Newton solve (no convergence, a failed line search, a non-finite
+    state) is retried from the last converged state with half the increment,
+    at most :data:`MAX_CUTS` times; after a success the increment grows back.
+    Returns the state, Newton iterations, relative residual, linear
+    iterations, linear solver, halvings and the number of cuts.
+    """
+    N = x.size
+    s, h = s0, s1 - s0
+    its_total = lin_total = halv_total = cuts = 0
+    rel, solver_used = 0.0, ""
+    while s < s1:
+        s_next = s1 if s + h >= s1 - 1e-12 * (s1 - s0) else s + h
+        x_start = model.begin_step(s_next, x, x.copy())
+        x_fixed = prescribed_positions(model, fixed, dofs, owner, s_next) if len(dofs) else np.zeros(0)
+        problem = _Problem(model, s_next * f_full, x_start, block=block)
+        problem.on_iteration = on_iteration
+        sub = label if s_next == s1 and s == s0 else f"{label}, sub-step to load factor {s_next:.4g}"
+        try:
+            delta, scale0, spent, continued = np.zeros(N), 0.0, (0, 0, 0), 0
+            while True:
+                try:
+                    delta, its, rel, lin_its, solver_used, halvings = _newton(
+                        problem, delta, free, dofs, x_fixed - x_start[dofs], options, near_null, sub, reduce,
+                        scale0=scale0)
+                    break
+                except ConvergenceError as exc:
+                    if not getattr(exc, "progress", False) or continued >= MAX_CONTINUATIONS:
+                        raise
+                    continued += 1  # still converging: go on from the last iterate rather than cut
+                    delta, scale0 = exc.iterate, exc.scale
+                    spent = tuple(a + b for a, b in zip(spent, exc.effort))
+            its, lin_its, halvings = its + spent[0], lin_its + spent[1], halvings + spent[2]
+            x_new = x_start + delta
+            if not np.all(np.isfinite(x_new)):
+                raise ConvergenceError(f"{sub}: the state is not finite after {its} Newton iterations")
+        except ConvergenceError as exc:
+            cuts += 1
+            if cuts > MAX_CUTS:
+                raise ConvergenceError(
+                    f"{exc} (after cutting the load increment {MAX_CUTS} times, to {h:.3g} of the load)") from None
+            h *= 0.5
+            continue
+        if problem.negative_curvature or options.check_stability:
+            _check_stable(problem, delta, free, reduce, sub)
+        its_total += its
+        lin_total += lin_its
+        halv_total += halvings
+        x, s = x_new, s_next
+        h = min(2.0 * h, s1 - s0)
+    return x, its_total, rel, lin_total, solver_used, halv_total, cuts
+
+
+INERTIA_MAX = 60000
+
+
+"""Free unknowns up to which the stability check counts negative eigenvalues by a symmetric sparse
+factorisation (Sylvester's inertia) instead of Lanczos: Lanczos for the smallest eigenvalue of a
+tangent with a 1e5 stiffness contrast ran for minutes (a two-bone limb, 4557 unknowns)."""
+
+
+def _below(A, shift):
+    """How many eigenvalues of the sparse symmetric ``A`` lie below ``shift``, and the one nearest it.
+
+    ``A - shift I`` is factorised with symmetric ordering and diagonal pivots
+    (SuperLU in symmetric mode), so ``U``'s diagonal is the D of ``L D Lᵀ`` and
+    its negative entries count the eigenvalues below ``shift`` (Sylvester's
+    law of inertia).  When there are some, shift-inverted Lanczos gives the
+    one nearest below the shift (the shift itself if it does not converge).
+    Returns ``(0, None)`` when none lies below, ``None`` when the count is not
+    known (the factorisation had to pivot off the diagonal).
+    """
+    import scipy.sparse.linalg as spla
+
+    n = A.shape[0]
+    M = (A - shift * sp.identity(n, format="csc")).tocsc()
+    try:
+        lu = spla.splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
+    except RuntimeError:  # an exactly singular pivot: an eigenvalue at the shift itself
+        return 1, float(shift)
+    if not np.array_equal(lu.perm_r, lu.perm_c):  # pivoting broke the symmetry: cannot count
+        return None
+    count = int(np.count_nonzero(lu.U.diagonal() < 0))
+    if count == 0:
+        return 0, None
+    try:
+        op = spla.LinearOperator((n, n), matvec=lu.solve, dtype=float)
+        mu = spla.eigsh(op, k=1, which="SA", tol=1e-8, maxiter=50 * n, v0=np.ones(n) / np.sqrt(n),
+                        return_eigenvectors=False)[0]  # mu = 1 / (lam - shift) < 0
+        return count, (float(shift + 1.0 / mu) if mu < 0 else float(shift))
+    except spla.ArpackNoConvergence:
+        return count, float(shift)
+
+
+def _check_stable(problem, delta, free, reduce, label):
+    """Raise when the converged state is a saddle: the smallest eigenvalue of the free tangent < 0.
+
+    Up to 400 free unknowns a dense eigensolver; up to :data:`INERTIA_MAX` the
+    inertia of a symmetric sparse factorisation (:func:`_below`); beyond,
+    Lanczos (ARPACK, smallest algebraic, relative tolerance 1e-6).  An
+    eigenvalue below ``-1e-8`` times the largest diagonal entry is an unstable
+    equilibrium (the structure buckles or the material softens there).
+    """
+    import scipy.sparse.linalg as spla
+
+    if problem.block is not None:
+        Hff = problem.block  # the lean path: the constant free block
+    else:
+        _, _, _, H, _ = problem(delta, hessian=True)
+        Hff = reduce(H)
+    n = Hff.shape[0]
+    if n == 0:
+        return
+    top = float(np.abs(Hff.diagonal()).max())
+    if n <= 400:
+        lam = float(np.linalg.eigvalsh(Hff if isinstance(Hff, np.ndarray) else Hff.toarray())[0])
+    elif n <= INERTIA_MAX:
+        found = _below(sp.csc_matrix(Hff), -1e-8 * top)
+        if found is None or found[0] == 0:
+            return  # no eigenvalue below the threshold (or the count is unknown: never report a guess)
+        lam = found[1]
+    else:
+        try:
+            lam = float(spla.eigsh(Hff, k=1, which="SA", tol=1e-6, maxiter=20 * n,
+                                   v0=np.ones(n) / np.sqrt(n), return_eigenvectors=False)[0])
+        except spla.ArpackNoConvergence:
+            return  # could not tell: never report a guess
+    if lam < -1e-8 * top:
+        raise ConvergenceError(
+            f"{label}: unstable equilibrium (buckling or material instability): the tangent has a negative "
+            f"eigenvalue {lam:.3g} at the converged state; perturb the load or the geometry, use smaller load "
+            "steps with a small lateral load, or simulate dynamics"
+        )
+
+
+def _lean(model, options) -> bool:
+    """Whether :func:`solve` takes the lean path: a static problem of a model whose tangent is constant
+    and which assembles its free-DOF block on its own (``constant_stiffness_block``: voxel models)."""
+    return (options.kind == "static" and bool(model.constant_tangent)
+            and callable(getattr(model, "constant_stiffness_block", None)))
+
+
+def solve(
+    model,
+    *,
+    fixed: Sequence[FixedRegion] = (),
+    forces: Sequence[ForceRegion] = (),
+    gravity=None,
+    densities: Mapping[int, float] | None = None,
+    options: SolverOptions = SolverOptions(),
+    callback: Callable | None = None,
+    q0=None,
+    v0=None,
+    newton_callback: Callable | None = None,
+    sink: Callable | None = None,
+) -> list[StepRecord]:
+    """Run a static (load-stepped) or implicit-Euler simulation of ``model``.
+
+    Parameters
+    ----------
+    model : Model
+        Any model of the protocol in :mod:`voxflex.deform.models.protocol` (voxel or frame model).
+    fixed : FixedRegion sequence
+        Held or moved regions (prescribed motions reach their transform at the end).
+    forces : ForceRegion sequence
+    gravity : (3,) float, m/s^2, optional
+        Needs ``densities``.
+    densities : mapping label -> kg/m^3, optional
+        Needed for gravity and implicit Euler.
+    options : SolverOptions
+    callback : callable(StepRecord), optional
+        Called after each step.
+    newton_callback : callable(dict), optional
+        Called at every Newton iterate with ``label`` (the step), ``iteration``, ``residual``
+        (relative), ``step_length`` (line-search factor of the step that led there, 0 at the
+        start), ``linear_solver`` and ``linear_iterations`` of that step, ``seconds`` since the
+        previous call.
+    q0, v0 : (n, d) float, optional
+        Initial state (default: rest) and its velocity (implicit Euler; default 0).
+        Fixed DOFs still follow their regions.
+    sink : callable(StepRecord), optional
+        Receives every record in order, the rest state first (before ``callback`` for a step).
+        With a sink the returned list (and a ConvergenceError's ``records``) holds only the rest
+        state and the latest record, so that memory does not grow with the steps.
+
+    Returns
+    -------
+    list of StepRecord, ``steps + 1`` long (the rest state first); with a ``sink``, the rest
+    state and the last record only.
+
+    Raises
+    ------
+    InputError
+        Bad regions or loads (e.g. gravity or dynamics without densities); a static
+        problem with a part that is not held against every rigid motion (see
+        :mod:`voxflex.deform.solve.supports`).
+    ConvergenceError
+        A step did not converge (the message says what was tried); its attribute ``records``
+        holds the records of the steps that converged before it (the rest state first).
+    """
+    if not isinstance(options, SolverOptions):
+        raise InputError("options must be a SolverOptions")
+    fixed = list(fixed)
+    forces = list(forces)
+    for r in fixed:
+        if not isinstance(r, FixedRegion):
+            raise InputError(f"fixed entries must be FixedRegion, got {type(r).__name__}")
+    for r in forces:
+        if not isinstance(r, ForceRegion):
+            raise InputError(f"forces entries must be ForceRegion, got {type(r).__name__}")
+    dynamic = options.kind == "implicit-euler"
+    if (gravity is not None or dynamic) and densities is None:
+        raise InputError("gravity and implicit-euler need densities (kg/m^3) for every material label")
+    shape = np.shape(model.rest)
+    X = np.asarray(model.rest, dtype=float).ravel()
+    N = X.size
+    dofs, owner = fixed_dofs(model, fixed)
+    if not dynamic and not model.supported_by_contact:
+        check_supports(model, dofs)  # an unsupported part or a mechanism: refuse before solving
+    free = np.setdiff1d(np.arange(N), dofs)
+    f_full = region_forces(model, forces).ravel() if forces else np.zeros(N)
+    if gravity is not None:
+        f_full = f_full + model.gravity_force(densities, gravity).ravel()
+    near_null = model.rigid_modes()[free] if options.linear_solver == "amg" else None
+    reduce = _FreeBlock(free, N)
+    block = None
+    if _lean(model, options):
+        # a constant-tangent static problem: the free-DOF block is all Newton solves with; assembled once
+        # on its own and compacted in place, the full stiffness is never built nor cached (peak memory)
+        block = model.constant_stiffness_block(free)
+
+    M = None
+    if dynamic:
+        M = model.mass_matrix(densities, lumped=options.mass == "lumped")
+    x = X.copy()
+    if q0 is not None:
+        q0 = np.asarray(q0, dtype=float)
+        if q0.shape != shape or not np.all(np.isfinite(q0)):
+            raise InputError(f"q0 must be a finite {shape} array (the node state), got shape {q0.shape}")
+        x = q0.ravel().copy()
+    v = np.zeros(N) if dynamic else None
+    if v0 is not None:
+        v0 = np.asarray(v0, dtype=float)
+        if not dynamic or v0.shape != shape or not np.all(np.isfinite(v0)):
+            raise InputError(f"v0 must be a finite {shape} array and needs kind='implicit-euler'")
+        v = v0.ravel().copy()
+    kin0 = 0.5 * vdot(v, M @ v) if dynamic else 0.0
+    records = [StepRecord(0.0, x.reshape(shape).copy(), None if v is None else v.reshape(shape).copy(), 0, 0.0,
+                          float(model.energy(x.reshape(shape))), kin0, 0.0)]
+    if sink is not None:
+        sink(records[0])
+    try:
+        _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
+               callback, newton_callback, block, sink)
+    except ConvergenceError as exc:
+        exc.records = records  # the converged steps survive a later failure (partial results)
+        raise
+    return records
+
+
+def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
+           callback, newton_callback, block=None, sink=None):
+    """The loop over the steps of :func:`solve`, appending a StepRecord per converged step
+    (with a ``sink``: handing it each record and keeping only the rest state and the latest)."""
+    dynamic = options.kind == "implicit-euler"
+    adder = _PatternAdd()  # H + M/h^2 + D/h positions found once for all steps
+    N = x.size
+    t_end = options.steps * options.dt
+    for k in range(1, options.steps + 1):
+        t0 = time.perf_counter()
+        if dynamic:
+            t = k * options.dt
+            factor = t / t_end
+            label = f"implicit Euler step {k}/{options.steps} (t = {t:.4g} s)"
+            D = None
+            if options.rayleigh_mass or options.rayleigh_stiffness:
+                D = options.rayleigh_mass * M
+                if options.rayleigh_stiffness:
+                    D = D + options.rayleigh_stiffness * model.hessian(x.reshape(shape))
+            xhat = x + options.dt * v
+            x_start = xhat.copy()
+        else:
+            t = k / options.steps
+            label = f"static step {k}/{options.steps} (load factor {t:.4g})"
+            x_new, its, rel, lin_its, solver_used, halvings, cuts = _static_increment(
+                model, f_full, x, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
+                reduce, label, newton_callback, block)
+        if dynamic:
+            x_fixed = prescribed_positions(model, fixed, dofs, owner, factor) if len(dofs) else np.zeros(0)
+            x_start[dofs] = x[dofs]  # fixed DOFs start from their previous values so the predictor sees their motion
+            moved = model.begin_step(factor, x, x_start)  # e.g. contact: a start the barrier admits
+            if moved is not x_start:
+                v = (moved - x) / options.dt  # so that the new velocity stays (x_new - x) / h
+                x_start = moved
+            problem = _Problem(model, f_full, x_start, M=M, h=options.dt, xhat=xhat, xn=x, D=D, adder=adder)
+            problem.on_iteration = newton_callback
+            delta, its, rel, lin_its, solver_used, halvings = _newton(
+                problem, np.zeros(N), free, dofs, x_fixed - x_start[dofs], options, near_null, label, reduce
+            )
+            cuts = 0
+            x_new = x_start + delta
+            if not np.all(np.isfinite(x_new)):
+                raise ConvergenceError(f"{label}: the state is not finite after {its} Newton iterations")
+            if problem.negative_curvature or options.check_stability:
+                _check_stable(problem, x_new - x_start, free, reduce, label)
+        passes = 0
+        while end_step(model, x_new.reshape(shape)):  # internal variables (plasticity) changed: solve again
+            passes += 1
+            if passes > END_STEP_PASSES:
+                raise ConvergenceError(f"{label}: the model's internal variables still change after {END_STEP_PASSES} "
+                                       "re-solves of the step; use more, smaller steps")
+            if dynamic:
+                delta, its_p, rel, lin_p, solver_used, halv_p = _newton(
+                    problem, delta, free, dofs, x_fixed - x_start[dofs], options, near_null, label, reduce)
+                x_new = x_start + delta
+                cuts_p = 0
+            else:
+                x_new, its_p, rel, lin_p, solver_used, halv_p, cuts_p = _static_increment(
+                    model, f_full, x_new, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
+                    reduce, label, newton_callback, block)
+            if not np.all(np.isfinite(x_new)):
+                raise ConvergenceError(f"{label}: the state is not finite after re-solving the step")
+            its, lin_its, halvings, cuts = its + its_p, lin_its + lin_p, halvings + halv_p, cuts + cuts_p
+        E = float(model.energy(x_new.reshape(shape)))
+        kin = 0.0
+        if dynamic:
+            # x_new - x = h v + delta on the free DOFs (x_start = x + h v there) and delta on the fixed
+            # ones: the velocity from the increment keeps its precision for any h
+            v_start = v.copy()
+            v_start[dofs] = 0.0
+            v = v_start + delta / options.dt
+            kin = 0.5 * vdot(v, M @ v)
+        x = x_new
+        rec = StepRecord(
+            float(t), x.reshape(shape).copy(), None if v is None else v.reshape(shape).copy(), int(its),
+            time.perf_counter() - t0, E, kin, float(rel), int(lin_its), solver_used, int(halvings), int(cuts),
+        )
+        if sink is not None:
+            sink(rec)
+            del records[1:]  # the sink has it: keep the rest state and the latest record only
+        records.append(rec)
+        if callback is not None:
+            callback(rec)

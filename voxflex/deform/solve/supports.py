@@ -1,0 +1,109 @@
+"""Supports and mechanisms, checked before a static solve.
+
+A static problem has a unique equilibrium only when every part of the body
+is held against all six rigid motions.  Parts are the model's material
+components (:meth:`Model.components`: face-connected voxels for the voxel
+model, since voxels that share only an edge or a corner form a hinge; the
+components the frames' shape functions couple for the frame model).  A
+component is held when the rigid motions of its nodes are restrained to rank
+6 by the fixed DOFs, or by nodes it shares with components already held (an
+edge or a corner shared with a clamped part restrains only 5 or 3 of them:
+a hinge).  Anything less is refused before solving, with a message naming
+the component and the fixes, instead of letting Newton return garbage.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import InputError
+
+__all__ = ["check_supports", "unsupported_components"]
+
+_RANK_TOL = 1e-10
+
+
+def _rank(rows: np.ndarray) -> int:
+    """Numerical rank of the (k, 6) rows (columns already scaled to comparable size)."""
+    if rows.shape[0] == 0:
+        return 0
+    G = rows.T @ rows
+    ev = np.linalg.eigvalsh(G)
+    top = ev.max()
+    return int(np.sum(ev > _RANK_TOL * top)) if top > 0 else 0
+
+
+def unsupported_components(model, fixed_dofs) -> list[dict]:
+    """Components of ``model`` not held against every rigid motion by ``fixed_dofs`` (flat DOFs).
+
+    Returns
+    -------
+    list of dict, one per unsupported component: ``index`` (1-based), ``n`` (number of
+    components), ``voxels``, ``labels``, ``lo``/``hi`` (world bounding box, m),
+    ``free`` (number of free rigid motions), ``hinge`` (True when it is held only
+    through shared edges or corners).
+    """
+    image = model.image
+    comps, n, nodes_of = model.components()
+    if n == 0:
+        return []
+    d = model.dofs_per_node
+    N = np.asarray(model.rest).size
+    B = np.asarray(model.rigid_modes(), dtype=float).copy()
+    held = np.zeros(N, dtype=bool)
+    held[np.asarray(fixed_dofs, dtype=np.int64)] = True
+    n_nodes = N // d
+    supported = np.zeros(n, dtype=bool)
+    owner_count = np.zeros(n_nodes, dtype=np.int64)
+    for nodes in nodes_of:
+        owner_count[nodes] += 1
+    support_node = np.zeros(n_nodes, dtype=bool)
+    extent = float(np.max(np.ptp(np.asarray(image.index_to_world(np.argwhere(comps > 0) + 0.5)), axis=0))) or 1.0
+    B[:, 3:] /= extent  # rotations in units comparable to translations
+    ranks = np.zeros(n, dtype=np.int64)
+    own = np.zeros(n, dtype=np.int64)
+    changed = True
+    while changed:
+        changed = False
+        for c in range(n):
+            if supported[c]:
+                continue
+            nodes = nodes_of[c]
+            dofs = (d * nodes[:, None] + np.arange(d)).ravel()
+            by_fixed = held[dofs]
+            own[c] = _rank(B[dofs[by_fixed]])
+            shared = np.repeat(support_node[nodes] & (owner_count[nodes] > 1), d)
+            ranks[c] = _rank(B[dofs[by_fixed | shared]])
+            if ranks[c] == 6:
+                supported[c] = True
+                support_node[nodes] = True
+                changed = True
+    out = []
+    for c in np.flatnonzero(~supported):
+        ijk = np.argwhere(comps == c + 1)
+        lo = image.index_to_world(ijk.min(axis=0)[None].astype(float))[0]
+        hi = image.index_to_world(ijk.max(axis=0)[None].astype(float) + 1.0)[0]
+        labels = sorted(int(x) for x in np.unique(image.labels[comps == c + 1]))
+        out.append({"index": int(c + 1), "n": int(n), "voxels": int(len(ijk)), "labels": labels,
+                    "lo": np.minimum(lo, hi), "hi": np.maximum(lo, hi), "free": int(6 - ranks[c]),
+                    "hinge": bool(ranks[c] > own[c])})
+    return out
+
+
+def check_supports(model, fixed_dofs) -> None:
+    """InputError naming the first component a static solve cannot hold (see the module docstring)."""
+    bad = unsupported_components(model, fixed_dofs)
+    if not bad:
+        return
+    b = bad[0]
+    lo = ", ".join(f"{v:.4g}" for v in b["lo"])
+    hi = ", ".join(f"{v:.4g}" for v in b["hi"])
+    how = ("is held only through a shared edge or corner (a hinge)" if b["hinge"]
+           else "is not held" if b["free"] == 6 else "is not held against every rigid motion")
+    more = f" ({len(bad) - 1} more)" if len(bad) > 1 else ""
+    raise InputError(
+        f"static scene is ill-posed: material component {b['index']} of {b['n']} (label "
+        f"{', '.join(map(str, b['labels']))}, {b['voxels']} voxels, box [{lo}] .. [{hi}] m) {how}: "
+        f"{b['free']} free rigid motion(s){more}; fix it with a [[fixed]] region covering it, drop islands with "
+        '[object] keep = "largest" or min_component_voxels, or simulate dynamics (implicit-euler)'
+    )
