@@ -26,17 +26,7 @@ from dataclasses import replace
 import numpy as np
 
 import voxflex as vf
-from voxflex.scene import (
-    ElasticitySpec,
-    FixedSpec,
-    LoadSpec,
-    MaterialSpec,
-    NodesSpec,
-    ObjectSpec,
-    ProbeSpec,
-    Scene,
-    SolverSpec,
-)
+from voxflex.scene import ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene, SolverSpec
 
 
 def _run(scene):

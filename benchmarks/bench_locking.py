@@ -35,14 +35,7 @@ from voxflex.deform.solve.boundary import FixedRegion
 from voxflex.deform.solve.options import SolverOptions
 from voxflex.deform.solve.stepping import solve
 from voxflex.image.label_image import LabelImage
-from voxflex.scene import (
-    ElasticitySpec,
-    FixedSpec,
-    MaterialSpec,
-    NodesSpec,
-    ObjectSpec,
-    Scene,
-)
+from voxflex.scene import ElasticitySpec, FixedSpec, MaterialSpec, NodesSpec, ObjectSpec, Scene
 
 TIP = np.array([4.0, 0.5, 0.5])
 CLAMP = FixedRegion([-1.0, -1.0, -1.0], [1e-9, 2.0, 2.0])

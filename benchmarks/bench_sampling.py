@@ -4,7 +4,7 @@ Usage: ``python benchmarks/bench_sampling.py [--sizes 64,128] [--counts 200,1000
 
 The object is a ball filling the image (radius 0.45 n voxels, ~38 % of the
 voxels) with two labels (the half x < centre is label 2).  The shape function
-is ``voxflex.voronoi.shape_function(kind="natural-neighbour", parents=4)`` when
+is ``voxflex.voronoi.weights(kind="natural-neighbour", parents=4)`` when
 that stage exists, else renormalized Shepard weights on the 4 nearest frames
 (the stand-in of the tests); its voxel values are computed once, outside the
 timings (the column ``sf s``).  Kernels are warmed on a small image first;

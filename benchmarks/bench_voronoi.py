@@ -6,7 +6,7 @@ For a full cube of n³ voxels and k frames it times
   fast marching (``fmm``) and 26-neighbour Dijkstra (``dijkstra``);
 * ``placement``: :func:`voxflex.voronoi.place_frames` (farthest point + Lloyd, at most 10 iterations;
   from 200,000 material voxels on, first at half resolution, then at most 3 full-resolution ones);
-* ``weights``: :func:`voxflex.voronoi.shape_function` (natural neighbours by default) and its
+* ``weights``: :func:`voxflex.voronoi.weights` (natural neighbours by default) and its
   weights at every material voxel centre (the input of the smoothing), i.e. everything the
   frame model needs before the smoothing blend (fast-marching frame distances, node regions,
   stolen sets of the weight nodes, fits, centre weights);

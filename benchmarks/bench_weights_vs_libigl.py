@@ -2,7 +2,7 @@
 
 One object, one set of frames, two weight schemes, measured at the same points:
 
-* **voxflex**: :func:`voxflex.voronoi.shape_function` (natural neighbours, Sibson; the default
+* **voxflex**: :func:`voxflex.voronoi.weights` (natural neighbours, Sibson; the default
   ``parents=4`` and ``parents=8``, blended as models use them) on the label image;
 * **BBW**: ``igl.bbw`` (A. Jacobson et al., "Bounded biharmonic weights for real-time
   deformation", SIGGRAPH 2011) on a tet mesh of the same object: the vertices are the material
@@ -128,16 +128,7 @@ def cantilever(n_frames, igl):
 
     import voxflex as vf
     from voxflex.deform.models.frames.model import FrameModel
-    from voxflex.scene import (
-        ElasticitySpec,
-        FixedSpec,
-        LoadSpec,
-        MaterialSpec,
-        NodesSpec,
-        ObjectSpec,
-        ProbeSpec,
-        Scene,
-    )
+    from voxflex.scene import ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene
 
     scene = Scene(object=ObjectSpec(shape="box", size=(0.2, 0.2, 0.6), voxel_size=0.02), nodes=NodesSpec(kind="voxel"),
                   materials=(MaterialSpec(model="hooke", young=1e5, poisson=0.3, strain="linear"),),

@@ -28,7 +28,7 @@ HERE = Path(__file__).resolve().parent
 
 def phantom():
     """The phantom :class:`voxflex.LabelImage`."""
-    from voxflex.rasterize import Box, Cylinder, Sphere, voxelize
+    from voxflex.rasterize import Box, Cylinder, Sphere, voxelizer as voxelize
 
     box = Box((0.04, 0.02, 0.02))
     ball = Sphere(0.005, origin=(0.005, 0.005, 0.005))

@@ -19,11 +19,7 @@ from __future__ import annotations
 import numpy as np
 from contract import MappingCase
 
-from voxflex.deform.chain.mappings import (
-    DeformationGradientMapping,
-    DeformationGradientWithGradientMapping,
-    PointMapping,
-)
+from voxflex.deform.chain.mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping, PointMapping
 from voxflex.deform.chain.nodes import AffineFrames, Points, RigidFrames
 from voxflex.voronoi.shape_functions import ShapeValues, shepard
 

@@ -1,4 +1,4 @@
-"""A stand-in for ``voxflex.voronoi.shape_function`` used by the sampling tests.
+"""A stand-in for ``voxflex.voronoi.weights`` used by the sampling tests.
 
 It satisfies the interface the sampler codes against (``frames``, ``parents``,
 ``__call__(points) -> ShapeValues``, ``voxel_values()`` at the material voxel

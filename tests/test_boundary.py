@@ -7,13 +7,7 @@ import pytest
 
 from voxflex.deform.materials.material import material
 from voxflex.deform.models.voxel.model import VoxelModel
-from voxflex.deform.solve.boundary import (
-    FixedRegion,
-    ForceRegion,
-    fixed_dofs,
-    prescribed_positions,
-    region_forces,
-)
+from voxflex.deform.solve.boundary import FixedRegion, ForceRegion, fixed_dofs, prescribed_positions, region_forces
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 

@@ -21,12 +21,7 @@ import numpy as np
 import pytest
 
 import voxflex as vf
-from voxflex.deform.layers.contact import (
-    ContactModel,
-    barrier,
-    collision_points,
-    with_contact,
-)
+from voxflex.deform.layers.contact import ContactModel, barrier, collision_points, with_contact
 from voxflex.deform.layers.obstacles import Box, DistanceField, Plane, Sphere, obstacle
 from voxflex.deform.materials.material import material
 from voxflex.deform.models.voxel.model import VoxelModel
@@ -345,17 +340,7 @@ def test_affine_frames_rest_on_a_plane_with_their_weight():
 # scene wiring
 # ---------------------------------------------------------------------------
 def _scene(obstacles=(), **solver):
-    from voxflex.scene import (
-        ContactSpec,
-        FixedSpec,
-        LoadSpec,
-        MaterialSpec,
-        NodesSpec,
-        ObjectSpec,
-        ObstacleSpec,
-        Scene,
-        SolverSpec,
-    )
+    from voxflex.scene import ContactSpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ObstacleSpec, Scene, SolverSpec
 
     return Scene(
         object=ObjectSpec(shape="box", size=(0.4, 0.1, 0.1), voxel_size=0.05, origin=(0.0, 0.0, 0.01)),

@@ -19,14 +19,7 @@ from voxflex.deform.solve.options import SolverOptions
 from voxflex.deform.solve.stepping import solve
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
-from voxflex.scene import (
-    ElasticitySpec,
-    FixedSpec,
-    MaterialSpec,
-    NodesSpec,
-    ObjectSpec,
-    Scene,
-)
+from voxflex.scene import ElasticitySpec, FixedSpec, MaterialSpec, NodesSpec, ObjectSpec, Scene
 from voxflex.voronoi import place_frames, shape_function
 
 AFFINE = np.array([[1.1, 0.2, 0.0, 0.03], [-0.1, 0.95, 0.05, -0.02], [0.0, 0.1, 1.05, 0.04]])

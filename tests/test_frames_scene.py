@@ -16,16 +16,7 @@ import pytest
 
 import voxflex as vf
 from voxflex.result import Result
-from voxflex.scene import (
-    ElasticitySpec,
-    FixedSpec,
-    LoadSpec,
-    MaterialSpec,
-    NodesSpec,
-    ObjectSpec,
-    ProbeSpec,
-    Scene,
-)
+from voxflex.scene import ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene
 
 
 def _bar(h=0.1, **kw):

@@ -279,16 +279,7 @@ def test_a_scene_with_friction_slides_down_its_incline():
     """The incline through the scene path: [[obstacle]] friction = 0.2, gravity tilted by alpha, vf.simulate."""
     import voxflex as vf
     from voxflex.deform.layers.contact import with_contact
-    from voxflex.scene import (
-        ContactSpec,
-        LoadSpec,
-        MaterialSpec,
-        NodesSpec,
-        ObjectSpec,
-        ObstacleSpec,
-        Scene,
-        SolverSpec,
-    )
+    from voxflex.scene import ContactSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ObstacleSpec, Scene, SolverSpec
 
     mu, dt = 0.2, 0.01
     scene = Scene(

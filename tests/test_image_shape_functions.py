@@ -339,7 +339,7 @@ def test_compiled_centre_weights_equal_the_numpy_twin():
     and more candidate frames than parents: same weights per frame to round-off (1e-12), except at
     voxels where the parents-th and the next raw value tie to 1e-9 (either frame is a right pick;
     the two evaluations differ by round-off there: at most 5 % of the voxels, asserted)."""
-    from voxflex.voronoi.shape_function import _basis, _weights_impl
+    from voxflex.voronoi.weights import _basis, _weights_impl
 
     labels = np.ones((14, 10, 8), np.uint8)
     labels[4:10, 5, :5] = 0

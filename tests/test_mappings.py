@@ -16,12 +16,7 @@ from scipy.spatial.transform import Rotation
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from contract_mappings import padded_shepard  # noqa: E402
 
-from voxflex.deform.chain.mappings import (
-    MAPPINGS,
-    DeformationGradientMapping,
-    DeformationGradientWithGradientMapping,
-    PointMapping,
-)
+from voxflex.deform.chain.mappings import MAPPINGS, DeformationGradientMapping, DeformationGradientWithGradientMapping, PointMapping
 from voxflex.deform.chain.nodes import AffineFrames, Points, RigidFrames, skew  # noqa: E402
 from voxflex.errors import InputError  # noqa: E402
 from voxflex.voronoi.shape_functions import ShapeValues, shepard  # noqa: E402

@@ -231,5 +231,5 @@ def test_scene_round_trip_and_pressure_on_a_solid():
     assert Scene.from_toml_text(scene.to_toml()) == scene
     solid = SCENE.replace('shape = "disk"\nsize = [0.05]', 'shape = "box"\nsize = [0.1, 0.1, 0.01]')
     solid = solid.replace('kind = "membrane"', 'kind = "voxel"').split("[membrane]")[0]
-    with pytest.raises(InputError, match="membranes only"):
+    with pytest.raises(InputError, match="acts on membrane"):
         Scene.from_toml_text(solid + '[[load]]\nkind = "pressure"\npressure = 1.0\n')

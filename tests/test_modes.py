@@ -20,14 +20,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from sampling_standin import ShepardSF, frames_in, two_label_block  # noqa: E402
 
 from voxflex.deform.chain.nodes import skew  # noqa: E402
-from voxflex.deform.models.frames.modes import (
-    SOFT_RATIO,
-    SpuriousModesWarning,
-    check_modes,
-    free_body_stiffness,
-    softest_mode,
-    zero_energy_modes,
-)
+from voxflex.deform.models.frames.modes import SOFT_RATIO, SpuriousModesWarning, check_modes, free_body_stiffness, softest_mode, zero_energy_modes
 from voxflex.deform.models.frames.modes import _rigid_modes as rigid_basis
 from voxflex.image import LabelImage  # noqa: E402
 from voxflex.sampling import sample  # noqa: E402

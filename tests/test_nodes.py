@@ -6,14 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from voxflex.deform.chain.nodes import (
-    NODE_TYPES,
-    AffineFrames,
-    Points,
-    RigidFrames,
-    rotation_exp,
-    skew,
-)
+from voxflex.deform.chain.nodes import NODE_TYPES, AffineFrames, Points, RigidFrames, rotation_exp, skew
 from voxflex.errors import InputError
 
 

@@ -7,15 +7,7 @@ import pytest
 
 from voxflex.errors import InputError
 from voxflex.image import LabelImage
-from voxflex.rasterize import (
-    Box,
-    Cylinder,
-    Sphere,
-    SurfaceMesh,
-    turn_up,
-    up_rotation,
-    voxelize,
-)
+from voxflex.rasterize import Box, Cylinder, Sphere, SurfaceMesh, turn_up, up_rotation, voxelize
 
 
 @pytest.mark.parametrize("up", ["x", "y", "z"])

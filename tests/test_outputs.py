@@ -19,13 +19,7 @@ import pytest
 
 from voxflex._atomic import Interrupted, atomic_path, check_output_path
 from voxflex.cli import main
-from voxflex.cli._outputs import (
-    check_image_output,
-    check_render_output,
-    check_result_output,
-    check_vtk_output,
-    is_result_file,
-)
+from voxflex.cli._outputs import check_image_output, check_render_output, check_result_output, check_vtk_output, is_result_file
 from voxflex.errors import InputError
 from voxflex.image import LabelImage
 from voxflex.image.io import looks_like_image

@@ -23,25 +23,11 @@ import pytest
 import voxflex as vf
 from voxflex.deform.chain.nodes import rotation_exp, skew
 from voxflex.deform.materials.material import material
-from voxflex.deform.models.rigid.model import (
-    RigidFrameModel,
-    rotation_derivatives,
-    wrap_rotation_vectors,
-)
+from voxflex.deform.models.rigid.model import RigidFrameModel, rotation_derivatives, wrap_rotation_vectors
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 from voxflex.result import Result
-from voxflex.scene import (
-    ElasticitySpec,
-    FixedSpec,
-    LoadSpec,
-    MaterialSpec,
-    NodesSpec,
-    ObjectSpec,
-    ProbeSpec,
-    Scene,
-    SolverSpec,
-)
+from voxflex.scene import ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene, SolverSpec
 from voxflex.voronoi.shape_functions import shepard
 
 FRAMES = np.array([[0.25, 0.5, 0.5], [1.5, 0.25, 0.25], [1.5, 0.75, 0.75], [2.75, 0.5, 0.5], [2.0, 0.5, 0.9]])

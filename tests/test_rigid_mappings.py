@@ -6,11 +6,7 @@ import numpy as np
 import pytest
 
 from voxflex.deform.chain.nodes import RigidFrames, rotation_exp
-from voxflex.deform.chain.rigid import (
-    LogRigidMapping,
-    RelativeRigidMapping,
-    rotation_log,
-)
+from voxflex.deform.chain.rigid import LogRigidMapping, RelativeRigidMapping, rotation_log
 from voxflex.errors import InputError
 
 

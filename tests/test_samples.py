@@ -25,12 +25,7 @@ from voxflex.deform.materials.laws import HookeLaw, isotropic_stiffness  # noqa:
 from voxflex.errors import InputError  # noqa: E402
 from voxflex.sampling import Samples, sample  # noqa: E402
 from voxflex.sampling.quadrature import gauss_legendre_cube  # noqa: E402
-from voxflex.sampling.volume_moments import (  # noqa: E402
-    EXPONENT_INDEX,
-    EXPONENTS,
-    box_moment_table,
-    monomials,
-)
+from voxflex.sampling.volume_moments import EXPONENT_INDEX, EXPONENTS, box_moment_table, monomials
 
 
 def _subcell_rule():

@@ -141,9 +141,9 @@ def test_non_convergence_and_bad_input_are_reported(monkeypatch):
         solve(model, fixed=[clamp], gravity=[0, 0, -9.81], options=SolverOptions())
     with pytest.raises(InputError, match="contains no node"):
         solve(model, fixed=[FixedRegion([5, 5, 5], [6, 6, 6])], options=SolverOptions())
-    with pytest.raises(InputError, match="solver kind"):
+    with pytest.raises(InputError, match=r"\[solver\] kind"):
         SolverOptions(kind="explicit")
-    with pytest.raises(InputError, match="linear solver"):
+    with pytest.raises(InputError, match=r"\[solver\] linear_solver"):
         SolverOptions(linear_solver="lu")
 
 

@@ -19,16 +19,7 @@ from voxflex.build import ComponentsDroppedWarning
 from voxflex.deform.solve.supports import unsupported_components
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
-from voxflex.scene import (
-    FixedSpec,
-    LoadSpec,
-    MaterialSpec,
-    NodesSpec,
-    ObjectSpec,
-    ProbeSpec,
-    Scene,
-    SolverSpec,
-)
+from voxflex.scene import FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene, SolverSpec
 
 BIG = 1e9
 CLAMP = FixedSpec(min=(-BIG, -BIG, -BIG), max=(1e-6, BIG, BIG))

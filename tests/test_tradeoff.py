@@ -19,16 +19,7 @@ import voxflex as vf
 from voxflex.cli import main
 from voxflex.errors import InputError
 from voxflex.scene import Scene
-from voxflex.tradeoff import (
-    COLUMNS,
-    METRICS,
-    Configuration,
-    TradeoffTable,
-    _merge,
-    _split,
-    _surface_error,
-    tradeoff,
-)
+from voxflex.tradeoff import COLUMNS, METRICS, Configuration, TradeoffTable, _merge, _split, _surface_error, tradeoff
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SPEC_COLUMNS = ("kind, count, shape_function, quadrature, samples, dofs, precompute_seconds, solve_seconds, "

@@ -8,11 +8,7 @@ import pytest
 from voxflex.errors import InputError
 from voxflex.image.grid import CORNER_OFFSETS, TrilinearGrid, trilinear_weights
 from voxflex.image.label_image import LabelImage
-from voxflex.sampling.quadrature import (
-    gauss_legendre_cube,
-    midpoint_cube,
-    unit_cube_rule,
-)
+from voxflex.sampling.quadrature import gauss_legendre_cube, midpoint_cube, unit_cube_rule
 from voxflex.voronoi.trilinear import trilinear_quadrature_values, trilinear_values
 
 

@@ -210,7 +210,7 @@ def test_grid_too_large_is_refused_before_allocating():
 def _voxelize_module():
     import sys
 
-    return sys.modules["voxflex.rasterize.voxelize"]  # the package re-exports the function under the same name
+    return sys.modules["voxflex.rasterize.voxelizer"]  # the package re-exports the function under the same name
 
 
 def _rotated_cube():

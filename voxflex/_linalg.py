@@ -31,8 +31,6 @@ def vnorm(a) -> float:
 
 
 FREE_BLOCK_ROWS = 4096
-
-
 """Rows per pass of the numpy twin of :func:`free_block` (its scratch: ~13 bytes per stored entry
 of that many rows; at 56k DOF 65536 rows put the peak at 3702 bytes/DOF above the model, 4096 at 1973)."""
 

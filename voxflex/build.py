@@ -1,8 +1,10 @@
 """Build what a scene asks for: its label image, its materials and its model.
 
-:func:`model` looks the scene's ``[nodes] kind`` up in :data:`MODEL_BUILDERS`
-and returns a model of the protocol in :mod:`voxflex.deform.models.protocol`; the
-solvers, loads, results and renders only ever talk to that protocol.
+:func:`model` looks the scene's ``[nodes] kind`` up in the registry of node
+kinds (:mod:`voxflex.deform.models.kinds`), lets the kind build its model and
+adds the layers the scene asks for (plasticity, contact, cables); the result
+is a model of the protocol in :mod:`voxflex.deform.models.protocol`, the only
+thing solvers, loads, results and renders talk to.
 
 Example
 -------
@@ -15,18 +17,13 @@ Example
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 
-from .deform.models.frames.build import _frame_model
-from .deform.models.membrane.build import _membrane_mesh, _membrane_model
-from .deform.models.rigid.build import _rigid_model
-from .deform.models.voxel.build import _voxel_model
-from .errors import InputError, check_choice
+from .deform.models.kinds import node_kind
+from .errors import InputError
 from .scene import Scene
 
-__all__ = ["model", "build_image", "build_materials", "MODEL_BUILDERS", "ComponentsDroppedWarning"]
+__all__ = ["model", "build_image", "build_materials", "ComponentsDroppedWarning"]
 
 
 class ComponentsDroppedWarning(UserWarning):
@@ -36,11 +33,10 @@ class ComponentsDroppedWarning(UserWarning):
 def build_image(scene: Scene):
     """The label image of ``scene.object`` (shape or mesh voxelized, image loaded), with the
     components that ``keep`` / ``min_component_voxels`` drop removed (with a warning); for a
-    membrane, the voxels its mesh passes through (:func:`~voxflex.rasterize.membrane_mesh.footprint_image`)."""
-    if scene.nodes.kind == "membrane":
-        from .rasterize.membrane_mesh import footprint_image
-
-        return footprint_image(*_membrane_mesh(scene), scene.object.voxel_size)
+    kind whose image is its own (a membrane: the voxels its mesh passes through), that image."""
+    own = node_kind(scene.nodes.kind).build_image(scene)
+    if own is not None:
+        return own
     return _drop_components(_raw_image(scene), scene.object.keep, scene.object.min_component_voxels)
 
 
@@ -83,7 +79,7 @@ def _raw_image(scene: Scene):
         from .rasterize.orient import turn_up
 
         return turn_up(LabelImage.load(obj.image), obj.up)  # [object] up: that axis becomes +z
-    from .rasterize.voxelize import voxelize
+    from .rasterize.voxelizer import voxelize
 
     occupancy = bool(obj.occupancy)
     if obj.mesh is not None:
@@ -133,50 +129,14 @@ def _plastic(base, spec, label):
         raise InputError(f"[[material]] label {label}: {exc}") from None
 
 
-_PLASTIC_SURFACE_FIELDS = ("stress", "von-mises", "energy-density")
-
-
-"""Result fields that evaluate the materials on the frames' surface layer, which has no plastic state."""
-
-
 def _with_plasticity(built, scene: Scene):
-    """``built`` wrapped in :class:`~voxflex.deform.layers.plasticity.PlasticModel` when a label is plastic."""
+    """``built`` wrapped in :class:`~voxflex.deform.layers.plasticity.PlasticModel` when a label is plastic
+    (the scene's node kind has said it takes plasticity when the scene was made)."""
     from .deform.layers.plasticity import with_plasticity
 
-    plastic = [m.label for m in scene.materials if m.yield_strain is not None]
-    if not plastic:
+    if not any(m.yield_strain is not None for m in scene.materials):
         return built
-    if scene.nodes.kind == "rigid":
-        raise InputError('plasticity ([material] yield_strain) needs deformable nodes: use [nodes] kind = "affine" '
-                         'or "voxel"')
-    bad = [f for f in scene.output.fields if f in _PLASTIC_SURFACE_FIELDS]
-    if bad and scene.nodes.kind != "voxel":
-        raise InputError(f'[output] fields "{bad[0]}" with plasticity needs [nodes] kind = "voxel" (the frames\' '
-                         "surface layer carries no plastic state); remove it or use voxel nodes")
     return with_plasticity(built)
-
-
-def _not_implemented(kind: str):
-    def builder(scene, image, materials):
-        built = [k for k, b in MODEL_BUILDERS.items() if not getattr(b, "not_implemented", False)]
-        raise NotImplementedError(
-            f'[nodes] kind = "{kind}" is not implemented yet; use {" or ".join(repr(k) for k in built)}'
-        )
-
-    builder.not_implemented = True
-
-    return builder
-
-
-MODEL_BUILDERS: dict[str, Callable] = {
-    "voxel": _voxel_model,
-    "affine": _frame_model,
-    "rigid": _rigid_model,
-    "membrane": _membrane_model,
-}
-
-
-"""Registry: ``[nodes] kind`` -> builder ``(scene, image, materials) -> Model``."""
 
 
 def model(scene, *, image=None, cache: bool = True):
@@ -194,18 +154,17 @@ def model(scene, *, image=None, cache: bool = True):
     Returns
     -------
     Model
-        A :class:`~voxflex.deform.models.voxel.model.VoxelModel` or a frame model.
+        The kind's model (:class:`~voxflex.deform.models.voxel.model.VoxelModel`, a frame model ...)
+        with the layers the scene asks for.
 
     Raises
     ------
     InputError
         A label without material, a setting the node kind does not take.
-    NotImplementedError
-        A node kind that is registered but not built yet (named in the message).
     """
     if not isinstance(scene, Scene):
         scene = Scene.from_toml(scene)
-    check_choice("node kind", scene.nodes.kind, MODEL_BUILDERS)
+    kind = node_kind(scene.nodes.kind)
     if image is None:
         image = build_image(scene)
     labels_present = np.unique(image.labels[image.labels > 0])
@@ -214,6 +173,5 @@ def model(scene, *, image=None, cache: bool = True):
     from .deform.layers.contact import with_contact
 
     # the collision layer is built only when the scene has obstacles, the cable layer when it has cables
-    builder = MODEL_BUILDERS[scene.nodes.kind]
-    built = builder(scene, image, materials, cache=cache) if builder in (_frame_model, _rigid_model) else builder(scene, image, materials)
+    built = kind.build(scene, image, materials, cache=cache)
     return with_cables(with_contact(_with_plasticity(built, scene), scene), scene)

@@ -35,30 +35,27 @@ import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from .deform.layers.cables import Cable
-from .deform.layers.contact import POINT_RULES as CONTACT_POINT_RULES
+from ._checks import boolean as _boolean
+from ._checks import check_keys as _check_keys
+from ._checks import number as _number
+from ._checks import string as _string
+from ._checks import valid_keys as _valid_keys
+from ._checks import vector as _vector
+from .deform.layers.cable import Cable
 from .deform.layers.obstacles import OBSTACLE_KINDS
-from .deform.materials.material import (
-    MATERIALS,
-    MODEL_CONSTANTS,
-    POISSON_RANGE,
-    check_constants,
-)
-from .deform.materials.strains import STRAINS
+from .deform.layers.obstacles import POINT_RULES as CONTACT_POINT_RULES
+from .deform.materials.catalogue import MATERIAL_NAMES, MODEL_CONSTANTS, POISSON_RANGE, STRAIN_NAMES, check_constants
+from .deform.materials.fbar import VOLUMETRIC
 from .deform.models.fields import check_field_names
-from .deform.models.membrane.model import MEMBRANE_NODE_KIND
-from .deform.models.membrane.model import RIMS as MEMBRANE_RIMS
-from .deform.models.protocol import NODE_KINDS as _NODE_KINDS
-from .deform.models.voxel.model import HOURGLASS, VOLUMETRIC
+from .deform.models.kinds import default_kind, node_kind, node_kinds
+from .deform.models.membrane.kind import RIMS as MEMBRANE_RIMS
+from .deform.models.voxel.kind import HOURGLASS
 from .deform.solve.boundary import FORCE_KINDS, PRESSURE_KIND
-from .deform.solve.linear import METHODS as LINEAR_SOLVERS
-from .deform.solve.options import KINDS as SOLVER_KINDS
-from .deform.solve.options import MASS_KINDS, TANGENT_PROJECTIONS
+from .deform.solve.options import SolverOptions
 from .errors import InputError, check_choice, did_you_mean
-from .rasterize.membrane_mesh import MEMBRANE_SHAPES
 from .rasterize.primitives import PRIMITIVES
 from .sampling.quadrature import QUADRATURES
-from .voronoi.shape_functions import SHAPE_FUNCTION_KINDS, VOXEL_SHAPE_FUNCTIONS
+from .voronoi.families import SHAPE_FUNCTIONS
 
 __all__ = [
     "Scene",
@@ -79,92 +76,14 @@ __all__ = [
     "default_scene_path",
 ]
 
-# every vocabulary is defined once, in the stage that owns it
-SHAPES = {**{name: entry[1] for name, entry in PRIMITIVES.items()}, **MEMBRANE_SHAPES}
-NODE_KINDS = _NODE_KINDS
-SHAPE_FUNCTIONS = SHAPE_FUNCTION_KINDS + VOXEL_SHAPE_FUNCTIONS
-LOAD_KINDS = ("gravity", *FORCE_KINDS, PRESSURE_KIND)
-STRAIN_NAMES = tuple(STRAINS)
+# every vocabulary is defined once, in the stage that owns it (node kinds add their own shapes and loads)
+SHAPES = {**{name: entry[1] for name, entry in PRIMITIVES.items()},
+          **{name: n for kind in node_kinds().values() for name, n in kind.shapes.items()}}
+NODE_KINDS = tuple(node_kinds())
+LOAD_KINDS = ("gravity", *FORCE_KINDS, *(k for kind in node_kinds().values() for k in kind.load_kinds))
 DISTANCES = ("geodesic", "compliance")
 KEEP = ("all", "largest")
 _INF = math.inf
-
-
-# ---------------------------------------------------------------------------
-# small validators: every message names the table and the key
-# ---------------------------------------------------------------------------
-def _where(table: str, key: str) -> str:
-    return f"[{table}] {key}"
-
-
-def _number(table, key, value, *, positive=False, nonnegative=False, integer=False, minimum=None):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        kind = "an integer" if integer else "a number"
-        raise InputError(f"{_where(table, key)} must be {kind}, got {value!r}")
-    if integer:
-        if isinstance(value, float):
-            if not value.is_integer():
-                raise InputError(f"{_where(table, key)} must be an integer, got {value!r}")
-        value = int(value)
-    else:
-        value = float(value)
-        if math.isnan(value):
-            raise InputError(f"{_where(table, key)} must be a number, got nan")
-    if positive and not value > 0:
-        raise InputError(f"{_where(table, key)} must be > 0, got {value!r}")
-    if nonnegative and not value >= 0:
-        raise InputError(f"{_where(table, key)} must be >= 0, got {value!r}")
-    if minimum is not None and value < minimum:
-        raise InputError(f"{_where(table, key)} must be >= {minimum}, got {value!r}")
-    if not integer and not positive and not nonnegative:
-        return value
-    if not integer and math.isinf(value):
-        raise InputError(f"{_where(table, key)} must be finite, got {value!r}")
-    return value
-
-
-def _vector(table, key, value, length=3, *, finite=True, positive=False) -> tuple[float, ...]:
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != length:
-        raise InputError(f"{_where(table, key)} must be a list of {length} numbers, got {value!r}")
-    out = []
-    for v in value:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
-            raise InputError(f"{_where(table, key)} must be a list of {length} numbers, got {value!r}")
-        if finite and math.isinf(v):
-            raise InputError(f"{_where(table, key)} must be finite, got {value!r}")
-        if positive and not v > 0:
-            raise InputError(f"{_where(table, key)} must be > 0 everywhere, got {value!r}")
-        out.append(float(v))
-    return tuple(out)
-
-
-def _string(table, key, value, choices=None) -> str:
-    if not isinstance(value, str):
-        raise InputError(f"{_where(table, key)} must be a string, got {value!r}")
-    if choices is not None and value not in choices:
-        raise InputError(
-            f"{_where(table, key)}: unknown value '{value}'{did_you_mean(value, choices)}; "
-            f"valid: {', '.join(choices)}"
-        )
-    return value
-
-
-def _boolean(table, key, value) -> bool:
-    if not isinstance(value, bool):
-        raise InputError(f"{_where(table, key)} must be true or false, got {value!r}")
-    return value
-
-
-def _check_keys(table: str, data: dict, valid) -> None:
-    for key in data:
-        if key not in valid:
-            raise InputError(
-                f"unknown key '{key}' in [{table}]{did_you_mean(key, valid)}; valid keys: {', '.join(valid)}"
-            )
-
-
-def _valid_keys(cls) -> tuple[str, ...]:
-    return tuple(f.name for f in fields(cls) if not f.name.startswith("_"))
 
 
 # ---------------------------------------------------------------------------
@@ -314,7 +233,7 @@ class MaterialSpec:
         if not 1 <= label <= 65535:
             raise InputError(f"[material] label must be in 1..65535 (0 is empty space), got {label}")
         object.__setattr__(self, "label", label)
-        _string(t, "model", self.model, tuple(MATERIALS))
+        _string(t, "model", self.model, MATERIAL_NAMES)
         if self.young is not None:
             object.__setattr__(self, "young", _number(t, "young", self.young, positive=True))
         if self.poisson is not None:
@@ -367,10 +286,11 @@ class NodesSpec:
     ``shape_function`` (default natural-neighbour), ``parents`` (at most this
     many frames influence a material point), ``distance`` (``geodesic`` or
     ``compliance``) and ``seed`` (placement is deterministic for a seed).
-    Voxel nodes take ``shape_function = "trilinear"`` (or ``"barycentric"``) only.
+    Each kind takes the shape functions its :class:`~voxflex.deform.models.kinds.NodeKind` names
+    (voxel nodes: ``"trilinear"`` only; membranes: none).
     """
 
-    kind: str = "affine"
+    kind: str = field(default_factory=lambda: default_kind().name)
     count: int | None = None
     positions: tuple[tuple[float, float, float], ...] | None = None
     shape_function: str | None = None
@@ -384,13 +304,13 @@ class NodesSpec:
         if self.count is not None:
             object.__setattr__(self, "count", _number(t, "count", self.count, integer=True, minimum=1))
         if self.shape_function is not None:
-            valid = VOXEL_SHAPE_FUNCTIONS if self.kind == "voxel" else SHAPE_FUNCTION_KINDS
+            valid = node_kind(self.kind).shape_functions
             if self.shape_function in SHAPE_FUNCTIONS and self.shape_function not in valid:
                 raise InputError(
                     f'[nodes] shape_function = "{self.shape_function}" does not apply to kind = "{self.kind}"; '
-                    f"valid for it: {', '.join(valid)}"
+                    + (f"valid for it: {', '.join(valid)}" if valid else "that kind takes none (remove the key)")
                 )
-            _string(t, "shape_function", self.shape_function, valid)
+            _string(t, "shape_function", self.shape_function, valid or SHAPE_FUNCTIONS)
         if self.positions is not None:
             rows = self.positions
             if isinstance(rows, (str, bytes)) or not hasattr(rows, "__len__") or len(rows) == 0:
@@ -514,47 +434,8 @@ class LoadSpec:
             object.__setattr__(self, "max", hi)
 
 
-@dataclass(frozen=True)
-class SolverSpec:
-    """``[solver]``: ``static`` (``steps`` load increments) or ``implicit-euler``
-    (``steps`` time steps of ``dt`` seconds), Newton ``tolerance`` (relative
-    residual), ``max_iterations``, ``line_search``, ``linear_solver``, Rayleigh damping,
-    ``mass`` (``lumped`` or ``consistent``, implicit Euler), ``check_stability``
-    (test every converged state for a negative tangent eigenvalue), ``tangent_projection``
-    (per-sample tangents projected to positive semi-definite far from equilibrium).  The keys mirror
-    :class:`voxflex.deform.solve.options.SolverOptions` one for one."""
-
-    kind: str = "static"
-    dt: float = 0.01
-    steps: int = 1
-    tolerance: float = 1e-8
-    max_iterations: int = 50
-    line_search: bool = True
-    linear_solver: str = "auto"
-    rayleigh_mass: float = 0.0
-    rayleigh_stiffness: float = 0.0
-    mass: str = "lumped"
-    check_stability: bool = False
-    tangent_projection: str = "auto"
-
-    def __post_init__(self):
-        t = "solver"
-        _boolean(t, "check_stability", self.check_stability)
-        _string(t, "kind", self.kind, SOLVER_KINDS)
-        object.__setattr__(self, "dt", _number(t, "dt", self.dt, positive=True))
-        object.__setattr__(self, "steps", _number(t, "steps", self.steps, integer=True, minimum=1))
-        object.__setattr__(self, "tolerance", _number(t, "tolerance", self.tolerance, positive=True))
-        object.__setattr__(
-            self, "max_iterations", _number(t, "max_iterations", self.max_iterations, integer=True, minimum=1)
-        )
-        _boolean(t, "line_search", self.line_search)
-        _string(t, "linear_solver", self.linear_solver, LINEAR_SOLVERS)
-        object.__setattr__(self, "rayleigh_mass", _number(t, "rayleigh_mass", self.rayleigh_mass, nonnegative=True))
-        object.__setattr__(
-            self, "rayleigh_stiffness", _number(t, "rayleigh_stiffness", self.rayleigh_stiffness, nonnegative=True)
-        )
-        _string(t, "mass", self.mass, MASS_KINDS)
-        _string(t, "tangent_projection", self.tangent_projection, TANGENT_PROJECTIONS)
+SolverSpec = SolverOptions
+"""``[solver]``: the solver's options themselves (:class:`voxflex.deform.solve.options.SolverOptions`)."""
 
 
 @dataclass(frozen=True)
@@ -780,54 +661,32 @@ class MembraneSpec:
         _string(t, "rim", self.rim, MEMBRANE_RIMS)
 
 
-def _check_membrane_scene(scene) -> None:
-    """The keys that apply to membranes, and those that apply only to them (one-line errors naming the fix)."""
+def _check_kind(scene) -> None:
+    """What the scene's node kind does not take (one-line errors naming the fix): another kind's own
+    shapes, tables and loads, dynamics for a static-only kind, quadratures it does not have, then the
+    kind's own checks (:meth:`~voxflex.deform.models.kinds.NodeKind.check`)."""
+    kind = node_kind(scene.nodes.kind)
     obj = scene.object
-    if scene.nodes.kind != MEMBRANE_NODE_KIND:
-        if obj.shape in MEMBRANE_SHAPES:
-            raise InputError(f'[object] shape = "{obj.shape}" is a membrane; use [nodes] kind = "membrane" (with a '
-                             "[membrane] table) or a solid shape (box, cylinder, sphere)")
-        if scene.membrane is not None:
-            raise InputError('[membrane] applies to [nodes] kind = "membrane" only; remove it or set that kind')
-        bad = [ld.kind for ld in scene.loads if ld.kind == PRESSURE_KIND]
+    for other in node_kinds().values():
+        if other is kind:
+            continue
+        use = f'use [nodes] kind = "{other.name}"'
+        if obj.shape in other.shapes:
+            raise InputError(f'[object] shape = "{obj.shape}" is a {other.name} shape; {use}'
+                             + (f" (with a [{other.tables[0]}] table)" if other.tables else "")
+                             + " or a solid shape (box, cylinder, sphere)")
+        for table in other.tables:
+            if getattr(scene, table, None) is not None:
+                raise InputError(f"[{table}] applies to [nodes] kind = \"{other.name}\" only; remove it or set that kind")
+        bad = [ld.kind for ld in scene.loads if ld.kind in other.load_kinds]
         if bad:
-            raise InputError('[load] kind = "pressure" acts on membranes only; use [nodes] kind = "membrane", or a '
-                             'traction load on a solid')
-        return
-    fix = 'for [nodes] kind = "membrane"'
-    if scene.membrane is None:
-        raise InputError('[nodes] kind = "membrane" needs a [membrane] table with thickness (m)')
-    if obj.image is not None or (obj.shape is not None and obj.shape not in MEMBRANE_SHAPES):
-        raise InputError(f"a membrane is a surface: give [object] shape = \"disk\" or \"rectangle\", or mesh = a "
-                         f"surface mesh file ({fix})")
-    for key, default in (("occupancy", None), ("keep", "all"), ("min_component_voxels", 1)):
-        if getattr(obj, key) != default:
-            raise InputError(f"[object] {key} does not apply to membranes; remove it ({fix})")
-    nodes = scene.nodes
-    for key in ("count", "positions", "shape_function"):
-        if getattr(nodes, key) is not None:
-            raise InputError(f"[nodes] {key} applies to frames and voxels; remove it ({fix}: the mesh's vertices "
-                             "are the nodes)")
-    el = scene.elasticity
-    if el.quadrature != "midpoint" or el.samples is not None or el.strain is not None:
-        raise InputError("[elasticity] quadrature, samples and strain do not apply to membranes (one point per "
-                         f"triangle, Green strain); remove them ({fix})")
-    models = sorted({m.model for m in scene.materials})
-    if models != ["stvk"] or len(scene.materials) != 1 or scene.materials[0].label != 1:
-        raise InputError('a membrane takes one [[material]] with model = "stvk", young, poisson (label 1), '
-                         f"got models {models}; the membrane law is the plane-stress StVK")
-    if scene.materials[0].young is None or scene.materials[0].poisson is None:
-        raise InputError('the membrane\'s [[material]] needs young (Pa) and poisson (model = "stvk")')
-    kinds = [ld.kind for ld in scene.loads if ld.kind == "traction"]
-    if kinds:
-        raise InputError('[load] kind = "traction" needs voxel faces; push a membrane with kind = "pressure" or '
-                         '"force"')
-    if scene.obstacles:
-        raise InputError("membranes do not take [[obstacle]] contact yet; remove the obstacles or use a solid")
-    if scene.cables:
-        raise InputError("membranes do not take [[cable]] tables yet; remove them or use a solid")
-    if scene.output.fields:
-        raise InputError("result fields ([output] fields) are not implemented for membranes yet; remove the key")
+            raise InputError(f'[load] kind = "{bad[0]}" acts on {other.plural} only; {use}, or a traction load '
+                             "on a solid")
+    q = scene.elasticity.quadrature
+    if q not in kind.quadratures:
+        raise InputError(f'[elasticity] quadrature = "{q}" does not apply to [nodes] kind = "{kind.name}" '
+                         f"({kind.plural}); valid for it: {', '.join(kind.quadratures)}")
+    kind.check(scene)
 
 
 _SINGLE = {
@@ -897,11 +756,11 @@ class Scene:
         if self.title is not None:
             _string("scene", "title", self.title)
         if self.elasticity.quadrature is None:  # the node kind's own quadrature
-            own = "gauss-legendre" if self.nodes.kind == "voxel" else "midpoint"
+            own = node_kind(self.nodes.kind).default_quadrature
             object.__setattr__(self, "elasticity", replace(self.elasticity, quadrature=own))
         if not isinstance(self.contact, ContactSpec):
             raise InputError("Scene.contact must be a ContactSpec (the [contact] table)")
-        _check_membrane_scene(self)
+        _check_kind(self)
 
     # -- reading ----------------------------------------------------------
     @classmethod
@@ -1032,8 +891,8 @@ def _build(name: str, spec, table: dict):
         fixed = tuple(k for k in valid if k != "constants")
         table = dict(table)
         model = table.get("model", MaterialSpec.model)
-        if not isinstance(model, str) or model not in MATERIALS:
-            _string(name, "model", model, tuple(MATERIALS))
+        if not isinstance(model, str) or model not in MATERIAL_NAMES:
+            _string(name, "model", model, MATERIAL_NAMES)
         constants = tuple((k, table.pop(k)) for k in list(table) if k not in fixed)
         for key, _ in constants:
             if key not in MODEL_CONSTANTS[model]:
@@ -1099,6 +958,15 @@ def default_scene_path() -> Path:
     return Path(str(files("voxflex.data") / "default.toml"))
 
 
+def _nodes_text(scene) -> str:
+    """" (20 frames, natural-neighbour)" for a reduced kind, "" otherwise."""
+    kind = node_kind(scene.nodes.kind)
+    if not kind.reduced:
+        return ""
+    count = kind.count(scene.nodes.count or kind.default_count)
+    return f" ({count}, {scene.nodes.shape_function or kind.default_shape_function})"
+
+
 def describe_scene(path) -> str:
     """A short human-readable summary of a scene file (used by ``voxflex info``)."""
     scene = Scene.from_toml(path)
@@ -1124,7 +992,7 @@ def describe_scene(path) -> str:
         )
     lines.append(
         f"  nodes: {scene.nodes.kind}"
-        + (f" ({scene.nodes.count or 20} frames, {scene.nodes.shape_function or 'natural-neighbour'})" if scene.nodes.kind == "affine" else "")
+        + _nodes_text(scene)
         + f"; quadrature {scene.elasticity.quadrature}"
     )
     for f in scene.fixed:

@@ -365,11 +365,11 @@ def tradeoff(scene, *, frames=(5, 10, 20, 40), samples=(100, 400), shape_functio
         else:
             raise InputError(f"tradeoff needs a Scene or a scene file path, got {type(scene).__name__}")
     from .sampling.quadrature import QUADRATURES
-    from .voronoi.shape_functions import SHAPE_FUNCTION_KINDS
+    from .voronoi.families import FRAME_SHAPE_FUNCTIONS
 
     frames = _positive_ints("frames", frames)
     samples = _positive_ints("samples", samples)
-    shape_functions = _names("shape function", shape_functions, SHAPE_FUNCTION_KINDS)
+    shape_functions = _names("shape function", shape_functions, FRAME_SHAPE_FUNCTIONS)
     quadratures = _names("quadrature", quadratures, QUADRATURES)
     check_choice("reference", reference, REFERENCES)
     if isinstance(voxel_levels, bool) or not isinstance(voxel_levels, (int, np.integer)) or voxel_levels < 1:

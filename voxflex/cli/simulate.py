@@ -151,12 +151,7 @@ def _every_state(result, output):
 
 def check_outputs(args, scene, scene_path, output) -> None:
     """Validate -o (or the scene's [output] file), --render and --vtk before the run starts."""
-    from ._outputs import (
-        check_render_output,
-        check_result_output,
-        check_vtk_output,
-        run_inputs,
-    )
+    from ._outputs import check_render_output, check_result_output, check_vtk_output, run_inputs
 
     inputs = run_inputs(scene_path, scene)
     option = "-o" if args.output else "[output] file"

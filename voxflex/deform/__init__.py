@@ -50,7 +50,6 @@ __getattr__, __dir__, __all__ = lazy(__name__, {
     "MovingLeastSquaresMapping": "voxflex.deform.chain.mls",
     "PlasticMaterial": "voxflex.deform.layers.plasticity",
     "SolverOptions": "voxflex.deform.solve.options",
-    "solve": "voxflex.deform.solve.stepping",
     "FixedRegion": "voxflex.deform.solve.boundary",
     "ForceRegion": "voxflex.deform.solve.boundary",
 })

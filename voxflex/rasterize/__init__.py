@@ -6,25 +6,21 @@
 (32, 8, 8)
 """
 
-from .mesh import SurfaceMesh, load_mesh
-from .orient import UP_AXES, turn_up, up_rotation
-from .primitives import Box, Cylinder, Sphere, parse_spec
-from .voxelize import estimate_bytes, voxelize
-from .winding import build_tree, winding_number, winding_number_brute
+from .._lazy import lazy
 
-__all__ = [
-    "voxelize",
-    "Box",
-    "Cylinder",
-    "Sphere",
-    "parse_spec",
-    "SurfaceMesh",
-    "load_mesh",
-    "winding_number",
-    "winding_number_brute",
-    "build_tree",
-    "estimate_bytes",
-    "turn_up",
-    "up_rotation",
-    "UP_AXES",
-]
+__getattr__, __dir__, __all__ = lazy(__name__, {
+    "voxelize": "voxflex.rasterize.voxelizer",
+    "estimate_bytes": "voxflex.rasterize.voxelizer",
+    "Box": "voxflex.rasterize.primitives",
+    "Cylinder": "voxflex.rasterize.primitives",
+    "Sphere": "voxflex.rasterize.primitives",
+    "parse_spec": "voxflex.rasterize.primitives",
+    "SurfaceMesh": "voxflex.rasterize.mesh",
+    "load_mesh": "voxflex.rasterize.mesh",
+    "winding_number": "voxflex.rasterize.winding",
+    "winding_number_brute": "voxflex.rasterize.winding",
+    "build_tree": "voxflex.rasterize.winding",
+    "turn_up": "voxflex.rasterize.orient",
+    "up_rotation": "voxflex.rasterize.orient",
+    "UP_AXES": "voxflex.rasterize.orient",
+})

@@ -10,17 +10,12 @@ from ..errors import InputError
 
 __all__ = ["disk_mesh", "rectangle_mesh", "load_membrane_mesh", "footprint_image", "open_rim", "MEMBRANE_SHAPES"]
 
-
 MEMBRANE_SHAPES = {"disk": 1, "rectangle": 2}
-
-
 """Flat sheets voxflex makes for ``[object] shape`` (membranes only): name -> number of ``size`` values
 (disk: radius; rectangle: lx, ly), in the plane z = origin_z, normal +z."""
 
 
 FLAT_TOL = 1e-10
-
-
 """|n_t x n_0| below which every triangle normal counts as parallel (a flat membrane)."""
 
 

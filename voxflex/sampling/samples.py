@@ -11,12 +11,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from .quadrature import QUADRATURES
 from ..voronoi.shape_functions import ShapeValues
 from .volume_moments import EXPONENT_INDEX, N_MOMENTS
 
 __all__ = ["Samples", "KINDS"]
 
-KINDS = ("midpoint", "gauss-legendre", "elaston")
+KINDS = QUADRATURES
 """Sampling kinds accepted by :func:`voxflex.sampling.sample`."""
 
 _M2 = np.array([[EXPONENT_INDEX[tuple(int(i == a) + int(i == b) for i in range(3))] for b in range(3)] for a in range(3)])

@@ -11,12 +11,17 @@ The stage takes a label image and returns shape functions:
   and Shepard weights at any material point, as :class:`ShapeValues`.
 
 The full-resolution voxel model uses trilinear shape functions
-(:mod:`voxflex.image.grid`).
+(:mod:`voxflex.voronoi.trilinear`); the family names are in
+:mod:`voxflex.voronoi.families`.  Public names are imported lazily.
 """
 
-from .geodesic import geodesic_distance
-from .placement import place_frames
-from .shape_function import ShapeFunction, shape_function
-from .shape_functions import ShapeValues, shepard
+from .._lazy import lazy
 
-__all__ = ["geodesic_distance", "place_frames", "shape_function", "ShapeFunction", "ShapeValues", "shepard"]
+__getattr__, __dir__, __all__ = lazy(__name__, {
+    "geodesic_distance": "voxflex.voronoi.geodesic",
+    "place_frames": "voxflex.voronoi.placement",
+    "shape_function": "voxflex.voronoi.weights",
+    "ShapeFunction": "voxflex.voronoi.weights",
+    "ShapeValues": "voxflex.voronoi.shape_functions",
+    "shepard": "voxflex.voronoi.shape_functions",
+})

@@ -27,14 +27,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["ShapeValues", "shepard", "keep_largest", "SHAPE_FUNCTION_KINDS", "VOXEL_SHAPE_FUNCTIONS"]
-
-SHAPE_FUNCTION_KINDS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard")
-"""Shape functions of frames over a label image (``natural-neighbour`` is ``sibson``)."""
-
-VOXEL_SHAPE_FUNCTIONS = ("trilinear", "barycentric")
-"""Names of the voxel model's own shape functions (trilinear in each voxel; ``barycentric`` is another name for it)."""
-
+__all__ = ["ShapeValues", "shepard", "keep_largest"]
 
 @dataclass(frozen=True)
 class ShapeValues:

@@ -85,14 +85,11 @@ import scipy.sparse as sp
 from ...errors import ConvergenceError, InputError
 from ..models.protocol import OnePass
 from .base import ModelLayer
-from .obstacles import Obstacle, obstacle
+from .obstacles import POINT_RULES, Obstacle, obstacle
 
 __all__ = ["ContactModel", "collision_points", "barrier", "friction_mollifier", "with_contact", "POINT_RULES",
            "DISTANCE_FRACTION", "SLIP_FRACTION"]
 
-POINT_RULES = ("surface", "vertices")
-"""Named collision-point rules: 2x2 Gauss points of every exposed voxel face, or the surface vertices
-(an integer k gives k x k Gauss points per face)."""
 
 DISTANCE_FRACTION = 0.01
 """Default activation distance: this fraction of the smallest voxel spacing (so the gap at rest is below 1 %)."""

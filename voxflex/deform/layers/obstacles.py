@@ -37,6 +37,10 @@ from ...errors import InputError
 
 __all__ = ["Obstacle", "Plane", "Sphere", "Box", "DistanceField", "OBSTACLE_KINDS", "obstacle"]
 
+POINT_RULES = ("surface", "vertices")
+"""Named collision-point rules: 2x2 Gauss points of every exposed voxel face, or the surface vertices
+(an integer k gives k x k Gauss points per face)."""
+
 OBSTACLE_KINDS = ("plane", "sphere", "box", "sdf")
 """``[[obstacle]] kind`` values."""
 

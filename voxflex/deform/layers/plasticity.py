@@ -72,17 +72,12 @@ from .base import ModelLayer
 
 __all__ = ["PlasticMaterial", "PlasticModel", "von_mises_strain", "STATIONARY", "ANDERSON_DEPTH"]
 
-
 ANDERSON_DEPTH = 5
-
-
 """Passes of a step that :meth:`PlasticModel.end_step` combines (Anderson mixing) to speed up the
 staggered iteration."""
 
 
 STATIONARY = 1e-10
-
-
 """A step's plastic strains are settled when no component changes by more than this fraction of the
 yield strain between two solves (:meth:`PlasticModel.end_step`)."""
 

@@ -42,11 +42,7 @@ import numpy as np
 from ...errors import InputError
 from .laws import Law
 from .material import Material
-from .strains import (
-    apply_with_gradient,
-    geometric_with_gradient,
-    jacobian_with_gradient,
-)
+from .strains import apply_with_gradient, geometric_with_gradient, jacobian_with_gradient
 
 __all__ = [
     "ElastonEnergy",

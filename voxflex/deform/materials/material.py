@@ -28,8 +28,9 @@ from typing import Callable
 import numpy as np
 
 from ..._jit import njit
-from ...errors import InputError, check_choice, did_you_mean
+from ...errors import InputError, check_choice
 from . import laws as _laws
+from .catalogue import _ORTHO, MODEL_CONSTANTS, POISSON_RANGE, check_constants
 
 __all__ = ["Material", "MATERIALS", "shifted_invariants", "project_psd", "MODEL_CONSTANTS", "POISSON_RANGE",
            "material", "lame", "strain_kind", "check_constants"]
@@ -456,26 +457,12 @@ def _number(name, value, *, low=None, high=None, low_open=True, high_open=True, 
     return v
 
 
-POISSON_RANGE = (-1.0, 0.5)
-"""Open interval of Poisson's ratio for isotropic materials (negative values: auxetic materials)."""
 
 
 def _young_poisson(young, poisson):
     E = _number("young", young, low=0.0, what=" Pa")
     nu = _number("poisson", poisson, low=POISSON_RANGE[0], high=POISSON_RANGE[1])
     return E, nu
-
-
-def check_constants(model: str, names) -> None:
-    """InputError for a constant ``model`` does not take, with a did-you-mean and that model's constants."""
-    allowed = MODEL_CONSTANTS[model]
-    for name in names:
-        if name not in allowed:
-            valid = ", ".join(["young", "poisson", "strain", *allowed]) if model != "hooke-orthotropic" else \
-                ", ".join(["strain", *allowed])
-            raise InputError(
-                f"unknown parameter '{name}' for material '{model}'{did_you_mean(name, allowed)}; valid: {valid}"
-            )
 
 
 def _split(model, young, poisson, constants, alternatives):
@@ -535,7 +522,6 @@ def _stvk(young=None, poisson=None, strain=None, **constants):
     return Material(_strain("stvk", strain, "green"), law, "stvk", params)
 
 
-_ORTHO = ("E1", "E2", "E3", "nu12", "nu13", "nu23", "G12", "G23", "G13")
 
 
 def _hooke_orthotropic(young=None, poisson=None, strain=None, **constants):
@@ -705,22 +691,6 @@ def _ogden(young=None, poisson=None, strain=None, **constants):
     return Material(_strain(model, strain, "principal-stretch"), law, model, params)
 
 
-MODEL_CONSTANTS: dict[str, tuple[str, ...]] = {
-    "hooke": ("mu", "lmbda"),
-    "hooke-orthotropic": _ORTHO,
-    "stvk": ("mu", "lmbda"),
-    "neo-hookean": ("mu", "lmbda"),
-    "stable-neo-hookean": ("mu", "lmbda"),
-    "mooney-rivlin": ("c1", "c2", "bulk"),
-    "arruda-boyce": ("mu", "bulk", "lambda_m"),
-    "veronda-westmann": ("c1", "c2", "bulk"),
-    "volume-log": ("bulk",),
-    "volume-quadratic": ("bulk",),
-    "ogden": ("mu_p", "alpha_p", "lmbda"),
-}
-"""The constants each model takes besides ``young``, ``poisson`` and ``strain`` (the scene's
-``[[material]]`` keys read this table too).  ``c2``, ``lambda_m`` and ``alpha_p`` may also
-accompany young/poisson (see :func:`material`)."""
 
 MATERIALS: dict[str, Callable[..., Material]] = {
     "hooke": _hooke,

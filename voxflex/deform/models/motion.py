@@ -6,10 +6,7 @@ import numpy as np
 
 __all__ = ["moved_rest", "transform_at"]
 
-
 RIGID_TRANSFORM_TOL = 1e-9
-
-
 """|AᵀA - I| and |det A - 1| below which a transform's matrix counts as a rotation (a rigid transform)."""
 
 

@@ -33,17 +33,12 @@ import numpy as np
 
 __all__ = ["Model", "PointMap", "OnePass", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "end_step", "END_STEP_PASSES"]
 
-
 NODE_KINDS = ("affine", "rigid", "voxel", "membrane")
-
-
 """``[nodes] kind`` values: affine frames (12 DOF), rigid frames (6 DOF), voxel-corner points (3 DOF),
 the vertices of a membrane's triangle mesh (3 DOF, :mod:`voxflex.deform.models.membrane.model`)."""
 
 
 IMPLEMENTED_NODE_KINDS = ("affine", "rigid", "voxel", "membrane")
-
-
 """The node kinds a scene can be simulated with (rigid frames: static scenes only)."""
 
 
@@ -190,8 +185,6 @@ class OnePass:
 
 
 END_STEP_PASSES = 100
-
-
 """Re-solves of one step that :func:`~voxflex.deform.solve.stepping.solve` allows while :func:`end_step` still
 reports changed internal variables, before it gives up with a ConvergenceError."""
 

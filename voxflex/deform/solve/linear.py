@@ -76,16 +76,14 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..._linalg import vdot, vnorm
+from .options import METHODS
 from ...errors import ConvergenceError, InputError, check_choice
-
-METHODS = ("auto", "cholesky", "direct", "cg", "amg", "multigrid")
 
 
 DENSE_MAX = 64
 
 
 DIRECT_MAX = 5000
-
 
 MULTIGRID_MIN = 3000
 

@@ -19,18 +19,15 @@ from .linear import cg_on_free_dofs, choose_method, solve_linear
 
 ARMIJO = 1e-4
 
-
 MAX_HALVINGS = 30
 
 
 DENSE_AUTO_MAX = 6000  # unknowns up to which a nearly dense Hessian goes to dense Cholesky under "auto"
 
-
 DENSE_FILL = 0.2  # fraction of non-zeros above which a Hessian counts as nearly dense
 
 
 ROUNDOFF = 1e-11  # relative energy slack of the line search (differences of Pi below it are round-off)
-
 
 NOISE = 1e-7  # relative energy change under which a full Newton step that cuts the residual is accepted
 
@@ -239,10 +236,7 @@ def _forcing(rn, rn_prev, eta_prev, scale):
 
 _BUILD_CHUNK = 1 << 24
 
-
 DENSE_RUNS_MAX = 24
-
-
 """Runs of consecutive free DOFs up to which a dense free block is gathered by slice copies (runs²
 copies of contiguous rows) rather than two fancy-indexing passes."""
 

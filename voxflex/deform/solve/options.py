@@ -6,21 +6,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...errors import InputError, check_choice
-from .linear import METHODS
+from ..._checks import boolean, number, string
+from ...errors import InputError
 
 __all__ = ["SolverOptions", "StepRecord"]
 
+METHODS = ("auto", "cholesky", "direct", "cg", "amg", "multigrid")
+"""``linear_solver`` choices (:mod:`voxflex.deform.solve.linear`)."""
 
 KINDS = ("static", "implicit-euler")
 
 
 MASS_KINDS = ("lumped", "consistent")
 
-
 TANGENT_PROJECTIONS = ("auto", "always", "never")
-
-
 """``tangent_projection`` choices: per-sample tangents projected to positive semi-definite after the
 exact tangent was indefinite along a Newton step, until a full step (``auto``, see
 :func:`_project_tangents`), at every iterate, or never."""
@@ -28,7 +27,7 @@ exact tangent was indefinite along a Newton step, until a full step (``auto``, s
 
 @dataclass(frozen=True)
 class SolverOptions:
-    """Solver settings.
+    """Solver settings: the ``[solver]`` table of a scene (its keys are these fields, validated here once).
 
     Parameters
     ----------
@@ -79,22 +78,22 @@ class SolverOptions:
     tangent_projection: str = "auto"
 
     def __post_init__(self):
-        check_choice("solver kind", self.kind, KINDS)
-        check_choice("tangent projection", self.tangent_projection, TANGENT_PROJECTIONS)
-        check_choice("linear solver", self.linear_solver, METHODS)
-        check_choice("mass", self.mass, MASS_KINDS)
-        if int(self.steps) != self.steps or self.steps < 1:
-            raise InputError(f"solver steps must be a positive integer, got {self.steps!r}")
-        if not (np.isfinite(self.dt) and self.dt > 0):
-            raise InputError(f"time step dt must be > 0 (s), got {self.dt!r}")
-        if not (np.isfinite(self.tolerance) and 0 < self.tolerance < 1):
-            raise InputError(f"solver tolerance must be in (0, 1), got {self.tolerance!r}")
-        if int(self.max_iterations) != self.max_iterations or self.max_iterations < 1:
-            raise InputError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
-        for name in ("rayleigh_mass", "rayleigh_stiffness"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise InputError(f"{name} must be >= 0, got {v!r}")
+        t, s = "solver", object.__setattr__
+        boolean(t, "check_stability", self.check_stability)
+        boolean(t, "line_search", self.line_search)
+        string(t, "kind", self.kind, KINDS)
+        string(t, "linear_solver", self.linear_solver, METHODS)
+        string(t, "mass", self.mass, MASS_KINDS)
+        string(t, "tangent_projection", self.tangent_projection, TANGENT_PROJECTIONS)
+        s(self, "dt", number(t, "dt", self.dt, positive=True))
+        s(self, "steps", number(t, "steps", self.steps, integer=True, minimum=1))
+        tol = number(t, "tolerance", self.tolerance, positive=True)
+        if not tol < 1:
+            raise InputError(f"[solver] tolerance (a relative residual) must be in (0, 1), got {self.tolerance!r}")
+        s(self, "tolerance", tol)
+        s(self, "max_iterations", number(t, "max_iterations", self.max_iterations, integer=True, minimum=1))
+        s(self, "rayleigh_mass", number(t, "rayleigh_mass", self.rayleigh_mass, nonnegative=True))
+        s(self, "rayleigh_stiffness", number(t, "rayleigh_stiffness", self.rayleigh_stiffness, nonnegative=True))
 
 
 @dataclass

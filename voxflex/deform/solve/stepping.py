@@ -49,29 +49,18 @@ import scipy.sparse as sp
 from ..._linalg import vdot
 from ...errors import ConvergenceError, InputError
 from ..models.protocol import END_STEP_PASSES, end_step
-from .boundary import (
-    FixedRegion,
-    ForceRegion,
-    fixed_dofs,
-    prescribed_positions,
-    region_forces,
-)
+from .boundary import FixedRegion, ForceRegion, fixed_dofs, prescribed_positions, region_forces
 from .newton import _FreeBlock, _newton, _PatternAdd, _Problem
 from .options import SolverOptions, StepRecord
 from .supports import check_supports
 
 __all__ = ["solve"]
 
-
 MAX_CUTS = 8
-
-
 """Static load increments are halved at most this many times (to 1/256 of a step) before giving up."""
 
 
 MAX_CONTINUATIONS = 7
-
-
 """A static Newton attempt that runs out of iterations after lowering the potential continues from its
 last iterate, at most this many times (so up to 8 x
 ``max_iterations`` per increment), before the increment is cut.  Measured on a neo-Hooke beam whose tip
@@ -137,8 +126,6 @@ def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, option
 
 
 INERTIA_MAX = 60000
-
-
 """Free unknowns up to which the stability check counts negative eigenvalues by a symmetric sparse
 factorisation (Sylvester's inertia) instead of Lanczos: Lanczos for the smallest eigenvalue of a
 tangent with a 1e5 stiffness contrast ran for minutes (a two-bone limb, 4557 unknowns)."""

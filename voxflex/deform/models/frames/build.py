@@ -10,17 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from ....errors import InputError
-from ....scene import Scene
-
-DEFAULT_FRAMES = 20
-
-
-"""Frames placed when a scene does not say ``[nodes] count`` (fewer when the object has fewer voxels)."""
+from .kind import DEFAULT_FRAMES
 
 
 SAMPLES_PER_FRAME = 20
-
-
 """Mid-point / elaston samples per frame when a scene does not say ``[elasticity] samples``.
 
 Too few samples per frame leave near-mechanisms that the exact rank check does
@@ -31,7 +24,7 @@ side of the reference or within a few per cent (20 frames, 400 samples: -0.350 m
 """
 
 
-def _frame_model(scene: Scene, image, materials, *, cache: bool = True):
+def build(scene, image, materials, *, cache: bool = True):
     """Affine frames: placement, shape functions and samples from the image, then the frame model.
 
     The precompute (frames, blended weights, samples) is loaded from the on-disk
@@ -110,21 +103,21 @@ def _frame_model(scene: Scene, image, materials, *, cache: bool = True):
     return model
 
 
-def _static_frames(scene: Scene) -> bool:
+def _static_frames(scene) -> bool:
     """A static affine scene without obstacles or cables: the scenes judged before solving by the
     frame quadrature's modes (those layers may hold the modes; dynamics has mass)."""
     return (scene.nodes.kind == "affine" and scene.solver.kind == "static" and not scene.obstacles
             and not getattr(scene, "cables", ()))
 
 
-def _held(scene: Scene, model) -> np.ndarray:
+def _held(scene, model) -> np.ndarray:
     held = set()
     for f in scene.fixed:
         held.update(int(d) for d in model.held_dofs(f.min, f.max, f.components))
     return np.fromiter(sorted(held), dtype=np.int64, count=len(held))
 
 
-def _softest_mode(scene: Scene, image, model, frames, sf, samples, occupancy, K) -> float | None:
+def _softest_mode(scene, image, model, frames, sf, samples, occupancy, K) -> float | None:
     """The samples' softest deformation against one mid-point sample per voxel
     (:func:`voxflex.deform.models.frames.modes.softest_mode`) over the DOFs the scene does not hold (a free
     body: all, rigid modes deflated).  About 0.1 s for the default scene; stored in the cache entry."""
@@ -141,7 +134,7 @@ def _softest_mode(scene: Scene, image, model, frames, sf, samples, occupancy, K)
     return softest_mode(frames, samples, reference, free, stiffness=K)
 
 
-def _judge_soft_modes(scene: Scene, samples, softest: float) -> None:
+def _judge_soft_modes(scene, samples, softest: float) -> None:
     """Refuse a static affine scene whose samples leave a near-zero-energy mode; warn for the others."""
     import warnings
 
@@ -158,7 +151,7 @@ def _judge_soft_modes(scene: Scene, samples, softest: float) -> None:
     warnings.warn(f"{what}; results may be far too soft; {fix}", SpuriousModesWarning, stacklevel=3)
 
 
-def _refuse_static_mechanism(scene: Scene, model, K, samples, spurious: int) -> None:
+def _refuse_static_mechanism(scene, model, K, samples, spurious: int) -> None:
     """InputError when the samples leave zero-energy modes among the frames a static scene does not hold.
 
     The free body's spurious modes (:func:`voxflex.deform.models.frames.modes.check_modes`) are harmless where they
@@ -225,7 +218,7 @@ def _from_store(image, d, kind, parents):
     import scipy.sparse as sp
 
     from ....sampling.voxel import VoxelSamples
-    from ....voronoi.shape_function import ShapeFunction
+    from ....voronoi.weights import ShapeFunction
     from ....voronoi.shape_functions import ShapeValues
     from ....voronoi.smoothing import SmoothWeights
 
@@ -273,3 +266,24 @@ def _clamp_owners(image, frames, boxes):
         near = held[np.argmin(((c[:, None, :] - frames[held][None, :, :]) ** 2).sum(-1), axis=1)]
         owner[touch] = near
     return owner
+
+
+FRAME_BYTES_PER_VOXEL_PARENT = 112.0
+"""Shape-function values, gradients and Hessians (1 + 3 + 9 doubles) and an index per voxel and parent."""
+FRAME_DENSE_COPIES = 3
+"""Dense (d n)^2 matrices alive at once (Hessian, factor, work copy)."""
+
+
+def estimate(scene, size, material_class: str):
+    """``(nodes, dofs, model_bytes, seconds)`` of affine (or rigid) frames: the placed frames (count, given
+    positions, one more per fixed region), the weights of every voxel and the dense stiffness."""
+    from ..kinds import node_kind
+
+    kind = node_kind(scene.nodes.kind)
+    voxels = size[0]
+    nodes = int(scene.nodes.count or kind.default_count) + len(scene.nodes.positions or ()) + len(scene.fixed)
+    dofs = kind.dofs_per_node * nodes
+    model = (FRAME_BYTES_PER_VOXEL_PARENT * scene.nodes.parents + 64.0) * voxels + FRAME_DENSE_COPIES * 8.0 * dofs**2
+    iterations = 1 if material_class == "constant" else 5
+    seconds = int(scene.solver.steps) * iterations * (dofs**3 / 3 / 1e10 + 2e-6 * voxels)
+    return nodes, dofs, model, seconds

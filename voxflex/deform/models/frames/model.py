@@ -79,14 +79,9 @@ from ....errors import InputError, check_choice
 from ....image.grid import TrilinearGrid
 from ....image.surface import boundary_quads, triangulate
 from ....sampling.voxel import voxel_samples
-from ...chain.mappings import (
-    DeformationGradientMapping,
-    DeformationGradientWithGradientMapping,
-    PointMapping,
-)
+from ...chain.mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping, PointMapping
 from ...chain.nodes import AffineFrames
-from ...materials.fbar import nearly_incompressible
-from ...materials.fbar_frames import _bar_evaluate
+from ...materials.fbar import _bar_evaluate, nearly_incompressible
 from ...materials.material import project_psd
 from ..protocol import OnePass
 from ..voxel.model import VOLUMETRIC
@@ -95,10 +90,7 @@ from ._kernels import frame_tables
 
 __all__ = ["FrameModel"]
 
-
 ELASTON_CHUNK = 1 << 22
-
-
 """Entries of the elastons' dense Hessian blocks ``J_e^T D_e J_e`` formed at a time (32 MB)."""
 
 

@@ -1,21 +1,24 @@
-"""Build a membrane model from a scene (a disk, a rectangle or a mesh file)."""
+"""Build a membrane model from a scene (a disk, a rectangle or a mesh file); its image and its estimate."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ....errors import InputError
-from ....scene import Scene
 
 
-def _membrane_mesh(scene: Scene):
+__all__ = ["build", "estimate", "footprint", "membrane_mesh"]
+
+BYTES_PER_DOF = 4.0e3
+"""Peak bytes per DOF of a membrane solve (sparse Hessian, its factor and the vertex maps; an upper estimate)."""
+SECONDS_PER_DOF_ITERATION = 2.5e-5
+"""Seconds per Newton iteration per DOF (as the voxel model's nonlinear iterations)."""
+
+
+def membrane_mesh(scene):
     """(points (n, 3), triangles (m, 3)) of a membrane scene: a disk or rectangle made at
     ``voxel_size`` (the target edge length), or the mesh file as it is."""
-    from ....rasterize.membrane_mesh import (
-        disk_mesh,
-        load_membrane_mesh,
-        rectangle_mesh,
-    )
+    from ....rasterize.membrane_mesh import disk_mesh, load_membrane_mesh, rectangle_mesh
 
     obj = scene.object
     if obj.mesh is not None:
@@ -30,7 +33,7 @@ def _membrane_mesh(scene: Scene):
     return rectangle_mesh(obj.size, obj.voxel_size, origin=origin)
 
 
-def _membrane_model(scene: Scene, image, materials):
+def build(scene, image, materials, *, cache: bool = True):
     """The membrane of the scene (:class:`~voxflex.deform.models.membrane.model.MembraneModel`).
 
     The [[material]] (stvk: young, poisson, density) and ``[membrane] thickness``
@@ -46,7 +49,7 @@ def _membrane_model(scene: Scene, image, materials):
 
     spec = scene.materials[0]
     law = StVKMembrane(young=spec.young, poisson=spec.poisson, thickness=scene.membrane.thickness)
-    points, triangles = _membrane_mesh(scene)
+    points, triangles = membrane_mesh(scene)
     pressure = float(sum(ld.pressure for ld in scene.loads if ld.kind == "pressure"))
     rim = open_rim(triangles)
     clamped = rim if scene.membrane.rim == "clamped" else None
@@ -64,3 +67,23 @@ def _membrane_model(scene: Scene, image, materials):
                              f"the {len(rim)} rim vertices are not held (e.g. {points[loose[0]].tolist()}); set "
                              '[membrane] rim = "clamped" or cover the rim with [[fixed]] regions')
     return model
+
+
+def footprint(scene):
+    """The label image of the voxels the membrane's mesh passes through (what the result file stores)."""
+    from ....rasterize.membrane_mesh import footprint_image
+
+    return footprint_image(*membrane_mesh(scene), scene.object.voxel_size)
+
+
+def estimate(scene, size, material_class: str):
+    """``(nodes, dofs, model_bytes, seconds)``: the mesh's vertices (made or read: cheap), 3 DOF each."""
+    points, triangles = membrane_mesh(scene)
+    clamped = 0
+    if scene.membrane.rim == "clamped":
+        from ....rasterize.membrane_mesh import open_rim
+
+        clamped = len(open_rim(triangles))
+    nodes = len(points) - clamped  # clamped rim vertices are not DOFs of the model
+    dofs = 3 * nodes
+    return nodes, dofs, BYTES_PER_DOF * dofs, int(scene.solver.steps) * 5 * SECONDS_PER_DOF_ITERATION * dofs

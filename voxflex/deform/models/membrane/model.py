@@ -80,29 +80,16 @@ import numpy as np
 import scipy.sparse as sp
 
 from ....errors import InputError
-from ....rasterize.membrane_mesh import (
-    FLAT_TOL,
-    _consistently_oriented,
-    _sample_triangles,
-    footprint_image,
-    open_rim,
-)
+from ....rasterize.membrane_mesh import FLAT_TOL, _consistently_oriented, _sample_triangles, footprint_image, open_rim
 from ...chain.membrane import StVKMembrane, TriangleDeformationMapping
 from ..protocol import OnePass
 
-__all__ = ["MembraneModel", "VertexMap", "MEMBRANE_NODE_KIND", "RIMS"]
-
+__all__ = ["MembraneModel", "VertexMap"]
 
 MEMBRANE_NODE_KIND = "membrane"
-
-
 """``[nodes] kind`` of the membrane model."""
 
 
-RIMS = ("free", "clamped")
-
-
-"""``[membrane] rim``: the open rim left to ``[[fixed]]`` regions, or clamped (its vertices are not DOFs)."""
 
 
 def _closest_on_triangles(p, a, b, c):

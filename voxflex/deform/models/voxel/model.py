@@ -83,41 +83,24 @@ from ....voronoi.shape_functions import ShapeValues
 from ....voronoi.trilinear import trilinear_values
 from ...chain.mappings import PointMapping
 from ...chain.nodes import Points
-from ...materials.fbar import (
-    _b_matrices,
-    _deviatoric,
-    _energy_density,
-    fbar_evaluate,
-    nearly_incompressible,
-)
+from ...materials.fbar import VOLUMETRIC, _energy_density, nearly_incompressible
 from ...materials.material import project_psd
 from . import _kernels as kern
+from .fbar import _b_matrices, _deviatoric, fbar_evaluate
+from .kind import HOURGLASS
 
 __all__ = ["VoxelModel", "tangent_is_constant"]
 
-
 CHUNK_ELEMENTS = 16384
-
-
 """Voxels evaluated per batch (bounds the memory of F, P, A: ~80 MB of tangents with 8 samples each)."""
 
 
 FBAR_CHUNK_ELEMENTS = 4096
-
-
 """Voxels per batch with F-bar (three tangent-sized arrays per sample instead of one)."""
 
 
-VOLUMETRIC = ("auto", "full", "reduced")
 
 
-"""``volumetric`` values: reduced where the material is nearly incompressible, full Gauss, F-bar / B-bar."""
-
-
-HOURGLASS = ("stiffness", "none")
-
-
-"""``hourglass`` values (mid-point quadrature): the rest-stiffness stabilisation, or the bare one-point rule."""
 
 
 def tangent_is_constant(material) -> bool:

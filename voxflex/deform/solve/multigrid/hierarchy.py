@@ -90,57 +90,39 @@ import scipy.sparse as sp
 
 from ....errors import InputError, check_choice
 from ....image.grid import CORNER_OFFSETS, TrilinearGrid
-from .stencil import (
-    VoxelStencil,
-    _coupled_offsets,
-    _gather_forward,
-    _unit_stencil,
-    _voxel_keys,
-)
+from .stencil import VoxelStencil, _coupled_offsets, _gather_forward, _unit_stencil, _voxel_keys
 
 SMOOTHERS = ("gauss-seidel", "symmetric-gauss-seidel", "jacobi")
-
 
 PRECISIONS = ("auto", "single", "double")
 
 
 MAX_COARSE = 1500
-
-
 """Coarsening stops once a level has at most this many free DOFs (factorised by sparse LU)..."""
 
 
 MAX_COARSE_CUBIC = 300
-
-
 """...or this many (or 1/:data:`CUBIC_FRACTION` of the finest level's, if more), while the next level's
 voxels would still be cubes (every axis longer than 1 voxel)."""
 
 
 CUBIC_FRACTION = 32
 
-
 MAX_LEVELS = 12
 
 
 SINGLE_MAX_ENTRIES = 50_000_000
-
-
 """Fine matrices with at most this many stored entries get a single-precision cycle (see
 :func:`multigrid_preconditioner`); larger ones keep double precision, since the single copy of
 the finest matrix costs 4 bytes per entry (at 6.4 million DOF: 2 GB)."""
 
 
 MAX_STALE_SOLVES = 3
-
-
 """Newton solves on coarse levels built from an earlier tangent before they are rebuilt (see
 :meth:`VoxelHierarchy.may_reuse`)."""
 
 
 STALE_GROWTH = 1.5
-
-
 """A solve on stale coarse levels that takes more than this times the fresh solve's CG iterations
 (plus 2) has them rebuilt at the next solve."""
 
@@ -601,8 +583,6 @@ def _fingerprint(A):
 
 
 GALERKIN_CHUNK = 1 << 16
-
-
 """Rows of A per block of the Galerkin product: ``A @ P`` has ~2x the entries of A, so the fine
 level's product is done by row blocks (scratch ~2 % of A at 6 million DOF instead of 1.5 A)."""
 

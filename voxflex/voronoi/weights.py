@@ -67,6 +67,7 @@ from .._jit import njit
 from ..errors import InputError, check_choice
 from . import _march as M
 from ._sight import frame_distances
+from .families import FRAME_SHAPE_FUNCTIONS
 from .geodesic import _centres, _prepare, _seed_voxels
 from .natural_neighbour import keep_largest_insert, natural_weights, normalise_first
 from .placement import _compliance_for
@@ -74,7 +75,7 @@ from .shape_functions import ShapeValues
 
 __all__ = ["ShapeFunction", "shape_function"]
 
-KINDS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard")
+KINDS = FRAME_SHAPE_FUNCTIONS
 _RIDGE = 1e-8
 #: fitted weights up to this are dropped as zero: the compiled and numpy evaluations of the same
 #: polynomial differ by round-off (~1e-16), which must not decide whether a frame is a parent
