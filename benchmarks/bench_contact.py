@@ -58,7 +58,7 @@ import numpy as np
 
 from voxflex.deform.layers.contact import ContactModel
 from voxflex.deform.layers.obstacles import Sphere
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve import stepping as S
 from voxflex.image.label_image import LabelImage

@@ -148,7 +148,7 @@ def run(n_grid, counts, samples, parents, repeat, flops):
     import scipy.linalg as sla
     from threadpoolctl import threadpool_limits
 
-    from voxflex.deform.materials.material import material
+    from voxflex.deform.materials.constitutive import material
     from voxflex.deform.models.frames.model import FrameModel
     from voxflex.deform.models.frames.modes import zero_energy_modes
     from voxflex.deform.solve.linear import solve_linear

@@ -28,7 +28,7 @@ import sys
 import numpy as np
 
 from voxflex import build
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.frames.model import FrameModel
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.boundary import FixedRegion

@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 
 ORTHO = dict(E1=1.2e4, E2=0.8e4, E3=0.5e4, nu12=0.25, nu13=0.2, nu23=0.3, G12=4e3, G23=2.5e3, G13=3e3)
 CASES = {

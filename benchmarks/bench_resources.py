@@ -23,7 +23,7 @@ CHILD = r"""
 import json, resource, sys, time
 import numpy as np
 from voxflex.deform.solve.boundary import FixedRegion
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.solve.stepping import SolverOptions, solve
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.image.label_image import LabelImage

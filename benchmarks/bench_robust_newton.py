@@ -49,7 +49,7 @@ iterations): no cut, no small load.  With 20 load steps and 50 iterations 1e6 co
 Why: (1) before, W was computed from invariants near 3 and 1, which loses ``eps * mu`` per
 sample (~1e-8 J for the stiff half at 1e6); once a failed step had been cut to small loads,
 the soft half's energy change near the solution fell below it and the line search failed.
-W is now computed from ``H = F - I`` (:func:`voxflex.deform.materials.material.shifted_invariants`):
+W is now computed from ``H = F - I`` (:func:`voxflex.deform.materials.constitutive.shifted_invariants`):
 the same beam under 1e-3 g converges (it failed after 8 cuts).  (2) The iteration count itself
 is set by the stiff half turning as a rigid body: Newton's update is linear, so a turn by
 ``d theta`` stretches the stiff half by about ``d theta^2 / 2``, which costs ``k_stiff d theta^4``
@@ -91,7 +91,7 @@ MID = np.array([[2.0, 0.5, 0.5]])
 
 
 def _model(labels_stiff=None, contrast=1.0, E=1e3):
-    from voxflex.deform.materials.material import material
+    from voxflex.deform.materials.constitutive import material
     from voxflex.deform.models.voxel.model import VoxelModel
     from voxflex.image.label_image import LabelImage
 

@@ -81,7 +81,7 @@ def _counted_solve(model_factory, predict):
 def main():
     import scipy.sparse as sp
 
-    from voxflex.deform.materials.material import material
+    from voxflex.deform.materials.constitutive import material
     from voxflex.deform.solve.newton import _PatternAdd
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -214,7 +214,7 @@ class VoxelOrder:
     """
 
     def __init__(self, nx, nodes, node_dofs, peer_free):
-        from voxflex.deform.materials.material import material
+        from voxflex.deform.materials.constitutive import material
         from voxflex.deform.models.voxel.model import VoxelModel
 
         model = VoxelModel.from_image(_beam_image(nx), {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
@@ -552,7 +552,7 @@ def skfem_run(nx, young, poisson, kind, steps, linear_solver, forcing=False):
 
 def solver_table(nx):
     from voxflex.deform.chain.rigid_modes import rigid_body_modes
-    from voxflex.deform.materials.material import material
+    from voxflex.deform.materials.constitutive import material
     from voxflex.deform.models.voxel.model import VoxelModel
     from voxflex.deform.solve.linear import solve_linear
 
@@ -578,7 +578,7 @@ def memory_run(shape, linear_solver="cg"):
     """
     import resource
 
-    from voxflex.deform.materials.material import material
+    from voxflex.deform.materials.constitutive import material
     from voxflex.deform.models.voxel.model import VoxelModel
     from voxflex.deform.solve.boundary import FixedRegion
     from voxflex.deform.solve.options import SolverOptions
@@ -652,7 +652,7 @@ def scaling_series(sizes, repeat):
     import statistics
     import tracemalloc
 
-    from voxflex.deform.materials.material import material
+    from voxflex.deform.materials.constitutive import material
     from voxflex.deform.models.voxel.model import VoxelModel
     from voxflex.deform.solve.linear import solve_linear
     from voxflex.deform.solve.multigrid import hierarchy as multigrid
@@ -701,7 +701,7 @@ def plate_run(solvers, repeat, n=64):
     the edge x = 0 clamped, gravity, 5 load steps; each solver warmed on a 16x16x1 plate, then timed
     ``repeat`` times round-robin (:func:`_interleaved`): total (model and solve) and CPU seconds, min /
     median, Newton and linear iterations and the largest sag.  Jacobi-CG takes minutes a run."""
-    from voxflex.deform.materials.material import material
+    from voxflex.deform.materials.constitutive import material
     from voxflex.deform.models.voxel.model import VoxelModel
     from voxflex.deform.solve.boundary import FixedRegion
     from voxflex.deform.solve.options import SolverOptions
@@ -773,7 +773,7 @@ def main():
             return
         memory_run((256, 90, 90), "multigrid")
         return
-    from voxflex.deform.materials.material import material
+    from voxflex.deform.materials.constitutive import material
 
     nl, nn = (32, 16) if args.quick else (64, 32)
     hooke = material("hooke", young=1e4, poisson=0.3, strain="linear")
@@ -897,7 +897,7 @@ def main():
         import scipy.sparse as sp
         import scipy.sparse.linalg as spla
 
-        from voxflex.deform.materials.material import material as _m
+        from voxflex.deform.materials.constitutive import material as _m
         from voxflex.deform.models.voxel.model import VoxelModel
 
         model = VoxelModel.from_image(_beam_image(nl), {1: _m("hooke", young=1e4, poisson=0.3, strain="linear")})

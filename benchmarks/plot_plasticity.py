@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from voxflex.deform.layers.plasticity import PlasticMaterial
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.boundary import FixedRegion
 from voxflex.deform.solve.equilibrium import equilibrate

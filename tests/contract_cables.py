@@ -24,7 +24,7 @@ import numpy as np
 from contract import MappingCase
 
 from voxflex.deform.layers.cables import Cable, CableModel
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.image.label_image import LabelImage
 

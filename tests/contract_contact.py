@@ -23,7 +23,7 @@ from contract import MappingCase
 
 from voxflex.deform.layers.contact import ContactModel
 from voxflex.deform.layers.obstacles import Box, DistanceField, Plane, Sphere
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.image.label_image import LabelImage
 

@@ -12,7 +12,7 @@ import numpy as np
 from contract import MappingCase
 
 from voxflex.deform.materials.elaston import material_elaston_energy
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.sampling.moments import box_moments
 
 

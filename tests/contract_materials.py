@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from contract import MaterialCase
 
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 
 
 def _rotation(rng):

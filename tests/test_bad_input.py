@@ -225,7 +225,7 @@ def _api_save_missing_folder(folder):
 
 
 def _api_material(folder):
-    from voxflex.deform.materials.material import material
+    from voxflex.deform.materials.constitutive import material
 
     material("hooke", young=1e4, poisson=0.5)
 

@@ -19,7 +19,7 @@ import voxflex as vf
 from voxflex.deform.layers.cables import Cable, CableModel, cable_law, with_cables
 from voxflex.deform.layers.contact import ContactModel
 from voxflex.deform.layers.obstacles import Plane
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage

@@ -23,7 +23,7 @@ import pytest
 import voxflex as vf
 from voxflex.deform.layers.contact import ContactModel, barrier, collision_points, with_contact
 from voxflex.deform.layers.obstacles import Box, DistanceField, Plane, Sphere, obstacle
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve import stepping as _solvers
 from voxflex.deform.solve.options import SolverOptions

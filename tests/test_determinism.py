@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from voxflex.deform.chain.rigid_modes import rigid_body_modes
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.linear import METHODS, solve_linear
 from voxflex.image.label_image import LabelImage

@@ -60,7 +60,7 @@ def test_every_scene_table_and_key_is_documented():
 
 
 def test_every_material_constant_is_documented():
-    from voxflex.deform.materials.material import MATERIALS, MODEL_CONSTANTS
+    from voxflex.deform.materials.constitutive import MATERIALS, MODEL_CONSTANTS
 
     body = _table_section(_sections((DOCS / "scene.md").read_text(encoding="utf-8")), "material")
     missing = [f"{model}: {c}" for model, consts in MODEL_CONSTANTS.items() for c in consts if f"`{c}`" not in body]

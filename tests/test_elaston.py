@@ -153,7 +153,7 @@ def test_bad_input():
 
 # ------------------------------------------------------------------------ material level: (F, dF)
 from voxflex.deform.materials.elaston import material_elaston_energy  # noqa: E402
-from voxflex.deform.materials.material import MATERIALS, material  # noqa: E402
+from voxflex.deform.materials.constitutive import MATERIALS, material  # noqa: E402
 
 
 def _material(name, strain=None):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from voxflex.deform.layers.base import ModelLayer
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.protocol import END_STEP_PASSES, end_step
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.boundary import FixedRegion

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from voxflex import build
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.frames.model import FrameModel
 from voxflex.deform.solve.boundary import FixedRegion
 from voxflex.deform.solve.options import SolverOptions

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import voxflex as vf
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.frames.model import FrameModel
 from voxflex.deform.solve.options import SolverOptions
 from voxflex.deform.solve.stepping import solve

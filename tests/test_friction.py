@@ -27,7 +27,7 @@ import pytest
 
 from voxflex.deform.layers.contact import ContactModel, friction_mollifier
 from voxflex.deform.layers.obstacles import Plane, Sphere
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.options import SolverOptions
 from voxflex.deform.solve.stepping import solve

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from voxflex.deform.chain.rigid_modes import rigid_body_modes
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.linear import DENSE_MAX, DIRECT_MAX, choose_method, solve_linear
 from voxflex.errors import InputError

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from voxflex.deform.materials.fbar import effective_lame, nearly_incompressible
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.boundary import FixedRegion
 from voxflex.deform.solve.options import SolverOptions

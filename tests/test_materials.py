@@ -12,7 +12,7 @@ from scipy.optimize import brentq
 import voxflex as vf
 from voxflex.deform import MATERIALS, Material, material
 from voxflex.deform.materials.laws import NeoHookeanLaw
-from voxflex.deform.materials.material import lame, shifted_invariants
+from voxflex.deform.materials.constitutive import lame, shifted_invariants
 from voxflex.deform.materials.strains import get_strain
 from voxflex.errors import InputError
 
@@ -325,7 +325,7 @@ def test_ogden_tangent_at_coincident_stretches():
     # shear stiffness limit (materials._stretch_tangent).  (1) away from coincidence that formula equals
     # the chain-rule tangent (round-off, 1e-10); (2) at coincident stretches (not at rest) the tangent
     # matches central differences of the stress (h = 1e-6: rtol 1e-6 as in the contract)
-    from voxflex.deform.materials.material import _stretch_tangent
+    from voxflex.deform.materials.constitutive import _stretch_tangent
 
     mat = make("ogden")
     F = f_large()

@@ -20,7 +20,7 @@ import pytest
 
 import voxflex as vf
 from voxflex.build import build_image
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.frames.model import FrameModel
 from voxflex.deform.models.protocol import Model, PointMap
 from voxflex.deform.models.voxel.model import VoxelModel
@@ -48,10 +48,14 @@ class MillimetreModel:
     S = 1000.0
 
     def __init__(self, inner: VoxelModel):
+        import dataclasses
+
         self.inner = inner
         self.image = inner.image
-        self.dof_grid = inner.dof_grid
-        self.node_kind = "voxel-mm"
+        self.materials = inner.materials
+        self.dof_grid = inner.dof_grid  # an optional capability (OnVoxelGrid): multigrid may use it
+        self.kind = dataclasses.replace(inner.kind, name="voxel-mm", noun="millimetre node", plural="millimetre nodes")
+        self.node_kind = self.kind.name
         self.dofs_per_node = 3
         self.rest = inner.rest * self.S
 
@@ -76,6 +80,9 @@ class MillimetreModel:
         E, g, H = self.inner.energy_gradient_hessian(q / self.S, gradient=gradient, hessian=hessian)
         return E, None if g is None else g / self.S, None if H is None else H / self.S**2
 
+    def gradient(self, q):
+        return self.inner.gradient(q / self.S) / self.S
+
     def hessian(self, q):
         return self.inner.hessian(q / self.S) / self.S**2
 
@@ -95,8 +102,11 @@ class MillimetreModel:
         V, F, pm = self.inner.boundary_surface()
         return V, F, _Scaled(pm, self.S)
 
-    def boundary_faces(self):
-        return self.inner.boundary_faces()
+    def load_surface(self, order=2):
+        return self.inner.load_surface(order)
+
+    def node_points(self, q):
+        return None
 
     def volume_points(self):
         return self.inner.volume_points()
@@ -104,8 +114,8 @@ class MillimetreModel:
     def held_dofs(self, lo, hi, components):
         return self.inner.held_dofs(lo, hi, components)
 
-    def components(self):
-        return self.inner.components()
+    def parts(self):
+        return self.inner.parts()
 
     def sample_fields(self, q):
         return self.inner.sample_fields(q / self.S)
@@ -153,7 +163,7 @@ def test_a_change_of_variables_gives_the_same_result(tmp_path):
     assert np.allclose(mm.surface_positions, ref.surface_positions, rtol=0, atol=1e-12 * scale)
     for name in ref.probes:
         assert np.allclose(mm.probes[name], ref.probes[name], rtol=0, atol=1e-12 * scale)
-    assert mm.node_kind == "voxel-mm" and mm.model == {"node_kind": "voxel-mm", "units": "mm"}
+    assert mm.node_kind == "voxel-mm" and mm.model == {"node_kind": "voxel-mm", "units": "mm", "nodes": "millimetre nodes"}
     assert np.allclose(mm.nodes_state, 1000.0 * ref.nodes_state, rtol=1e-12, atol=1e-9)
     back = Result.load(tmp_path / "mm.h5")
     assert np.array_equal(back.surface_positions, mm.surface_positions) and back.model == mm.model

@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.elements import ElementMatrices
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.linear import solve_linear

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 from voxflex.deform.layers.plasticity import PlasticMaterial, von_mises_strain
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.boundary import FixedRegion
 from voxflex.deform.solve.equilibrium import equilibrate

@@ -69,7 +69,7 @@ def test_verbose_logs_one_line_per_newton_iteration(tmp_path, capsys):
     pattern = re.compile(r"static step \d/2 \(load factor [\d.]+\): Newton \d+: residual [\d.e+-]+, step length [\d.e+-]+, "
                          r"linear solver .+, [\d.]+ s")
     assert all(pattern.fullmatch(ln) for ln in lines), lines
-    assert "building the voxel model: 32 voxels, about 96 DOF" in err and re.search(r"model: \d+ voxel nodes", err)
+    assert "building 81 voxel nodes over 32 voxels: about 243 DOF" in err and re.search(r"model: \d+ voxel nodes", err)
 
 
 def test_quiet_runs_log_nothing(tmp_path, capsys):
@@ -81,12 +81,20 @@ def test_quiet_runs_log_nothing(tmp_path, capsys):
 
 
 def test_size_estimates():
+    """The line announced before building is the node kind's own estimate, the one the resource check uses:
+    3 DOF per corner node of the voxels, and the memory per DOF of a nonlinear (neo-Hooke) voxel solve."""
+    from voxflex.deform.models.voxel.build import BYTES_PER_DOF, CHUNK_BYTES
     from voxflex.image.label_image import LabelImage
+    from voxflex.scene import MaterialSpec, NodesSpec, ObjectSpec, Scene
 
+    scene = Scene(object=ObjectSpec(shape="box", size=(1.0, 1.0, 0.3), voxel_size=0.01),
+                  materials=(MaterialSpec(model="neo-hookean", young=1e4, poisson=0.3),), nodes=NodesSpec(kind="voxel"))
     image = LabelImage(np.ones((100, 100, 30), dtype=np.uint8))
-    dofs, text = _progress.image_estimate(image, "voxel")
-    # 3 DOF per voxel; 1.2 and 2.9 kB per DOF measured on the voxel reference
-    assert dofs == 900_000 and f"{900_000 * 1.2e3 / 2**30:.3g} GB" in text and f"{900_000 * 2.9e3 / 2**30:.3g} GB" in text
+    from voxflex.simulation import image_estimate
+
+    dofs, text = image_estimate(image, scene)
+    assert dofs == 3 * 101 * 101 * 31
+    assert f"{(BYTES_PER_DOF['nonlinear'] * dofs + CHUNK_BYTES) / 2**30:.3g} GB" in text and "voxel nodes" in text
     assert _progress.newton_line({"label": "static step 1/1", "iteration": 2, "residual": 1e-3,
                                   "step_length": 0.5, "linear_solver": "cg", "linear_iterations": 40,
                                   "seconds": 0.25}) == (

@@ -308,7 +308,8 @@ def test_affine_frames_are_drawn_as_dots():
     rest = np.hstack([np.tile(np.eye(3).ravel(), (2, 1)), t])
     state = np.stack([rest, rest + np.r_[[0] * 11, -0.1]])
     fields = {k: getattr(r, k) for k in Result.__dataclass_fields__}
-    fields.update(nodes_rest=rest, nodes_state=state, node_kind="affine")
+    # what a frame model records per node: its origin (/nodes/points)
+    fields.update(nodes_rest=rest, nodes_state=state, node_kind="affine", node_points=state[..., 9:12])
     r = Result(**fields)
     kwargs = dict(window_size=(400, 300), show_rest=False, view="front")
     (dots,) = render_frames(r, [-1], **kwargs)

@@ -167,7 +167,7 @@ def _fields(r: Result) -> dict:
 
 def test_describe_result(cantilever):
     text = describe_result(cantilever[1])
-    assert "81 nodes, 243 DOF" in text and "32 occupied" in text and "probe tip" in text
+    assert "81 voxel nodes, 243 DOF" in text and "32 occupied" in text and "probe tip" in text
 
 
 def test_export_vtk_writes_a_paraview_series(tmp_path):

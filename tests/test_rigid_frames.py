@@ -22,7 +22,7 @@ import pytest
 
 import voxflex as vf
 from voxflex.deform.chain.nodes import rotation_exp, skew
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.rigid.model import RigidFrameModel, rotation_derivatives, wrap_rotation_vectors
 from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.boundary import FixedRegion
 from voxflex.deform.solve.options import SolverOptions
@@ -171,7 +171,7 @@ def test_psd_projection_against_an_eigen_decomposition(backend):
     """The projection of symmetric 9x9 tangents: equal to V max(lambda, 0) V^T from numpy's eigh
     (1e-12 of the largest eigenvalue: round-off of two eigen-solvers), PSD, idempotent, exactly
     unchanged for a positive definite input, and the compiled kernel equals its numpy twin."""
-    from voxflex.deform.materials.material import project_psd
+    from voxflex.deform.materials.constitutive import project_psd
 
     rng = np.random.default_rng(7)
     B = rng.standard_normal((40, 9, 9))

@@ -15,7 +15,7 @@ import pytest
 
 import voxflex as vf
 from voxflex.cli import main
-from voxflex.deform.materials.material import MODEL_CONSTANTS
+from voxflex.deform.materials.constitutive import MODEL_CONSTANTS
 
 F = np.array([[1.1, 0.05, 0.0], [0.0, 0.97, 0.02], [0.01, 0.0, 1.03]])
 

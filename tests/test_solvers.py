@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.boundary import FixedRegion, ForceRegion
 from voxflex.deform.solve.options import SolverOptions
@@ -139,7 +139,7 @@ def test_non_convergence_and_bad_input_are_reported(monkeypatch):
         solve(model, fixed=[clamp], forces=[push], options=SolverOptions(max_iterations=2))
     with pytest.raises(InputError, match="densities"):
         solve(model, fixed=[clamp], gravity=[0, 0, -9.81], options=SolverOptions())
-    with pytest.raises(InputError, match="contains no node"):
+    with pytest.raises(InputError, match="contains no voxel node"):
         solve(model, fixed=[FixedRegion([5, 5, 5], [6, 6, 6])], options=SolverOptions())
     with pytest.raises(InputError, match=r"\[solver\] kind"):
         SolverOptions(kind="explicit")

@@ -111,7 +111,7 @@ def test_islands_can_be_dropped_with_a_warning(tmp_path):
 
 def test_the_frame_model_is_checked_too():
     """Frames: a bar with no frame held, and one with a single frame held in x only, are refused."""
-    from voxflex.deform.materials.material import material
+    from voxflex.deform.materials.constitutive import material
     from voxflex.deform.models.frames.model import FrameModel
     from voxflex.deform.solve.boundary import FixedRegion
     from voxflex.deform.solve.options import SolverOptions

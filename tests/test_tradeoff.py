@@ -1,4 +1,4 @@
-"""voxflex.tradeoff and ``voxflex tradeoff``: errors against hand computations, the reference's
+"""voxflex.sweep and ``voxflex tradeoff``: errors against hand computations, the reference's
 refinement floor, the Pareto front and the budget by brute force, outputs, bad input, Dask = serial.
 
 The sweeps are tiny (the linear cantilever of examples/ at 8x2x2 voxels, a few frames) so that the
@@ -19,7 +19,7 @@ import voxflex as vf
 from voxflex.cli import main
 from voxflex.errors import InputError
 from voxflex.scene import Scene
-from voxflex.tradeoff import COLUMNS, METRICS, Configuration, TradeoffTable, _merge, _split, _surface_error, tradeoff
+from voxflex.sweep import COLUMNS, METRICS, Configuration, TradeoffTable, _merge, _split, _surface_error, tradeoff
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SPEC_COLUMNS = ("kind, count, shape_function, quadrature, samples, dofs, precompute_seconds, solve_seconds, "

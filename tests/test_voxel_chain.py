@@ -16,7 +16,7 @@ import scipy.sparse as sp
 
 from voxflex.deform.chain.mappings import DeformationGradientMapping
 from voxflex.deform.chain.nodes import Points
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.image import LabelImage
 from voxflex.sampling.quadrature import unit_cube_rule

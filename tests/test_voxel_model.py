@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxflex.deform.materials.material import material
+from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel import _kernels as kern
 from voxflex.deform.models.voxel.model import VoxelModel, tangent_is_constant
 from voxflex.errors import InputError

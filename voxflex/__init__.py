@@ -27,7 +27,7 @@ _LAZY = {
     "Scene": "voxflex.scene",
     "simulate": "voxflex.simulation",
     "model": "voxflex.build",
-    "tradeoff": "voxflex.tradeoff",
+    "tradeoff": "voxflex.sweep",
     "Result": "voxflex.result",
     "render": "voxflex.rendering",
     "sample": "voxflex.sampling",

@@ -1,6 +1,6 @@
 """Lazy public names of a package: ``import voxflex.x`` loads none of its stages until a name is used.
 
->>> __getattr__, __dir__, __all__ = lazy(__name__, {"material": "voxflex.deform.materials.material"})  # doctest: +SKIP
+>>> __getattr__, __dir__, __all__ = lazy(__name__, {"material": "voxflex.deform.materials.constitutive"})  # doctest: +SKIP
 """
 
 from __future__ import annotations

@@ -15,8 +15,6 @@ import sys
 LARGE_DOFS = 200_000
 """Models with at least this many DOFs (estimated) announce their size before they are built and solved."""
 
-# measured on the voxel reference (peak resident memory per DOF of a solve, linear and nonlinear materials)
-_VOXEL_BYTES_PER_DOF = {True: 1.2e3, False: 2.9e3}
 
 
 def _enabled() -> bool:
@@ -63,37 +61,8 @@ def _megabytes(nbytes: float) -> str:
     return f"{nbytes / 2**20:.3g} MB" if nbytes < 2**30 else f"{nbytes / 2**30:.3g} GB"
 
 
-def image_estimate(image, node_kind: str):
-    """(DOFs, text) of the model about to be built on ``image``; the DOFs of voxel nodes are
-    estimated from the occupied voxels (about one node per voxel plus the surface layer)."""
-    import numpy as np
-
-    voxels = int(np.count_nonzero(np.asarray(image.labels)))
-    if node_kind != "voxel":
-        return 0, f"building a {node_kind} model over {voxels} voxels"
-    dofs = 3 * voxels
-    return dofs, (f"building the voxel model: {voxels} voxels, about {dofs} DOF; solve memory about "
-                  f"{_megabytes(dofs * _VOXEL_BYTES_PER_DOF[True])} (linear) to "
-                  f"{_megabytes(dofs * _VOXEL_BYTES_PER_DOF[False])} (nonlinear materials)")
 
 
-def model_estimate(model, steps: int):
-    """(DOFs, text): the model's size and an estimate of the solve's memory."""
-    dofs = int(model.rest.size)
-    samples = getattr(model, "n_samples", None)
-    if model.node_kind == "voxel":
-        nbytes = dofs * _VOXEL_BYTES_PER_DOF[bool(model.constant_tangent)]
-        basis = "measured per DOF on the voxel reference"
-    else:
-        # the dense Hessian, its free block and its factor (3 x 8 N^2 bytes); per sample the 9x9 tangent
-        # block twice (1296 B) and the Jacobian's 9 rows x 12 k columns in CSR (12 B each, k = 4 parents)
-        m = samples or 0
-        nbytes = 3 * 8.0 * dofs**2 + m * (2 * 81 * 8 + 9 * 12 * 4 * 12)
-        basis = "dense stiffness of the frames, tangents and Jacobian of the samples"
-    text = (f"model: {model.n_nodes} {model.node_kind} nodes, {dofs} DOF"
-            + (f", {samples} samples" if samples else "")
-            + f"; {steps} step(s); memory about {_megabytes(nbytes)} ({basis})")
-    return dofs, text
 
 
 def announce(estimate, *, force: bool = False, quiet: bool = False) -> None:

@@ -98,7 +98,7 @@ def _raw_image(scene: Scene):
 
 def build_materials(scene: Scene, labels_present) -> dict:
     """{label: Material} for the labels present in the image (InputError on a label without material)."""
-    from .deform.materials.material import material
+    from .deform.materials.constitutive import material
 
     present = sorted(int(x) for x in labels_present)
     if not present:

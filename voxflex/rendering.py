@@ -198,36 +198,23 @@ def _camera(view, azimuth, elevation, up) -> _Camera:
 # what is drawn
 # ---------------------------------------------------------------------------
 def _gravity(result):
-    """Sum of the scene's gravity loads (3,) in m/s^2, or None (no gravity, or no scene)."""
-    loads = _scene_table(result).get("load", [])
-    if isinstance(loads, dict):
-        loads = [loads]
-    g = np.zeros(3)
-    found = False
-    for ld in loads:
-        if isinstance(ld, dict) and ld.get("kind", "gravity") == "gravity":
-            try:
-                g += np.asarray(ld.get("vector", (0.0, 0.0, -9.81)), dtype=float).reshape(3)
-            except (TypeError, ValueError):
-                continue
-            found = True
-    if not found or not np.all(np.isfinite(g)) or not np.any(g):
+    """The run's gravity (3,) in m/s^2 (the result's ``/problem``), or None (no gravity, or not recorded)."""
+    g = result.problem.get("gravity")
+    if g is None:
+        return None
+    g = np.asarray(g, dtype=float).reshape(3)
+    if not np.all(np.isfinite(g)) or not np.any(g):
         return None
     return g
 
 
-_FRAME_ORIGIN_COLUMNS = {"affine": (12, slice(9, 12)), "rigid": (6, slice(0, 3))}
-"""Per node kind: the width of ``/nodes/state`` and the columns holding each frame's drawn point
-(affine: the origin t; rigid: the frame's mass centre p)."""
-
-
 def _frame_positions(result, step=None):
-    """Frame points ``(n, 3)`` at ``step`` (all steps ``(s, n, 3)`` when None), or None for models without frames."""
-    width, cols = _FRAME_ORIGIN_COLUMNS.get(result.node_kind, (None, None))
-    if width is None or result.nodes_state.shape[-1] != width:
+    """The drawn point of each node ``(n, 3)`` at ``step`` (all steps ``(s, n, 3)`` when None), or None for
+    models whose nodes are not drawn (the result's ``/nodes/points``: a frame's origin)."""
+    points = result.node_points
+    if points is None:
         return None
-    states = result.nodes_state if step is None else result.nodes_state[step]
-    return np.asarray(states[..., cols])
+    return np.asarray(points if step is None else points[step])
 
 
 CABLE_COLOUR = (214, 39, 40)
@@ -252,20 +239,18 @@ OBSTACLE_OPACITY = 0.35
 
 def _run_fraction(result, step: int) -> float:
     """The run fraction of state ``step`` that places moving obstacles: the load factor (statics) or
-    t / t_end (implicit Euler), as the solver used it."""
-    t = float(result.time[step])
-    solver = _scene_table(result).get("solver", {})
-    if solver.get("kind", "static") == "implicit-euler":
-        return t / (float(solver.get("steps", 1)) * float(solver.get("dt", 0.01)))
-    return t
+    t / t_end (implicit Euler), as the solver used it (``/stats/fraction``; the time where not recorded)."""
+    if result.fraction is not None:
+        return float(result.fraction[step])
+    return float(result.time[step]) / float(result.problem.get("end_time", 1.0))
 
 
 def _obstacles(result) -> list:
-    """The scene's obstacles as (obstacle, pyvista mesh at rest) pairs, built once per render: planes as a
+    """The run's obstacles as (obstacle, pyvista mesh at rest) pairs, built once per render: planes as a
     square patch under the body (1.5 times the body's largest extent over the run, centred on the body's
     rest centre projected onto the plane), spheres and boxes as they are; [] without obstacles.  ``sdf``
     obstacles are not drawn (their surface is an image's level set, not a shape here)."""
-    specs = [o for o in _scene_table(result).get("obstacle", []) if o.get("kind") in ("plane", "sphere", "box")]
+    specs = [o for o in result.problem.get("obstacles", []) if o.get("kind") in ("plane", "sphere", "box")]
     if not specs:
         return []
     import pyvista as pv
@@ -737,24 +722,9 @@ class _Layout:
         draw.text((int(max(x0, min(c[0] - tw / 2, self.window[0] - tw - 1))), y0), text, fill=colour, font=f)
 
 
-def _scene_table(result) -> dict:
-    """The result's scene as parsed TOML; {} when the result carries no scene (built in code).
-
-    A scene text that is not valid TOML means a damaged result: InputError, not a guess.
-    """
-    import tomllib
-
-    if not result.scene.strip():
-        return {}
-    try:
-        return tomllib.loads(result.scene)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"the result's scene attribute is not valid TOML ({exc}); the result file is damaged") from None
-
-
 def _solver_kind(result) -> str:
-    """``static`` or ``implicit-euler``: the scene's solver (a result without a scene is static)."""
-    return str(_scene_table(result).get("solver", {}).get("kind", "static"))
+    """``static`` or ``implicit-euler``: the run's solver (``/problem``; static where not recorded)."""
+    return str(result.problem.get("solver_kind", "static"))
 
 
 def render(
@@ -859,7 +829,7 @@ def render(
 
 
 def _scene_title(result) -> str:
-    title = _scene_table(result).get("title")
+    title = result.problem.get("title")
     return str(title) if title else "voxflex"
 
 

@@ -29,6 +29,7 @@ sizes; seconds per Newton iteration per DOF); they describe this code on a
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import os
@@ -40,24 +41,11 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["Estimate", "estimate", "check", "available_memory", "free_disk", "MEMORY_FRACTION", "STREAM_BYTES"]
+__all__ = ["Estimate", "estimate", "estimate_on_image", "check", "available_memory", "free_disk", "MEMORY_FRACTION", "STREAM_BYTES"]
 
 MEMORY_FRACTION = 0.8
 """Share of the available memory a run may plan to use (the rest: Python, the OS, other processes)."""
 
-# measured by benchmarks/bench_resources.py: slope of peak RSS over DOF, 28k -> 92k DOF (Hooke), 4k -> 29k (neo-Hooke)
-BYTES_PER_DOF = {"constant": 4.3e3, "nonlinear": 7.1e3, "reduced": 8.5e3}
-"""Voxel model, peak bytes per DOF of a static solve: constant tangent (linear Hooke), nonlinear, nonlinear F-bar."""
-CHUNK_BYTES = 2.5e8
-"""Bounded per-batch work arrays of the voxel model (tangents of CHUNK_ELEMENTS voxels) once the model exceeds one batch."""
-SECONDS_PER_DOF_ITERATION = {"constant": 3.1e-5, "nonlinear": 2.5e-5, "reduced": 6.6e-5}
-"""Seconds per Newton iteration per DOF (voxel model, 2-core machine, sparse solve included)."""
-ITERATIONS_PER_STEP = {"constant": 1, "nonlinear": 5, "reduced": 5}
-"""Newton iterations a step typically takes (a constant tangent converges in one)."""
-FRAME_BYTES_PER_VOXEL_PARENT = 112.0
-"""Affine frames: shape-function values, gradients and Hessians (1 + 3 + 9 doubles) and an index per voxel and parent."""
-FRAME_DENSE_COPIES = 3
-"""Affine frames: dense (12 n)^2 matrices alive at once (Hessian, factor, work copy)."""
 STREAM_BYTES = 4 * 2**20 + 24 * 2**20
 """Streaming a result file: the writer's buffer (4 MiB) and HDF5's chunk caches (1 MiB for each of 24 datasets)."""
 FIELD_COMPONENTS = {"stress": 9, "strain": 9, "stretches": 3}
@@ -71,6 +59,7 @@ class Estimate:
     Attributes
     ----------
     node_kind : str
+        The name of the scene's :class:`~voxflex.deform.models.kinds.NodeKind`.
     voxels : int
         Occupied voxels (estimated from the volume for shapes and meshes).
     nodes : int
@@ -124,8 +113,10 @@ class Estimate:
 
     def summary(self) -> str:
         """One line: sizes, memory, the result file and time."""
-        what = {"voxel": "nodes", "membrane": "vertices"}.get(self.node_kind, "frames")
-        text = (f"about {self.voxels:,} voxels, {self.nodes:,} {what}, {self.dofs:,} DOF; memory ~{_human(self.total_bytes)} "
+        from .deform.models.kinds import node_kind
+
+        kind = node_kind(self.node_kind)
+        text = (f"about {self.voxels:,} voxels, {self.nodes:,} {kind.plural}, {self.dofs:,} DOF; memory ~{_human(self.total_bytes)} "
                 f"(model {_human(self.model_bytes)} + {self.held_states:,} states x {_human(self.state_bytes)}")
         text += " + the file writer)" if self.streamed else ")"
         if self.streamed:
@@ -198,7 +189,11 @@ def _image_counts(path: str, mtime: float):
     """(voxels, corner nodes, surface nodes, largest spacing) of a label image file, counted."""
     from .image import LabelImage
 
-    image = LabelImage.load(path)
+    return _counts(LabelImage.load(path))
+
+
+def _counts(image):
+    """(voxels, corner nodes, surface nodes, largest spacing) of a label image."""
     mask = np.pad(np.asarray(image.labels) > 0, 1)
     corners = np.zeros(np.array(mask.shape) - 1, dtype=bool)
     full = np.ones_like(corners)
@@ -210,6 +205,14 @@ def _image_counts(path: str, mtime: float):
                 full &= shifted
     nodes = int(np.count_nonzero(corners))
     return int(np.count_nonzero(mask)), nodes, nodes - int(np.count_nonzero(full)), float(np.max(image.spacing))
+
+
+def estimate_on_image(scene, image):
+    """The :class:`~voxflex.deform.models.kinds.NodeEstimate` of the scene's model on its built ``image``
+    (counted voxels and corners, not estimated from the object's volume)."""
+    from .deform.models.kinds import node_kind
+
+    return node_kind(scene.nodes.kind).estimate(scene, _counts(image), _material_class(scene))
 
 
 @functools.lru_cache(maxsize=8)
@@ -266,7 +269,7 @@ def _object_size(obj, h=None):
 def _material_class(scene) -> str:
     """"constant", "nonlinear" or "reduced": the costliest material class of the scene's labels."""
     from .deform.materials.fbar import nearly_incompressible
-    from .deform.materials.material import material
+    from .deform.materials.constitutive import material
     from .deform.models.voxel.model import tangent_is_constant
     from .errors import InputError
 
@@ -318,23 +321,17 @@ def estimate(scene, *, output=None, keep="auto", every: int = 1) -> Estimate:
 
 
 def _estimate(scene, size=None, *, output=None, keep="all", every=1) -> Estimate:
-    voxels, corner_nodes, surface, h = size if size is not None else _object_size(scene.object)
-    kind = scene.nodes.kind
+    from .deform.models.kinds import node_kind
+
+    size = size if size is not None else _object_size(scene.object)
+    kind = node_kind(scene.nodes.kind)
+    est = kind.estimate(scene, size, _material_class(scene))
+    voxels, _, surface, h = size
+    voxels = voxels if est.voxels is None else est.voxels
+    surface = surface if est.surface is None else est.surface
+    nodes, dofs, model, seconds = est.nodes, est.dofs, est.model_bytes, est.seconds
     steps = int(scene.solver.steps)
     dynamic = scene.solver.kind != "static"
-    cls = _material_class(scene)
-    if kind == "voxel":
-        nodes = corner_nodes
-        dofs = 3 * nodes
-        chunk = CHUNK_BYTES * min(1.0, voxels / 16384.0)
-        model = BYTES_PER_DOF[cls] * dofs + chunk
-        seconds = steps * ITERATIONS_PER_STEP[cls] * SECONDS_PER_DOF_ITERATION[cls] * dofs
-    else:
-        nodes = int(scene.nodes.count or 20) + len(scene.nodes.positions or ()) + len(scene.fixed)
-        dofs = (12 if kind == "affine" else 6) * nodes
-        model = (FRAME_BYTES_PER_VOXEL_PARENT * scene.nodes.parents + 64.0) * voxels \
-            + FRAME_DENSE_COPIES * 8.0 * dofs**2
-        seconds = steps * ITERATIONS_PER_STEP[cls] * (dofs**3 / 3 / 1e10 + 2e-6 * voxels)
     # one recorded state in the file: node state, surface positions (V ~ surface nodes), probes, ten scalars,
     # fields per cell (C <= voxels) and per surface triangle (about 2 per surface vertex), reactions, contact, cables
     names = tuple(scene.output.fields)
@@ -352,7 +349,7 @@ def _estimate(scene, size=None, *, output=None, keep="all", every=1) -> Estimate
     if keep == "auto":
         keep = "all" if not streamed or recorded * row <= _auto_keep_bytes() else "last"
     kept = recorded if keep == "all" else min(recorded, 1 + (1 if keep == "last" else int(keep)))
-    return Estimate(node_kind=kind, voxels=int(voxels), nodes=int(nodes), dofs=int(dofs), model_bytes=int(model),
+    return Estimate(node_kind=kind.name, voxels=int(voxels), nodes=int(nodes), dofs=int(dofs), model_bytes=int(model),
                     state_bytes=int(state), states=int(recorded), seconds=float(seconds), voxel_size=h,
                     kept_states=int(kept), file_bytes=int(file_bytes), row_bytes=int(row), streamed=streamed)
 
@@ -454,13 +451,17 @@ def _check_disk(scene, est: Estimate, output, free: int, every: int) -> None:
 
 def _model_fix(scene, est: Estimate, budget: float, **run) -> str:
     """What would fit: a coarser voxel size (shape, mesh, image) or fewer frames."""
+    from .deform.models.kinds import node_kind
+
     obj = scene.object
-    if est.node_kind != "voxel":
-        dense = FRAME_DENSE_COPIES * 8.0 * 144.0
-        rest = est.model_bytes - dense * est.nodes**2
-        if rest < budget:
-            count = int(math.sqrt((budget - rest) / dense))
-            return f"use [nodes] count <= {max(count - len(scene.fixed) - len(scene.nodes.positions or ()), 1)}"
+    kind = node_kind(est.node_kind)
+    if kind.reduced:  # fewer nodes: the largest count that fits (the estimate grows with the count)
+        count = int(scene.nodes.count or kind.default_count)
+        while count > 1:
+            count = count * 9 // 10 if count > 10 else count - 1
+            small = dataclasses.replace(scene, nodes=dataclasses.replace(scene.nodes, count=count))
+            if _estimate(small, **run).total_bytes <= budget:
+                return f"use [nodes] count <= {count}"
     h = _object_size(obj)[3]
     fit = h
     for _ in range(400):  # coarsen until the estimate fits (memory ~ h^-3)

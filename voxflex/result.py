@@ -85,6 +85,8 @@ SERIES = (
     ("cable_points", "cable/points"),
     ("plastic_samples", "plasticity/yielded_samples"),
     ("plastic_strain_max", "plasticity/max_strain"),
+    ("node_points", "nodes/points"),
+    ("fraction", "stats/fraction"),
 )
 """(Result attribute, file path) of every per-state dataset (T, ...) that is not a named group."""
 
@@ -190,6 +192,16 @@ class Result:
         k-th step.  Default ``0 .. T-1`` (every step recorded and held).  A run recording every
         k-th step, or a :func:`~voxflex.simulate` result that holds only the last states
         (``keep``), has gaps.
+    problem : dict
+        What the run solved, as renders and readers need it without the scene text (``/problem``):
+        ``title``, ``solver_kind``, ``end_time`` (s; 1 for statics), ``gravity`` ((3,) m/s^2 or None),
+        ``obstacles`` (list of dicts: ``kind``, its parameters, ``friction``, ``motion``) and ``fixed``
+        (list of dicts: ``min``, ``max``, ``components``, ``transform``).  {} for files that predate it.
+    node_points : (T, n, 3) float or None
+        The point a render draws for each node (a frame's origin) at every state (``/nodes/points``);
+        None for models whose nodes are not drawn (voxel corners, membrane vertices).
+    fraction : (T,) float or None
+        The run fraction of each state (``/stats/fraction``): the load factor, or t / t_end.
     totals : dict
         Totals over every step of the run, recorded or not (``/stats`` attributes): ``steps``,
         ``newton_iterations``, ``step_seconds``, ``inverted_samples`` (the most at one step),
@@ -214,7 +226,7 @@ class Result:
     image_direction: np.ndarray = field(default_factory=lambda: np.eye(3))
     scene: str = ""
     version: str = __version__
-    node_kind: str = "voxel"
+    node_kind: str = field(default_factory=lambda: _reference_kind())
     model: dict = field(default_factory=dict)
     contact_force: np.ndarray | None = None
     cable_tension: np.ndarray | None = None
@@ -232,6 +244,9 @@ class Result:
     error: str = ""
     step: np.ndarray | None = None
     totals: dict = field(default_factory=dict)
+    problem: dict = field(default_factory=dict)
+    node_points: np.ndarray | None = None
+    fraction: np.ndarray | None = None
 
     def __post_init__(self):
         s = object.__setattr__
@@ -315,6 +330,17 @@ class Result:
                                  f"entry), got {cp.shape}")
             s(self, "cable_points", cp)
             s(self, "cable_point_cable", pc)
+        if self.node_points is not None:
+            npts = _arr("node_points", self.node_points, 3, 3)
+            if npts.shape[:2] != (T, self.nodes_rest.shape[0]):
+                raise InputError(f"Result.node_points must be ({T}, {self.nodes_rest.shape[0]}, 3), got {npts.shape}")
+            s(self, "node_points", npts)
+        if self.fraction is not None:
+            fr = _arr("fraction", self.fraction, 1)
+            if len(fr) != T:
+                raise InputError(f"Result.fraction must be ({T},), got {fr.shape}")
+            s(self, "fraction", fr)
+        s(self, "problem", dict(self.problem))
         if (self.plastic_samples is None) != (self.plastic_strain_max is None):
             raise InputError("Result.plastic_samples and plastic_strain_max go together: give both or neither")
         if self.plastic_samples is not None:
@@ -505,7 +531,7 @@ class Result:
                 image_direction=direction,
                 scene=_text(f.attrs.get("scene", "")),
                 version=_text(f.attrs["voxflex_version"]),
-                node_kind=_text(f.attrs.get("node_kind", "voxel")),
+                node_kind=_text(f.attrs["node_kind"]) if "node_kind" in f.attrs else _reference_kind(),
                 model={k: (_text(v) if isinstance(v, (bytes, str)) else np.asarray(v).item())
                        for k, v in (f["model"].attrs.items() if "model" in f else ())},
                 contact_force=get("contact/force"),
@@ -525,6 +551,9 @@ class Result:
                 error=_text(f.attrs.get("error", "")),
                 step=get("stats/step"),
                 totals={k: v for k, v in (f["stats"].attrs.items() if "stats" in f else ()) if k in TOTALS},
+                problem=_read_problem(f["problem"]) if "problem" in f else {},
+                node_points=get("nodes/points"),
+                fraction=get("stats/fraction"),
             )
 
     # -- ParaView ---------------------------------------------------------
@@ -616,7 +645,7 @@ class Result:
 
 
 STATIC = ("version", "scene", "node_kind", "model", "surface_rest", "surface_faces", "nodes_rest", "image_labels",
-          "image_spacing", "image_origin", "image_direction", "cell_location", "cable_point_cable")
+          "image_spacing", "image_origin", "image_direction", "cell_location", "cable_point_cable", "problem")
 """The parts of a result that do not change over the states (written once, before any state)."""
 
 
@@ -682,6 +711,7 @@ class ResultWriter:
         put(f.create_group("nodes"), "rest", np.asarray(head["nodes_rest"], dtype=float))
         if head["cable_point_cable"] is not None:  # the cable of each row of /cable/points
             put(f.require_group("cable"), "point_cable", np.asarray(head["cable_point_cable"], dtype=np.int64))
+        _write_problem(f.create_group("problem"), head["problem"] or {})
         g = f.create_group("image")
         d = put(g, "labels", np.asarray(head["image_labels"]))
         for key in ("spacing", "origin", "direction"):
@@ -805,6 +835,45 @@ def _pvd_xml(entries) -> str:
     )
 
 
+def _write_problem(g, problem: dict) -> None:
+    """``/problem``: the title, solver kind, end time and gravity as attributes; one group per obstacle and per
+    fixed region (``obstacles/0``, ``fixed/0`` ...) with its values as attributes."""
+    for key in ("title", "solver_kind", "end_time"):
+        if key in problem:
+            g.attrs[key] = problem[key]
+    if problem.get("gravity") is not None:
+        g.attrs["gravity"] = np.asarray(problem["gravity"], dtype=float)
+    for name in ("obstacles", "fixed"):
+        h = g.create_group(name)
+        for i, item in enumerate(problem.get(name, ())):
+            s = h.create_group(str(i))
+            for key, value in item.items():
+                s.attrs[key] = np.asarray(value, dtype=float) if isinstance(value, (tuple, list, np.ndarray)) else value
+
+
+def _read_problem(g) -> dict:
+    """The dict :func:`_write_problem` wrote."""
+    def value(v):
+        if isinstance(v, (bytes, str)):
+            return _text(v)
+        a = np.asarray(v)
+        return a.item() if a.ndim == 0 else a
+
+    out = {k: value(v) for k, v in g.attrs.items()}
+    out.setdefault("gravity", None)
+    for name in ("obstacles", "fixed"):
+        items = g[name] if name in g else {}
+        out[name] = [{k: value(v) for k, v in items[str(i)].attrs.items()} for i in range(len(items))]
+    return out
+
+
+def _reference_kind() -> str:
+    """The name of the reference node kind: what a result that does not say its kind was made with."""
+    from .deform.models.kinds import reference_kind
+
+    return reference_kind().name
+
+
 def _text(value) -> str:
     return value.decode("utf-8") if isinstance(value, bytes) else str(value)
 
@@ -840,7 +909,7 @@ def field_lines(r) -> list:
     """Lines naming the fields, reactions and inversion statistics a result carries (info and summaries)."""
     lines = []
     if r.cell_fields:
-        per = "voxel" if r.cell_location == "voxels" else "sample"
+        per = r.cell_location.rstrip("s") or "cell"
         parts = []
         for name, v in r.cell_fields.items():
             shape = "x".join(map(str, v.shape[2:])) or "scalar"
@@ -884,14 +953,9 @@ def _steps_list(steps) -> str:
 
 
 def _model_text(r) -> str:
-    """One phrase naming the model: node kind and count, DOFs, shape functions and quadrature when known."""
+    """One phrase naming the model: node count (as its kind says them), DOFs, shape functions and quadrature."""
     m = r.model
-    if r.node_kind == "voxel":
-        text = f"voxel nodes, {r.n_nodes} nodes, {r.n_dofs} DOF"
-    elif r.node_kind == "membrane":
-        text = f"membrane, {r.n_nodes} vertices, {r.n_dofs} DOF"
-    else:
-        text = f"{r.n_nodes} {r.node_kind} frames, {r.n_dofs} DOF"
+    text = f"{r.n_nodes} {m.get('nodes', r.node_kind + ' nodes')}, {r.n_dofs} DOF"
     extra = [f"{k.replace('_', ' ')} {m[k]}" for k in ("shape_function", "quadrature", "samples") if k in m]
     if "precompute_seconds" in m:
         extra.append(f"precompute {float(m['precompute_seconds']):.3g} s")

@@ -48,7 +48,7 @@ from .deform.materials.catalogue import MATERIAL_NAMES, MODEL_CONSTANTS, POISSON
 from .deform.materials.fbar import VOLUMETRIC
 from .deform.models.fields import check_field_names
 from .deform.models.kinds import default_kind, node_kind, node_kinds
-from .deform.models.membrane.kind import RIMS as MEMBRANE_RIMS
+from .deform.models.membrane.kind import MembraneSpec
 from .deform.models.voxel.kind import HOURGLASS
 from .deform.solve.boundary import FORCE_KINDS, PRESSURE_KIND
 from .deform.solve.options import SolverOptions
@@ -262,7 +262,7 @@ class MaterialSpec:
         object.__setattr__(self, "constants", tuple(sorted(constants.items())))
 
     def material_kwargs(self, default_strain: str | None = None) -> dict:
-        """Keyword arguments for :func:`voxflex.deform.materials.material.material` (besides the name)."""
+        """Keyword arguments for :func:`voxflex.deform.materials.constitutive.material` (besides the name)."""
         kwargs = dict(self.constants)
         if self.young is not None:
             kwargs["young"] = self.young
@@ -641,26 +641,6 @@ class CableSpec:
             raise InputError(f"[cable] {exc}") from None
 
 
-@dataclass(frozen=True)
-class MembraneSpec:
-    """``[membrane]``: the sheet of ``[nodes] kind = "membrane"`` (:mod:`voxflex.deform.models.membrane.model`).
-
-    ``thickness`` h (m, required); ``rim``: ``"clamped"`` holds every vertex of the
-    mesh's open rim (the edges only one triangle uses) in place, ``"free"`` (the
-    default) leaves it to ``[[fixed]]`` regions.
-    """
-
-    thickness: float | None = None
-    rim: str = "free"
-
-    def __post_init__(self):
-        t = "membrane"
-        if self.thickness is None:
-            raise InputError("[membrane] needs thickness (m), e.g. thickness = 0.001")
-        object.__setattr__(self, "thickness", _number(t, "thickness", self.thickness, positive=True))
-        _string(t, "rim", self.rim, MEMBRANE_RIMS)
-
-
 def _check_kind(scene) -> None:
     """What the scene's node kind does not take (one-line errors naming the fix): another kind's own
     shapes, tables and loads, dynamics for a static-only kind, quadratures it does not have, then the
@@ -673,7 +653,7 @@ def _check_kind(scene) -> None:
         use = f'use [nodes] kind = "{other.name}"'
         if obj.shape in other.shapes:
             raise InputError(f'[object] shape = "{obj.shape}" is a {other.name} shape; {use}'
-                             + (f" (with a [{other.tables[0]}] table)" if other.tables else "")
+                             + (f" (with a [{next(iter(other.tables))}] table)" if other.tables else "")
                              + " or a solid shape (box, cylinder, sphere)")
         for table in other.tables:
             if getattr(scene, table, None) is not None:
@@ -696,12 +676,12 @@ _SINGLE = {
     "solver": SolverSpec,
     "output": OutputSpec,
     "contact": ContactSpec,
-    "membrane": MembraneSpec,
+    **{name: spec for kind in node_kinds().values() for name, spec in kind.tables.items()},
 }
 _ARRAYS = {"material": MaterialSpec, "fixed": FixedSpec, "load": LoadSpec, "probe": ProbeSpec,
            "obstacle": ObstacleSpec, "cable": CableSpec}
 _TOP_KEYS = ("title", "object", "material", "nodes", "elasticity", "fixed", "load", "solver", "probe", "output",
-             "obstacle", "contact", "cable", "membrane")
+             "obstacle", "contact", "cable", *(name for kind in node_kinds().values() for name in kind.tables))
 _FIELD = {"material": "materials", "fixed": "fixed", "load": "loads", "probe": "probes", "obstacle": "obstacles",
           "cable": "cables"}
 
@@ -852,8 +832,10 @@ class Scene:
             lines += _table("contact", self.contact)
         for c in self.cables:
             lines += _table("cable", c, array=True)
-        if self.membrane is not None:
-            lines += _table("membrane", self.membrane)
+        for kind in node_kinds().values():  # the tables a node kind adds ([membrane])
+            for name in kind.tables:
+                if getattr(self, name) is not None:
+                    lines += _table(name, getattr(self, name))
         return "\n".join(lines).rstrip("\n") + "\n"
 
     # -- conveniences -----------------------------------------------------

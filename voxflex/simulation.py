@@ -27,7 +27,6 @@ Example
 
 from __future__ import annotations
 
-import dataclasses
 import time
 import warnings
 from pathlib import Path
@@ -39,7 +38,7 @@ from .errors import ConvergenceError, InputError
 from .result import AUTO_KEEP_BYTES, Result
 from .scene import Scene
 
-__all__ = ["simulate", "InversionWarning", "RoundoffWarning", "CANNOT_RECOVER", "AUTO_KEEP_BYTES"]
+__all__ = ["simulate", "problem_of", "InversionWarning", "RoundoffWarning", "CANNOT_RECOVER", "AUTO_KEEP_BYTES"]
 
 
 class RoundoffWarning(UserWarning):
@@ -136,59 +135,38 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     from ._atomic import atomic_path
     from .build import build_image
     from .build import model as build_model
-    from .deform.solve.boundary import FORCE_KINDS, FixedRegion, ForceRegion
-    from .deform.solve.options import SolverOptions
-    from .deform.solve.stepping import solve
     from .scene import check_every, check_keep
 
     keep = scene.output.keep if keep is None else check_keep(keep)
     every = scene.output.every if every is None else check_every(every)
     target = output if output is not None else scene.output.file
+    model_bytes = None
     if model is None:
         from .resources import check as check_resources
 
         # refuse a scene whose model, kept states or result file cannot fit, before building anything
         est = check_resources(scene, output=target, keep=keep, every=every)
+        model_bytes = est.model_bytes
         # the estimate (memory, result file, time) before a long run, or always with verbose
         _progress.announce((est.dofs, f"estimate: {est.summary()}"), force=verbose or (progress and est.seconds >= 60),
                            quiet=not progress)
         image = build_image(scene)
-        _progress.announce(_progress.image_estimate(image, scene.nodes.kind), force=verbose, quiet=not progress)
+        _progress.announce(image_estimate(image, scene), force=verbose, quiet=not progress)
         t0 = time.perf_counter()
         model = build_model(scene, image=image, cache=cache)
         if verbose:
             _progress.log(f"model built in {time.perf_counter() - t0:.2f} s")
     else:
         image = model.image
-    _progress.announce(_progress.model_estimate(model, scene.solver.steps), force=verbose, quiet=not progress)
+    _progress.announce(model_estimate(model, scene.solver.steps, model_bytes), force=verbose,
+                       quiet=not progress)
 
-    fixed = [
-        FixedRegion(
-            np.array(f.min),
-            np.array(f.max),
-            components=f.components,
-            transform=None if f.transform is None else np.array(f.transform),
-        )
-        for f in scene.fixed
-    ]
-    forces = [
-        ForceRegion(np.array(ld.min), np.array(ld.max), np.array(ld.vector), kind=ld.kind)
-        for ld in scene.loads
-        if ld.kind in FORCE_KINDS  # gravity is a body load; a membrane's pressure is in its energy
-    ]
-    gravity = scene.gravity
-    dynamic = scene.solver.kind == "implicit-euler"
-    densities = {m.label: m.density for m in scene.materials} if (gravity is not None or dynamic) else None
-    s = scene.solver
-    # [solver] mirrors SolverOptions key for key (the scene is its file form)
-    options = SolverOptions(**dataclasses.asdict(s))
+    problem = problem_of(scene, model)
     probe_map = None
-    if scene.probes:
-        points = np.array([p.point for p in scene.probes], dtype=float)
-        probe_map = model.point_mapping(points)
+    if problem.probes:
+        probe_map = model.point_mapping(np.array([point for _, point in problem.probes], dtype=float))
 
-    recorder = _Recorder(scene, image, model, probe_map, fixed=fixed, forces=forces, densities=densities,
-                         options=options, keep=keep, every=every, streamed=target is not None)
+    recorder = _Recorder(scene, problem, image, probe_map, keep=keep, every=every, streamed=target is not None)
 
     def callback(record):
         if bar is not None:
@@ -204,17 +182,8 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     def run():
         """Solve, the recorder taking every record; the failure (advice added) or None."""
         try:
-            solve(
-                model,
-                fixed=fixed,
-                forces=forces,
-                gravity=None if gravity is None else np.array(gravity),
-                densities=densities,
-                options=options,
-                callback=callback,
-                newton_callback=newton_callback if (bar is not None or verbose) else None,
-                sink=recorder,
-            )
+            problem.solve(callback=callback, newton_callback=newton_callback if (bar is not None or verbose) else None,
+                          sink=recorder)
         except ConvergenceError as exc:
             advice = model.advice()
             failure = ConvergenceError(f"{exc}; note: {advice}" if advice else str(exc))
@@ -223,7 +192,8 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
             return failure
         return None
 
-    bar = _progress.progress(total=s.steps, desc="simulate", unit="step") if progress else None
+    options = problem.options
+    bar = _progress.progress(total=options.steps, desc="simulate", unit="step") if progress else None
     try:
         if target is None:
             failure = run()
@@ -260,6 +230,54 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     return result
 
 
+def image_estimate(image, scene):
+    """(DOFs, text) of the model about to be built on ``image``: the scene's node kind's own estimate
+    (:func:`voxflex.resources.estimate_on_image`, the figures the resource check uses)."""
+    import numpy as np
+
+    from . import _progress
+    from .deform.models.kinds import node_kind
+    from .resources import estimate_on_image
+
+    kind = node_kind(scene.nodes.kind)
+    voxels = int(np.count_nonzero(np.asarray(image.labels)))
+    est = estimate_on_image(scene, image)
+    return est.dofs, (f"building {kind.count(est.nodes)} over {voxels} voxels: about {est.dofs} DOF; solve memory "
+                      f"about {_progress._megabytes(est.model_bytes)}")
+
+
+def model_estimate(model, steps: int, model_bytes: float | None = None):
+    """(DOFs, text): the model's size and, when known, the memory estimated for its solve."""
+    from . import _progress
+
+    dofs = int(model.rest.size)
+    samples = model.describe().get("samples")
+    text = (f"model: {model.kind.count(model.n_nodes)}, {dofs} DOF"
+            + (f", {samples} samples" if samples else "")
+            + f"; {steps} step(s)" + ("" if model_bytes is None else f"; memory about {_progress._megabytes(model_bytes)}"))
+    return dofs, text
+
+
+def problem_of(scene: Scene, model):
+    """The :class:`~voxflex.deform.solve.problem.Problem` of ``scene`` on ``model``: the one translation of
+    the scene's fixed regions, loads, solver, probes and obstacles into what the solver and the recorder read."""
+    from .deform.solve.boundary import FORCE_KINDS, FixedRegion, ForceRegion
+    from .deform.solve.problem import Problem
+
+    fixed = [FixedRegion(np.array(f.min), np.array(f.max), components=f.components,
+                         transform=None if f.transform is None else np.array(f.transform)) for f in scene.fixed]
+    # gravity is a body load; a membrane's pressure is in its energy
+    forces = [ForceRegion(np.array(ld.min), np.array(ld.max), np.array(ld.vector), kind=ld.kind)
+              for ld in scene.loads if ld.kind in FORCE_KINDS]
+    gravity = scene.gravity
+    dynamic = scene.solver.kind == "implicit-euler"
+    densities = {m.label: m.density for m in scene.materials} if (gravity is not None or dynamic) else None
+    obstacles = tuple({"kind": o.kind, **o.parameters()} for o in scene.obstacles)
+    return Problem(model=model, fixed=fixed, forces=forces, gravity=None if gravity is None else np.array(gravity),
+                   densities=densities, options=scene.solver, probes=tuple((p.name, p.point) for p in scene.probes),
+                   obstacles=obstacles, title=scene.title or "")
+
+
 def _warn_inversion(model, recorder) -> None:
     """InversionWarning when a material that cannot recover had inverted samples after some step."""
     if recorder.first_inverted is None:
@@ -290,20 +308,19 @@ class _Recorder:
     the rows ``keep`` holds, the file writer's buffer (about 4 MiB) and the totals.
     """
 
-    def __init__(self, scene, image, model, probe_map, *, fixed, forces, densities, options, keep, every,
-                 streamed):
+    def __init__(self, scene, problem, image, probe_map, *, keep, every, streamed):
         from .deform.layers.cables import CableModel
         from .deform.layers.contact import ContactModel
         from .deform.layers.plasticity import PlasticModel
 
-        self.scene, self.image, self.model, self.probe_map = scene, image, model, probe_map
+        model, options = problem.model, problem.options
+        self.scene, self.problem, self.image, self.model, self.probe_map = scene, problem, image, model, probe_map
         self._layer = None  # (q, model.sample_fields(q)) of the state being recorded
         self.surf_rest, self.faces, self.surf_map = model.boundary_surface()
         names = scene.output.fields
         self.names = names
         self.cell_fields = any(n != "reaction" for n in names)
-        self.reactions = _Reactions(model, scene, fixed, forces, densities, options) \
-            if "reaction" in names and fixed else None
+        self.reactions = _Reactions(problem) if "reaction" in names and problem.fixed else None
         self.contact = _layer(model, ContactModel)
         self.cables = _layer(model, CableModel)
         self.plastic = _layer(model, PlasticModel)
@@ -391,11 +408,6 @@ class _Recorder:
         det = np.linalg.det(layer["F"])
         return (int(np.count_nonzero(~(det > 0))), float(np.min(det)) if len(det) else 1.0), layer["cell_kind"]
 
-    def _fraction(self, t):
-        """Run fraction of a state: the load factor (statics) or t / t_end (implicit Euler)."""
-        s = self.scene.solver
-        return t / (s.steps * s.dt) if s.kind == "implicit-euler" else t
-
     def _row(self, k, rec, prev, inversion) -> dict:
         from .deform.models.fields import model_fields
 
@@ -403,8 +415,8 @@ class _Recorder:
         row = {"time": float(rec.time)}
         if self.probe_map is not None:
             positions = self.probe_map.apply(q)
-            for i, p in enumerate(self.scene.probes):
-                row[f"probes/{p.name}"] = positions[i]
+            for i, (name, _) in enumerate(self.problem.probes):
+                row[f"probes/{name}"] = positions[i]
         row["surface/positions"] = self.surf_map.apply(q)
         row["nodes/state"] = q
         row["energy/elastic"] = float(rec.elastic_energy)
@@ -421,7 +433,11 @@ class _Recorder:
             row.update({f"surface/fields/{name}": v for name, v in surface.items()})
         if self.reactions is not None:
             row["reactions/force"] = self.reactions(rec, prev)
-        fraction = self._fraction(float(rec.time))
+        fraction = self.problem.fraction(float(rec.time))
+        row["stats/fraction"] = fraction
+        points = self.model.node_points(q)
+        if points is not None:
+            row["nodes/points"] = np.asarray(points, dtype=float)
         if self.contact is not None:
             row["contact/force"] = self.contact.contact_forces(q, fraction=fraction)
         if self.cables is not None:
@@ -460,7 +476,8 @@ class _Recorder:
     def _static(self) -> dict:
         image, model = self.image, self.model
         return dict(
-            version=__version__, scene=self.scene.to_toml(), node_kind=model.node_kind, model=model.describe(),
+            version=__version__, scene=self.scene.to_toml(), node_kind=model.kind.name,
+            model={**model.describe(), "nodes": model.kind.plural}, problem=self.problem.record(),
             surface_rest=self.surf_rest, surface_faces=self.faces, nodes_rest=np.asarray(model.rest, dtype=float),
             image_labels=image.labels, image_spacing=image.spacing, image_origin=image.origin,
             image_direction=image.direction, cell_location=self.location if self.cell_fields else "",
@@ -494,24 +511,25 @@ class _Reactions:
     affine frames count their translation DOFs.
     """
 
-    def __init__(self, model, scene, fixed, forces, densities, options):
+    def __init__(self, problem):
         from .deform.solve.boundary import fixed_dofs, region_forces
 
-        self.model, self.options, self.n = model, options, len(fixed)
-        self.dofs, self.owner = fixed_dofs(model, fixed)
+        model, options = problem.model, problem.options
+        self.model, self.options, self.n = model, options, len(problem.fixed)
+        self.dofs, self.owner = fixed_dofs(model, problem.fixed)
         rest = np.asarray(model.rest, dtype=float)
         N = rest.size
-        f = region_forces(model, forces).ravel() if forces else np.zeros(N)
-        if scene.gravity is not None:
-            f = f + model.gravity_force(densities, np.array(scene.gravity)).ravel()
+        f = region_forces(model, problem.forces).ravel() if problem.forces else np.zeros(N)
+        if problem.gravity is not None:
+            f = f + model.gravity_force(problem.densities, problem.gravity).ravel()
         self.f = f
         modes = []
         for k in range(3):
             T = np.hstack([np.eye(3), np.eye(3)[:, [k]]])
             modes.append((model.moved_state(T) - rest).ravel()[self.dofs])
         self.modes = np.stack(modes, axis=1)  # (k, 3)
-        self.dynamic = scene.solver.kind == "implicit-euler"
-        self.M = model.mass_matrix(densities, lumped=options.mass == "lumped") if self.dynamic else None
+        self.dynamic = problem.dynamic
+        self.M = model.mass_matrix(problem.densities, lumped=options.mass == "lumped") if self.dynamic else None
 
     def __call__(self, rec, prev) -> np.ndarray:
         """(R, 3) at the state of ``rec``; ``prev`` is the previous step's record (None at the rest state)."""

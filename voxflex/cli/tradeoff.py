@@ -67,7 +67,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..scene import Scene
-    from ..tradeoff import tradeoff
+    from ..sweep import tradeoff
 
     scene_path = Path(args.scene)
     scene = Scene.from_toml(scene_path)

@@ -6,7 +6,7 @@ import numpy as np
 
 from .grid import TrilinearGrid
 
-__all__ = ["boundary_quads", "triangulate"]
+__all__ = ["boundary_quads", "triangulate", "face_points"]
 
 
 def boundary_quads(grid: TrilinearGrid, mask):
@@ -60,3 +60,33 @@ def triangulate(quads):
     tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
     vertex_node, faces = np.unique(tris, return_inverse=True)
     return vertex_node.astype(np.int64), faces.reshape(-1, 3).astype(np.int64)
+
+
+def face_points(corners, area, order: int = 2):
+    """``order`` x ``order`` Gauss points on planar quadrilateral faces (parallelograms) and their area weights.
+
+    Parameters
+    ----------
+    corners : (F, 4, 3) float, counter-clockwise corners (m); corner 0 at (0, 0), 1 at (1, 0), 3 at (0, 1)
+    area : (F,) float (m^2), the faces' areas
+    order : int >= 1, Gauss points per face edge (1: the face centres)
+
+    Returns
+    -------
+    points : (F k^2, 3) float, face-major
+    weights : (F k^2,) float (m^2): area times the product Gauss weights (exact for polynomials of
+        degree 2k - 1 in each face coordinate)
+    face : (F k^2,) int, the face each point lies on
+    """
+    corners = np.asarray(corners, dtype=float)
+    x, w = np.polynomial.legendre.leggauss(int(order))
+    x, w = 0.5 * (x + 1.0), 0.5 * w
+    a, b = np.meshgrid(x, x, indexing="ij")
+    wab = np.outer(w, w).ravel()
+    c0 = corners[:, 0]
+    e1 = corners[:, 1] - c0
+    e3 = corners[:, 3] - c0
+    pts = c0[:, None, :] + a.ravel()[None, :, None] * e1[:, None, :] + b.ravel()[None, :, None] * e3[:, None, :]
+    k2 = len(wab)
+    return pts.reshape(-1, 3), (np.asarray(area, dtype=float)[:, None] * wab[None, :]).ravel(), \
+        np.repeat(np.arange(len(corners)), k2)

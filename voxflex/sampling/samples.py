@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from .quadrature import QUADRATURES
 from ..voronoi.shape_functions import ShapeValues
+from .quadrature import QUADRATURES
 from .volume_moments import EXPONENT_INDEX, N_MOMENTS
 
 __all__ = ["Samples", "KINDS"]

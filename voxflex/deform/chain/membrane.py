@@ -35,7 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ...errors import InputError
-from ..materials.material import lame
+from ..materials.constitutive import lame
 
 __all__ = ["TriangleDeformationMapping", "StVKMembrane"]
 

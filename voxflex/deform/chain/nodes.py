@@ -139,7 +139,7 @@ class AffineFrames(_NodeType):
     """
 
     rest_positions: np.ndarray
-    kind: ClassVar[str] = "affine"
+    kind: ClassVar[str] = "affine-frames"
     state_width: ClassVar[int] = 12
     dofs_per_node: ClassVar[int] = 12
 
@@ -191,7 +191,7 @@ class RigidFrames(_NodeType):
     """
 
     rest_positions: np.ndarray
-    kind: ClassVar[str] = "rigid"
+    kind: ClassVar[str] = "rigid-frames"
     state_width: ClassVar[int] = 12
     dofs_per_node: ClassVar[int] = 6
 
@@ -228,7 +228,7 @@ class RigidFrames(_NodeType):
         return self.check_state(state)[:, :9].reshape(-1, 3, 3).copy()
 
 
-NODE_TYPES = {"points": Points, "affine": AffineFrames, "rigid": RigidFrames}
+NODE_TYPES = {t.kind: t for t in (Points, AffineFrames, RigidFrames)}
 """Node types by name."""
 
 

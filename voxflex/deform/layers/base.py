@@ -29,11 +29,11 @@ class ModelLayer:
     layer = "layer"
     layer_advice = ""
 
+    kind = property(lambda self: self.inner.kind)
     node_kind = property(lambda self: self.inner.node_kind)
     dofs_per_node = property(lambda self: self.inner.dofs_per_node)
     rest = property(lambda self: self.inner.rest)
     image = property(lambda self: self.inner.image)
-    dof_grid = property(lambda self: self.inner.dof_grid)
     supported_by_contact = property(lambda self: self.inner.supported_by_contact)
 
     @property

@@ -48,7 +48,7 @@ Example
 -------
 >>> import numpy as np
 >>> from voxflex.image.label_image import LabelImage
->>> from voxflex.deform.materials.material import material
+>>> from voxflex.deform.materials.constitutive import material
 >>> from voxflex.deform.models.voxel.model import VoxelModel
 >>> inner = VoxelModel.from_image(LabelImage(np.ones((4, 1, 1))), {1: material("hooke", young=1.0, poisson=0.3)})
 >>> model = CableModel(inner, [Cable([[0.5, 0.5, 1.0], [3.5, 0.5, 1.0]], stiffness=10.0, shorten=0.3)])

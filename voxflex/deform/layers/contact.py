@@ -64,7 +64,7 @@ Example
 -------
 >>> import numpy as np
 >>> from voxflex.image.label_image import LabelImage
->>> from voxflex.deform.materials.material import material
+>>> from voxflex.deform.materials.constitutive import material
 >>> from voxflex.deform.models.voxel.model import VoxelModel
 >>> from voxflex.deform.layers.obstacles import Plane
 >>> inner = VoxelModel.from_image(LabelImage(np.ones((2, 2, 2)), spacing=(0.1,) * 3),
@@ -168,7 +168,7 @@ def collision_points(model, points="surface"):
     model : Model
     points : "surface", "vertices", int or (m, 3) array
         ``"surface"``: the 2x2 Gauss points of every voxel face exposed to empty space
-        (:meth:`Model.boundary_faces`); an integer k: k x k Gauss points per face
+        (:meth:`Model.load_surface`); an integer k: k x k Gauss points per face
         (k = 1: the face centres); ``"vertices"``: the vertices of the boundary surface
         (a third of each adjacent triangle's area); an array: these rest points,
         each standing for the mean area of a surface point.
@@ -198,22 +198,14 @@ def collision_points(model, points="surface"):
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0 or not np.all(np.isfinite(pts)):
             raise InputError("contact points must be 'surface', 'vertices', a count per face edge, "
                              f"or a finite (m, 3) array, got shape {pts.shape}")
-        _, area, _ = model.boundary_faces()
-        return pts, np.full(len(pts), float(np.sum(area)) / len(pts))
-    corners, area, _ = model.boundary_faces()
-    x, w = np.polynomial.legendre.leggauss(k)
-    x, w = 0.5 * (x + 1.0), 0.5 * w
-    a, b = np.meshgrid(x, x, indexing="ij")
-    wab = np.outer(w, w).ravel()
-    c0 = corners[:, 0]
-    e1 = corners[:, 1] - c0
-    e3 = corners[:, 3] - c0
-    pts = c0[:, None, :] + a.ravel()[None, :, None] * e1[:, None, :] + b.ravel()[None, :, None] * e3[:, None, :]
-    return pts.reshape(-1, 3), (area[:, None] * wab[None, :]).ravel()
+        area = float(np.sum(model.load_surface(1).weight))
+        return pts, np.full(len(pts), area / len(pts))
+    surface = model.load_surface(k)
+    return surface.points, surface.weight
 
 
 def _largest_young(model) -> float | None:
-    mats = getattr(model, "materials", None)
+    mats = model.materials
     if not mats:
         return None
     vals = [float(m.parameters.get("young", np.nan)) for m in dict(mats).values() if hasattr(m, "parameters")]
@@ -284,7 +276,7 @@ class ContactModel(OnePass, ModelLayer):
                 raise InputError(f"obstacle {i} must be an Obstacle (Plane, Sphere, Box, DistanceField), "
                                  f"got {type(ob).__name__}")
         if distance is None:
-            image = getattr(inner, "image", None)
+            image = inner.image
             if image is None:
                 raise InputError("give the contact distance (m): the model has no image to take a voxel size from")
             distance = DISTANCE_FRACTION * float(np.min(image.spacing))

@@ -1,6 +1,6 @@
 """Plasticity by a rest-strain (relative) mapping: ``e → e - e_p`` with von Mises yield on the strain.
 
-A :class:`PlasticMaterial` wraps an elastic :class:`~voxflex.deform.materials.material.Material`
+A :class:`PlasticMaterial` wraps an elastic :class:`~voxflex.deform.materials.constitutive.Material`
 whose strain is a Voigt tensor (``linear``, ``green``, the corotational
 ones): the law sees the elastic strain ``e - e_p`` where ``e_p`` ``(s, 6)`` is
 a plastic (rest) strain stored per quadrature sample.  Subtracting a fixed
@@ -50,7 +50,7 @@ and takes any rows: the models query the rest tangent with one row of F = I.
 Example
 -------
 >>> import numpy as np
->>> from voxflex.deform.materials.material import material
+>>> from voxflex.deform.materials.constitutive import material
 >>> mat = PlasticMaterial(material("hooke", young=1.0, poisson=0.0, strain="linear"), 1, yield_strain=0.01)
 >>> F = np.diag([1.1, 1.0, 1.0])[None]
 >>> mat.update(F)                  # the sample yields
@@ -66,8 +66,8 @@ from collections import deque
 import numpy as np
 
 from ...errors import InputError
-from ..materials.material import Material, strain_kind
-from ..models.protocol import end_step
+from ..materials.constitutive import Material, strain_kind
+from ..models.protocol import PointSamples, end_step
 from .base import ModelLayer
 
 __all__ = ["PlasticMaterial", "PlasticModel", "von_mises_strain", "STATIONARY", "ANDERSON_DEPTH"]
@@ -320,32 +320,19 @@ class PlasticModel(ModelLayer):
         if not (np.isfinite(stationary) and stationary > 0):
             raise InputError(f"stationary must be > 0 (a fraction of the yield strain), got {stationary!r}")
         self.stationary = float(stationary)
-        materials = getattr(inner, "materials", {})
-        plastic = {int(lab): m for lab, m in materials.items() if isinstance(m, PlasticMaterial)}
+        plastic = {int(lab): m for lab, m in inner.materials.items() if isinstance(m, PlasticMaterial)}
         if not plastic:
             raise InputError("the model has no plastic material; build it with PlasticMaterial(...) for a label")
-        fix = "give the plastic label(s) elastic behaviour, or"
-        if inner.node_kind not in ("voxel", "affine"):
-            raise InputError(f"plasticity needs voxel nodes or affine frames, not '{inner.node_kind}' nodes")
-        if getattr(inner, "elaston", False):
-            raise InputError(f'plasticity needs point samples; {fix} use [elasticity] quadrature = "midpoint" '
-                             'or "gauss-legendre" instead of elastons')
-        volumetric = getattr(inner, "volumetric", {})
-        reduced = sorted(lab for lab in plastic if volumetric.get(lab, False))
-        if reduced:
-            raise InputError(f"plasticity needs the full volumetric term, but label(s) {reduced} use F-bar; "
-                             '[elasticity] volumetric = "full" (or a Poisson ratio below 0.4 under "auto")')
+        if not isinstance(inner, PointSamples):
+            raise InputError(f"plasticity needs a model integrated at point samples, which {inner.kind.plural} "
+                             "are not; use voxel nodes or affine frames")
+        reason = inner.point_sample_refusal(sorted(plastic))
+        if reason:
+            raise InputError(reason)
         labels = np.asarray(inner.sample_fields(inner.rest)["label"])
         self.plastic = {}
         for lab, mat in plastic.items():
             ids = np.flatnonzero(labels == lab)
-            if inner.node_kind == "voxel":
-                from ..models.voxel.model import CHUNK_ELEMENTS
-
-                per = len(ids) * inner.n_elements // inner.n_samples  # voxels of the label
-                if per > CHUNK_ELEMENTS:
-                    raise InputError(f"plasticity on a voxel label of more than {CHUNK_ELEMENTS} voxels is not "
-                                     f"supported (label {lab} has {per}); use coarser voxels or affine frames")
             mat.size(len(ids))
             self.plastic[lab] = (mat, ids)
         self.history = deque([self._snapshot()], maxlen=2)
@@ -427,7 +414,7 @@ class PlasticModel(ModelLayer):
 
 def with_plasticity(model):
     """``model`` wrapped in :class:`PlasticModel` when it has a plastic material, else ``model`` itself."""
-    materials = getattr(model, "materials", {})
+    materials = model.materials
     if any(isinstance(m, PlasticMaterial) for m in materials.values()):
         return PlasticModel(model)
     return model

@@ -11,9 +11,9 @@ nothing here knows nodes or models.
 from ..._lazy import lazy
 
 __getattr__, __dir__, __all__ = lazy(__name__, {
-    "material": "voxflex.deform.materials.material",
-    "Material": "voxflex.deform.materials.material",
-    "MATERIALS": "voxflex.deform.materials.material",
+    "material": "voxflex.deform.materials.constitutive",
+    "Material": "voxflex.deform.materials.constitutive",
+    "MATERIALS": "voxflex.deform.materials.constitutive",
     "strain": "voxflex.deform.materials.strains",
     "get_strain": "voxflex.deform.materials.strains",
     "STRAINS": "voxflex.deform.materials.strains",

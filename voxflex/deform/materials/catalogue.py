@@ -1,7 +1,7 @@
 """The names a scene may use for materials, their constants and strains (a light vocabulary).
 
 The registries of objects live with the implementations
-(:data:`voxflex.deform.materials.material.MATERIALS`,
+(:data:`voxflex.deform.materials.constitutive.MATERIALS`,
 :data:`voxflex.deform.materials.strains.STRAINS`); the tests check that they
 name the same things as this page, which reading a scene loads without
 compiling anything.

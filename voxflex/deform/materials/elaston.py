@@ -41,7 +41,7 @@ import numpy as np
 
 from ...errors import InputError
 from .laws import Law
-from .material import Material
+from .constitutive import Material
 from .strains import apply_with_gradient, geometric_with_gradient, jacobian_with_gradient
 
 __all__ = [
@@ -227,7 +227,7 @@ def material_elaston_energy(material: Material, F, dF, V, M1, M2, *, hessian: bo
     Examples
     --------
     >>> import numpy as np
-    >>> from voxflex.deform.materials.material import material
+    >>> from voxflex.deform.materials.constitutive import material
     >>> mat = material("hooke", young=1.0, poisson=0.0, strain="linear")
     >>> from voxflex.sampling.moments import box_moments
     >>> V, M1, M2 = box_moments([[0, 0, 0]], [[1, 1, 1]], [[0.5, 0.5, 0.5]])

@@ -35,7 +35,7 @@ the sample's point (the region's centre).
 Example
 -------
 >>> import numpy as np
->>> from voxflex.deform.materials.material import material
+>>> from voxflex.deform.materials.constitutive import material
 >>> F = np.diag([1.01, 1.0, 1.0])[None]
 >>> out = point_fields(F, np.array([1]), {1: material("stvk", young=1e4, poisson=0.0)}, ("von-mises",))
 >>> round(float(out["von-mises"][0]), 6)     # uniaxial: sigma_xx = E (l^2 - 1) / 2 * l^2 / l

@@ -26,7 +26,23 @@ from dataclasses import dataclass, field
 
 from ...errors import InputError, did_you_mean
 
-__all__ = ["NodeKind", "node_kind", "node_kinds", "reference_kind", "default_kind"]
+__all__ = ["NodeKind", "NodeEstimate", "node_kind", "node_kinds", "reference_kind", "default_kind"]
+
+
+@dataclass(frozen=True)
+class NodeEstimate:
+    """What a kind's model of a scene is expected to need, before it is built (:mod:`voxflex.resources`).
+
+    ``voxels`` and ``surface`` (cells of the material and vertices of the drawn surface) replace the
+    object's voxel counts when the kind's own geometry is not the voxelized object (a membrane's mesh).
+    """
+
+    nodes: int
+    dofs: int
+    model_bytes: float
+    seconds: float
+    voxels: int | None = None
+    surface: int | None = None
 
 
 @dataclass(frozen=True)
@@ -60,15 +76,18 @@ class NodeKind:
         ``"cables"``, ``"force-loads"`` (traction and force regions), ``"dynamics"``.
     builder, estimator : str
         ``"module:function"``: ``builder(scene, image, materials, *, cache) -> Model`` and
-        ``estimator(scene, size, material_class) -> (nodes, dofs, model_bytes, seconds)``
+        ``estimator(scene, size, material_class) -> NodeEstimate``
         (see :mod:`voxflex.resources`).
     image_builder : str or None
         ``"module:function"`` ``(scene) -> LabelImage`` when the kind's image is not the
         voxelized object (a membrane's footprint).
     shapes : dict str -> int
         ``[object] shape`` values only this kind takes, with the number of ``size`` values each needs.
-    tables, load_kinds : tuple of str
-        Scene tables (``"membrane"``) and ``[[load]] kind`` values only this kind takes.
+    tables : dict str -> type
+        Scene tables only this kind takes, with the dataclass that reads each (``[membrane]``); the
+        :class:`~voxflex.scene.Scene` has a field of that name.
+    load_kinds : tuple of str
+        ``[[load]] kind`` values only this kind takes.
     check_scene : str or None
         ``"module:function"`` ``(scene) -> None``: the kind's own checks of a scene (one-line
         InputErrors naming the fix), run when the scene is made; it must import nothing heavy.
@@ -90,7 +109,7 @@ class NodeKind:
     takes: frozenset = field(default_factory=frozenset)
     image_builder: str | None = None
     shapes: dict = field(default_factory=dict)
-    tables: tuple[str, ...] = ()
+    tables: dict = field(default_factory=dict)
     load_kinds: tuple[str, ...] = ()
     check_scene: str | None = None
 
@@ -111,7 +130,8 @@ class NodeKind:
         return _load(self.builder)(scene, image, materials, cache=cache)
 
     def estimate(self, scene, size, material_class: str):
-        """``(nodes, dofs, model_bytes, seconds)`` before building (see :attr:`estimator`)."""
+        """A :class:`NodeEstimate` before building (see :attr:`estimator`); ``size`` = (voxels, corner nodes,
+        surface nodes, voxel size) of the object, ``material_class`` "constant", "nonlinear" or "reduced"."""
         return _load(self.estimator)(scene, size, material_class)
 
     def check(self, scene) -> None:

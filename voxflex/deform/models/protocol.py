@@ -18,7 +18,7 @@ Example
 -------
 >>> import numpy as np
 >>> from voxflex.image.label_image import LabelImage
->>> from voxflex.deform.materials.material import material
+>>> from voxflex.deform.materials.constitutive import material
 >>> from voxflex.deform.models.voxel.model import VoxelModel
 >>> model = VoxelModel.from_image(LabelImage(np.ones((2, 1, 1))), {1: material("hooke", young=1.0, poisson=0.3)})
 >>> isinstance(model, Model), model.node_kind, model.rest.shape
@@ -27,19 +27,13 @@ Example
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Model", "PointMap", "OnePass", "NODE_KINDS", "IMPLEMENTED_NODE_KINDS", "end_step", "END_STEP_PASSES"]
-
-NODE_KINDS = ("affine", "rigid", "voxel", "membrane")
-"""``[nodes] kind`` values: affine frames (12 DOF), rigid frames (6 DOF), voxel-corner points (3 DOF),
-the vertices of a membrane's triangle mesh (3 DOF, :mod:`voxflex.deform.models.membrane.model`)."""
-
-
-IMPLEMENTED_NODE_KINDS = ("affine", "rigid", "voxel", "membrane")
-"""The node kinds a scene can be simulated with (rigid frames: static scenes only)."""
+__all__ = ["Model", "PointMap", "Part", "SurfacePoints", "OnePass", "end_step", "END_STEP_PASSES",
+           "OnVoxelGrid", "ConstantStiffness", "InternalVariables", "TangentProjection", "PointSamples"]
 
 
 @runtime_checkable
@@ -53,23 +47,79 @@ class PointMap(Protocol):
         """Node forces (n, d) of point forces f (m, 3): ``J^T f``."""
 
 
+@dataclass(frozen=True, eq=False)
+class Part:
+    """A part of a model that must be held on its own (a material component, a piece of mesh).
+
+    Attributes
+    ----------
+    nodes : (k,) int, the model's nodes that move it
+    lo, hi : (3,) float, its world bounding box at rest (m)
+    labels : tuple of int, the material labels in it
+    size : int, how many cells (``cell``) it has
+    cell : str, what a cell is in messages ("voxels", "triangles")
+    """
+
+    nodes: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    labels: tuple
+    size: int
+    cell: str = "voxels"
+
+    @classmethod
+    def of_components(cls, image, comps, nodes_of, *, cell: str = "voxels") -> list:
+        """The parts of a component image ``comps`` (0 outside, 1..k) over ``image``, moved by ``nodes_of[c]``."""
+        out = []
+        for c, nodes in enumerate(nodes_of):
+            mask = comps == c + 1
+            ijk = np.argwhere(mask)
+            lo = image.index_to_world(ijk.min(axis=0)[None].astype(float))[0]
+            hi = image.index_to_world(ijk.max(axis=0)[None].astype(float) + 1.0)[0]
+            labels = tuple(sorted(int(x) for x in np.unique(image.labels[mask])))
+            out.append(cls(np.asarray(nodes, dtype=np.int64), np.minimum(lo, hi), np.maximum(lo, hi), labels,
+                           int(len(ijk)), cell))
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class SurfacePoints:
+    """Quadrature points of a model's boundary surface, where tractions and contact act.
+
+    Attributes
+    ----------
+    points : (m, 3) float, rest positions (m)
+    weight : (m,) float, the area each stands for (m^2): sums to the boundary area
+    normal : (m, 3) float, outward unit normals at rest
+    patch : (m,) int, the surface patch (a voxel face, a triangle) each point lies on
+    centre : (P, 3) float, the centre of each patch (regions select patches by their centre)
+    """
+
+    points: np.ndarray
+    weight: np.ndarray
+    normal: np.ndarray
+    patch: np.ndarray
+    centre: np.ndarray
+
+
 @runtime_checkable
 class Model(Protocol):
     """The interface every model offers (see the module docstring).
 
     Attributes
     ----------
+    kind : NodeKind
+        What its nodes are (:mod:`voxflex.deform.models.kinds`): noun, DOFs per node, scene settings.
     node_kind : str
-        One of :data:`NODE_KINDS`.
+        ``kind.name``, as the result file records it.
     dofs_per_node : int
         d, the numbers per node (3 or 12).
     rest : (n, d) float
         The rest state.
-    image : LabelImage or None
+    image : LabelImage
         The label image the model was built on (written to the result file).
-    dof_grid : TrilinearGrid or None
-        The voxel grid whose corners are the nodes (voxel models: geometric
-        multigrid uses it), None for other models.
+    materials : dict label -> Material
+        The material of every label present.
     supported_by_contact : bool
         True when obstacles may hold the body (the static support check is skipped).
     n_nodes : int
@@ -77,11 +127,12 @@ class Model(Protocol):
         True when the energy is quadratic in q (the Hessian never changes).
     """
 
+    kind: object
     node_kind: str
     dofs_per_node: int
     rest: np.ndarray
     image: object
-    dof_grid: object
+    materials: Mapping
     supported_by_contact: bool
 
     @property
@@ -98,19 +149,14 @@ class Model(Protocol):
     def advice(self) -> str:
         """A sentence of model-specific advice added to a solver failure, or ''."""
 
-    # Optional (not part of the structural check, so models without internal variables need not define
-    # it; call it through :func:`end_step`, whose default is the no-op):
-    #
-    # def end_step(self, q) -> bool:
-    #     """The step converged at the state q (n, d): update the internal variables (plastic strains,
-    #     a friction lag) from it.  True when they changed so that the step must be solved again with
-    #     them; False when they are settled, and then they are committed as the start of the next step."""
-
     def describe(self) -> dict:
-        """Attributes written to the result file's ``/model`` group (node_kind, count, dofs, ...)."""
+        """Attributes written to the result file's ``/model`` group (node_kind, count, dofs, samples ...)."""
 
     def energy(self, q) -> float:
         """Elastic energy (J); inf or NaN where the material is undefined (inverted)."""
+
+    def gradient(self, q) -> np.ndarray:
+        """dE/dq, shaped like q (N, N m)."""
 
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
         """(energy J, gradient (n, d) or None, Hessian (nd, nd) or None).
@@ -120,11 +166,6 @@ class Model(Protocol):
 
     def hessian(self, q):
         """d²E/dq² (nd, nd): sparse, or a dense ndarray (see :meth:`energy_gradient_hessian`)."""
-
-    # optional: set_tangent_projection(on: bool) -> bool
-    #     Later Hessians built from per-sample tangents dP/dF projected to positive semi-definite
-    #     (on) or exact (off, the default); returns whether any tangent is projected.  Models
-    #     without it (rigid frames, whose mapping has its own geometric stiffness) stay exact.
 
     def mass_matrix(self, densities: Mapping[int, float], *, lumped: bool = True):
         """Mass matrix (nd, nd) in the DOFs from mapped mass points (kg, kg m, kg m²)."""
@@ -141,12 +182,16 @@ class Model(Protocol):
     def boundary_surface(self):
         """The visual layer: (rest vertices (V, 3), triangles (F, 3), PointMap of the vertices)."""
 
-    def boundary_faces(self):
-        """Voxel faces exposed to empty space: (corners (F, 4, 3) at rest, counter-clockwise from
-        outside; area (F,) m²; outward normal (F, 3))."""
+    def load_surface(self, order: int = 2) -> SurfacePoints:
+        """Quadrature points of the boundary surface (``order`` x ``order`` per patch) where tractions
+        and contact act; InputError when the model has no such surface (say which loads to use)."""
 
     def volume_points(self):
         """Material points that integrate the volume: (points (m, 3), volume (m,) m³)."""
+
+    def node_points(self, q):
+        """(n, 3) the world point a render draws for each node at state q (a frame's origin), or None
+        when nodes are not drawn (voxel corners, mesh vertices: the surface shows them)."""
 
     def sample_fields(self, q) -> dict:
         """What result fields (:mod:`voxflex.deform.models.fields`) are computed from, at state q (n, d):
@@ -156,15 +201,62 @@ class Model(Protocol):
         behind each triangle of :meth:`boundary_surface`) or ``surface_F`` (k, 3, 3),
         ``surface_label`` (k,) and ``triangle_point`` (F,) into them."""
 
-    def components(self):
-        """Material components the model treats as separate parts: (component image (nx, ny, nz) int,
-        0 outside, 1..k; k; list of the node indices of each component)."""
+    def parts(self) -> list:
+        """The :class:`Part` s a static solve must hold separately (material components)."""
 
     def held_dofs(self, lo, hi, components: str) -> np.ndarray:
         """Flat DOFs (sorted) that a fixed box [lo, hi] holds for the given components ("xyz" subset)."""
 
     def moved_state(self, transform) -> np.ndarray:
         """The state (n, d) of the whole body moved by the affine map ``[A | t]`` (3, 4)."""
+
+
+# ---------------------------------------------------------------------------
+# optional capabilities: small protocols, checked with isinstance
+# ---------------------------------------------------------------------------
+@runtime_checkable
+class OnVoxelGrid(Protocol):
+    """Nodes at the corners of a voxel grid: geometric multigrid can coarsen them."""
+
+    dof_grid: object  # TrilinearGrid
+
+
+@runtime_checkable
+class ConstantStiffness(Protocol):
+    """A quadratic energy whose stiffness the lean static path assembles once, on the free DOFs only,
+    and gives multigrid as element matrices."""
+
+    def constant_stiffness_block(self, free): ...
+
+    def stiffness_elements(self): ...
+
+
+@runtime_checkable
+class InternalVariables(Protocol):
+    """Internal variables (plastic strains, a friction lag) updated after every converged step."""
+
+    def end_step(self, q) -> bool:
+        """The step converged at q (n, d): update the internal variables; True when they changed so that the
+        step must be solved again with them, False when they are settled (then they are committed)."""
+
+
+@runtime_checkable
+class TangentProjection(Protocol):
+    """Hessians from per-sample tangents dP/dF projected to positive semi-definite on demand."""
+
+    def set_tangent_projection(self, on: bool) -> bool:
+        """Project later Hessians' tangents (``on``) or not; returns whether any tangent is projected."""
+
+
+@runtime_checkable
+class PointSamples(Protocol):
+    """An energy integrated at point samples whose deformation gradients a material layer (plasticity) reads."""
+
+    def deformation_gradients(self, q) -> np.ndarray:
+        """F (s, 3, 3) at every sample, in the order of ``sample_fields(q)``."""
+
+    def point_sample_refusal(self, labels) -> str:
+        """Why the samples of ``labels`` cannot carry internal variables ('' when they can)."""
 
 
 class OnePass:
@@ -190,12 +282,11 @@ reports changed internal variables, before it gives up with a ConvergenceError."
 
 
 def end_step(model, q) -> bool:
-    """The post-convergence hook: ``model.end_step(q)`` when the model has one, else False (no internal variables).
+    """The post-convergence hook: ``model.end_step(q)`` for a model with :class:`InternalVariables`, else False.
 
     The solvers call it after every converged step with the state ``q`` (n, d);
     True means the model's internal variables (plastic strains, a friction lag)
     changed and the step must be solved again with them (at most
     :data:`END_STEP_PASSES` times); False means they are settled and committed.
     """
-    hook = getattr(model, "end_step", None)
-    return bool(hook(q)) if callable(hook) else False
+    return bool(model.end_step(q)) if isinstance(model, InternalVariables) else False

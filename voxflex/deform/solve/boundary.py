@@ -179,7 +179,7 @@ def fixed_dofs(model, regions) -> tuple[np.ndarray, np.ndarray]:
         dofs = np.asarray(model.held_dofs(region.min, region.max, region.components), dtype=np.int64)
         if len(dofs) == 0:
             raise InputError(
-                f"fixed region #{r} {_box_text(region)} contains no {'node' if model.node_kind == 'voxel' else 'frame'}; "
+                f"fixed region #{r} {_box_text(region)} contains no {model.kind.noun}; "
                 "enlarge the box to reach the object's rest position"
             )
         owner[dofs] = r
@@ -200,27 +200,6 @@ def prescribed_positions(model, regions, dofs, owner, factor: float) -> np.ndarr
             continue
         values[sel] = moved_rest(model, region.transform, factor)[dofs[sel]]
     return values
-
-
-def face_points(corners, area):
-    """2x2 Gauss points on bilinear quadrilateral faces and their area weights.
-
-    Parameters
-    ----------
-    corners : (F, 4, 3) float, counter-clockwise corners (m)
-    area : (F,) float (m^2), the faces' areas (planar parallelograms)
-
-    Returns
-    -------
-    points : (4F, 3) float, face-major
-    weights : (4F,) float, area / 4 each (m^2): exact for bilinear integrands
-    """
-    g = 0.5 + np.array([-0.5, 0.5]) / np.sqrt(3.0)
-    uv = np.array([(u, v) for u in g for v in g])  # (4, 2)
-    # bilinear weights of the corners (0: (0,0), 1: (1,0), 2: (1,1), 3: (0,1))
-    W = np.stack([(1 - uv[:, 0]) * (1 - uv[:, 1]), uv[:, 0] * (1 - uv[:, 1]), uv[:, 0] * uv[:, 1], (1 - uv[:, 0]) * uv[:, 1]], axis=1)
-    points = np.einsum("gc,fck->fgk", W, np.asarray(corners, dtype=float)).reshape(-1, 3)
-    return points, np.repeat(np.asarray(area, dtype=float) / 4.0, 4)
 
 
 def region_forces(model, regions) -> np.ndarray:
@@ -244,37 +223,33 @@ def region_forces(model, regions) -> np.ndarray:
     """
     rest = np.asarray(model.rest, dtype=float)
     f = np.zeros(rest.shape)
-    faces = None
+    surface = None
     for r, region in enumerate(regions):
         pts = sel = None
         if region.kind == "force":
             pts, vol = model.volume_points()
             sel = _in_box(pts, region.min, region.max)
-        if faces is None and not (region.kind == "force" and np.any(sel)):
-            corners, area, _ = model.boundary_faces()  # only when faces are needed (membranes have none)
-            fpts, fw = face_points(corners, area)
-            faces = (corners.mean(axis=1), fpts, fw)
-        if faces is not None:
-            centre, fpts, fw = faces
+        if surface is None and not (region.kind == "force" and np.any(sel)):
+            surface = model.load_surface()  # only when a surface is needed (membranes have none)
         if region.kind == "force":
             if np.any(sel):
                 pts, share = pts[sel], vol[sel]
             else:
-                sel = _in_box(fpts, region.min, region.max)
+                sel = _in_box(surface.points, region.min, region.max)
                 if not np.any(sel):
                     raise InputError(
                         f"force region #{r} {_box_text(region)} contains no material; enlarge the box to cover part of the object"
                     )
-                pts, share = fpts[sel], fw[sel]
+                pts, share = surface.points[sel], surface.weight[sel]
             forces = (share / share.sum())[:, None] * region.vector[None, :]
         else:
-            sel = np.repeat(_in_box(centre, region.min, region.max), 4)
+            sel = _in_box(surface.centre, region.min, region.max)[surface.patch]
             if not np.any(sel):
                 raise InputError(
                     f"traction region #{r} {_box_text(region)} contains no boundary face centre; "
                     "enlarge the box to cover part of the surface"
                 )
-            pts = fpts[sel]
-            forces = fw[sel][:, None] * region.vector[None, :]
+            pts = surface.points[sel]
+            forces = surface.weight[sel][:, None] * region.vector[None, :]
         f += model.point_mapping(pts).vjp(rest, forces)
     return f

@@ -76,9 +76,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..._linalg import vdot, vnorm
-from .options import METHODS
 from ...errors import ConvergenceError, InputError, check_choice
-
+from .options import METHODS
 
 DENSE_MAX = 64
 

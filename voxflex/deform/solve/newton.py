@@ -15,6 +15,7 @@ import scipy.sparse as sp
 
 from ..._linalg import vdot, vnorm
 from ...errors import ConvergenceError
+from ..models.protocol import ConstantStiffness, OnVoxelGrid, TangentProjection
 from .linear import cg_on_free_dofs, choose_method, solve_linear
 
 ARMIJO = 1e-4
@@ -65,8 +66,7 @@ class _Problem:
         if block is not None:
             self.elastic_diagonal = block.diagonal()  # of the free DOFs only (what the round-off floor reads)
             # the block's matrix as voxel element matrices: multigrid forms its first coarse level from them
-            elements = getattr(model, "stiffness_elements", None)
-            self.elements = elements() if callable(elements) else None
+            self.elements = model.stiffness_elements() if isinstance(model, ConstantStiffness) else None
         # the inertia (and damping) matrix of the step, M / h^2 + D / h, built once, added to each Hessian
         self.inertia = None
         if M is not None:
@@ -87,7 +87,8 @@ class _Problem:
         self.evaluations += 1
         self.hessians += bool(hessian and gradient)
         self.energy_only += not gradient
-        setter = getattr(self.model, "set_tangent_projection", None) if project and hessian and gradient else None
+        setter = self.model.set_tangent_projection if (
+            project and hessian and gradient and isinstance(self.model, TangentProjection)) else None
         if setter is not None:
             self.projected += bool(setter(True))
             try:
@@ -317,6 +318,11 @@ class _FreeBlock:
         return sp.csr_matrix((H.data[self.sel], self.indices_ff, self.indptr_ff), shape=(nf, nf))
 
 
+def _grid_of(model):
+    """The voxel grid of a model whose nodes are its corners (geometric multigrid), or None."""
+    return model.dof_grid if isinstance(model, OnVoxelGrid) else None
+
+
 def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=None, elements=None):
     """Solve ``H[free][:, free] d = rhs``; returns d, info and the submatrix when it was built.
 
@@ -406,6 +412,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
     history = []  # residuals of the iterates so far (Newton's rate)
     pot_start = None  # the potential at the attempt's first iterate
     indefinite = project = False  # the last tangent was indefinite along the step / was projected
+    floor = 0.0  # the round-off floor of the residual, set from the first iterate's Hessian
     for it in range(options.max_iterations + 1):
         # the Hessian of an iterate where Newton's rate predicts convergence would never be solved: skip it
         # (built below after all when the iterate does not converge)
@@ -466,7 +473,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             eta = max(_forcing(rn, rn_prev, eta_prev, scale), floor_eta)
         eta = float(np.clip(eta, 1e-14, 0.5))
         rn_prev, eta_prev = rn, eta
-        d, info, Hff = _solve_free(H, rhs, free, reduce, options, eta, near_null, problem.model.dof_grid,
+        d, info, Hff = _solve_free(H, rhs, free, reduce, options, eta, near_null, _grid_of(problem.model),
                                    block=problem.block, elements=problem.elements)
         lin_its += info.iterations
         last_lin = info.iterations

@@ -95,6 +95,16 @@ class SolverOptions:
         s(self, "rayleigh_mass", number(t, "rayleigh_mass", self.rayleigh_mass, nonnegative=True))
         s(self, "rayleigh_stiffness", number(t, "rayleigh_stiffness", self.rayleigh_stiffness, nonnegative=True))
 
+    @property
+    def end_time(self) -> float:
+        """The time of the last step: ``steps * dt`` (s) for implicit Euler, the load factor 1 for statics."""
+        return self.steps * self.dt if self.kind == "implicit-euler" else 1.0
+
+    def fraction(self, time) -> float:
+        """The run fraction of a state at ``time`` (the load factor, or t / t_end in dynamics): 0 at rest,
+        1 at the end; prescribed motions, moving obstacles and cables follow it."""
+        return float(time) / self.end_time
+
 
 @dataclass
 class StepRecord:

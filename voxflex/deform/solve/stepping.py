@@ -48,7 +48,7 @@ import scipy.sparse as sp
 
 from ..._linalg import vdot
 from ...errors import ConvergenceError, InputError
-from ..models.protocol import END_STEP_PASSES, end_step
+from ..models.protocol import END_STEP_PASSES, ConstantStiffness, end_step
 from .boundary import FixedRegion, ForceRegion, fixed_dofs, prescribed_positions, region_forces
 from .newton import _FreeBlock, _newton, _PatternAdd, _Problem
 from .options import SolverOptions, StepRecord
@@ -210,7 +210,7 @@ def _lean(model, options) -> bool:
     """Whether :func:`solve` takes the lean path: a static problem of a model whose tangent is constant
     and which assembles its free-DOF block on its own (``constant_stiffness_block``: voxel models)."""
     return (options.kind == "static" and bool(model.constant_tangent)
-            and callable(getattr(model, "constant_stiffness_block", None)))
+            and isinstance(model, ConstantStiffness))
 
 
 def solve(
@@ -338,12 +338,11 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
     dynamic = options.kind == "implicit-euler"
     adder = _PatternAdd()  # H + M/h^2 + D/h positions found once for all steps
     N = x.size
-    t_end = options.steps * options.dt
     for k in range(1, options.steps + 1):
         t0 = time.perf_counter()
         if dynamic:
             t = k * options.dt
-            factor = t / t_end
+            factor = options.fraction(t)
             label = f"implicit Euler step {k}/{options.steps} (t = {t:.4g} s)"
             D = None
             if options.rayleigh_mass or options.rayleigh_stiffness:

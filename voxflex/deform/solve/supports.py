@@ -1,10 +1,10 @@
 """Supports and mechanisms, checked before a static solve.
 
 A static problem has a unique equilibrium only when every part of the body
-is held against all six rigid motions.  Parts are the model's material
-components (:meth:`Model.components`: face-connected voxels for the voxel
-model, since voxels that share only an edge or a corner form a hinge; the
-components the frames' shape functions couple for the frame model).  A
+is held against all six rigid motions.  Parts are what the model says they are
+(:meth:`Model.parts`: face-connected voxels for the voxel model, since voxels
+that share only an edge or a corner form a hinge; the components the frames'
+shape functions couple for the frame model; pieces of mesh for a membrane).  A
 component is held when the rigid motions of its nodes are restrained to rank
 6 by the fixed DOFs, or by nodes it shares with components already held (an
 edge or a corner shared with a clamped part restrains only 5 or 3 of them:
@@ -38,15 +38,16 @@ def unsupported_components(model, fixed_dofs) -> list[dict]:
 
     Returns
     -------
-    list of dict, one per unsupported component: ``index`` (1-based), ``n`` (number of
-    components), ``voxels``, ``labels``, ``lo``/``hi`` (world bounding box, m),
+    list of dict, one per unsupported part: ``index`` (1-based), ``n`` (number of
+    parts), ``voxels`` (its cells, ``cell`` says what they are), ``labels``, ``lo``/``hi`` (world bounding box, m),
     ``free`` (number of free rigid motions), ``hinge`` (True when it is held only
     through shared edges or corners).
     """
-    image = model.image
-    comps, n, nodes_of = model.components()
+    parts = model.parts()
+    n = len(parts)
     if n == 0:
         return []
+    nodes_of = [p.nodes for p in parts]
     d = model.dofs_per_node
     N = np.asarray(model.rest).size
     B = np.asarray(model.rigid_modes(), dtype=float).copy()
@@ -58,7 +59,9 @@ def unsupported_components(model, fixed_dofs) -> list[dict]:
     for nodes in nodes_of:
         owner_count[nodes] += 1
     support_node = np.zeros(n_nodes, dtype=bool)
-    extent = float(np.max(np.ptp(np.asarray(image.index_to_world(np.argwhere(comps > 0) + 0.5)), axis=0))) or 1.0
+    lo = np.min([p.lo for p in parts], axis=0)
+    hi = np.max([p.hi for p in parts], axis=0)
+    extent = float(np.max(hi - lo)) or 1.0
     B[:, 3:] /= extent  # rotations in units comparable to translations
     ranks = np.zeros(n, dtype=np.int64)
     own = np.zeros(n, dtype=np.int64)
@@ -80,13 +83,9 @@ def unsupported_components(model, fixed_dofs) -> list[dict]:
                 changed = True
     out = []
     for c in np.flatnonzero(~supported):
-        ijk = np.argwhere(comps == c + 1)
-        lo = image.index_to_world(ijk.min(axis=0)[None].astype(float))[0]
-        hi = image.index_to_world(ijk.max(axis=0)[None].astype(float) + 1.0)[0]
-        labels = sorted(int(x) for x in np.unique(image.labels[comps == c + 1]))
-        out.append({"index": int(c + 1), "n": int(n), "voxels": int(len(ijk)), "labels": labels,
-                    "lo": np.minimum(lo, hi), "hi": np.maximum(lo, hi), "free": int(6 - ranks[c]),
-                    "hinge": bool(ranks[c] > own[c])})
+        p = parts[c]
+        out.append({"index": int(c + 1), "n": int(n), "voxels": int(p.size), "cell": p.cell, "labels": list(p.labels),
+                    "lo": p.lo, "hi": p.hi, "free": int(6 - ranks[c]), "hinge": bool(ranks[c] > own[c])})
     return out
 
 
@@ -103,7 +102,7 @@ def check_supports(model, fixed_dofs) -> None:
     more = f" ({len(bad) - 1} more)" if len(bad) > 1 else ""
     raise InputError(
         f"static scene is ill-posed: material component {b['index']} of {b['n']} (label "
-        f"{', '.join(map(str, b['labels']))}, {b['voxels']} voxels, box [{lo}] .. [{hi}] m) {how}: "
+        f"{', '.join(map(str, b['labels']))}, {b['voxels']} {b['cell']}, box [{lo}] .. [{hi}] m) {how}: "
         f"{b['free']} free rigid motion(s){more}; fix it with a [[fixed]] region covering it, drop islands with "
         '[object] keep = "largest" or min_component_voxels, or simulate dynamics (implicit-euler)'
     )

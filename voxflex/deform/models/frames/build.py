@@ -11,7 +11,7 @@ import numpy as np
 
 from ....errors import InputError
 from .kind import DEFAULT_FRAMES
-
+from ..kinds import NodeEstimate
 
 SAMPLES_PER_FRAME = 20
 """Mid-point / elaston samples per frame when a scene does not say ``[elasticity] samples``.
@@ -218,9 +218,9 @@ def _from_store(image, d, kind, parents):
     import scipy.sparse as sp
 
     from ....sampling.voxel import VoxelSamples
-    from ....voronoi.weights import ShapeFunction
     from ....voronoi.shape_functions import ShapeValues
     from ....voronoi.smoothing import SmoothWeights
+    from ....voronoi.weights import ShapeFunction
 
     frames = d["frames"]
     n = len(frames)
@@ -275,7 +275,7 @@ FRAME_DENSE_COPIES = 3
 
 
 def estimate(scene, size, material_class: str):
-    """``(nodes, dofs, model_bytes, seconds)`` of affine (or rigid) frames: the placed frames (count, given
+    """:class:`~voxflex.deform.models.kinds.NodeEstimate``` of affine (or rigid) frames: the placed frames (count, given
     positions, one more per fixed region), the weights of every voxel and the dense stiffness."""
     from ..kinds import node_kind
 
@@ -286,4 +286,4 @@ def estimate(scene, size, material_class: str):
     model = (FRAME_BYTES_PER_VOXEL_PARENT * scene.nodes.parents + 64.0) * voxels + FRAME_DENSE_COPIES * 8.0 * dofs**2
     iterations = 1 if material_class == "constant" else 5
     seconds = int(scene.solver.steps) * iterations * (dofs**3 / 3 / 1e10 + 2e-6 * voxels)
-    return nodes, dofs, model, seconds
+    return NodeEstimate(nodes, dofs, model, seconds)

@@ -57,7 +57,7 @@ Example
 -------
 >>> import numpy as np
 >>> from voxflex.image.label_image import LabelImage
->>> from voxflex.deform.materials.material import material
+>>> from voxflex.deform.materials.constitutive import material
 >>> from voxflex.voronoi.shape_functions import shepard
 >>> image = LabelImage(np.ones((4, 2, 2)))
 >>> frames = np.array([[0.5, 1.0, 1.0], [3.5, 1.0, 1.0]])
@@ -77,16 +77,16 @@ import scipy.sparse as sp
 from ...._linalg import vdot
 from ....errors import InputError, check_choice
 from ....image.grid import TrilinearGrid
-from ....image.surface import boundary_quads, triangulate
+from ....image.surface import boundary_quads, face_points, triangulate
 from ....sampling.voxel import voxel_samples
 from ...chain.mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping, PointMapping
 from ...chain.nodes import AffineFrames
-from ...materials.fbar import _bar_evaluate, nearly_incompressible
-from ...materials.material import project_psd
-from ..protocol import OnePass
-from ..voxel.model import VOLUMETRIC
+from ...materials.fbar import VOLUMETRIC, _bar_evaluate, nearly_incompressible
+from ...materials.constitutive import project_psd
+from ..protocol import OnePass, Part, SurfacePoints
 from . import _kernels as K
 from ._kernels import frame_tables
+from .kind import AFFINE
 
 __all__ = ["FrameModel"]
 
@@ -108,9 +108,9 @@ class FrameModel(OnePass):
     materials : {label: Material}
     """
 
-    node_kind = "affine"
+    kind = AFFINE
+    node_kind = AFFINE.name
     dofs_per_node = 12
-    dof_grid = None  # the DOFs are frames, not the corners of a voxel grid (no geometric multigrid)
 
     def __init__(self, image, frames, shape_function, samples, materials, *, info=None, use_occupancy=True,
                  volumetric="full"):
@@ -644,14 +644,36 @@ class FrameModel(OnePass):
         """(12n, 6): translations (dt = e_k) and rotations about the frames' centroid (dA = [e_k]x, dt = e_k x (X_a - c))."""
         return self.nodes.rigid_modes()
 
-    def components(self):
-        """Material components as the shape functions couple them (voxels touching by a face,
-        an edge or a corner: the connectivity of the geodesic distances), and the frames in each."""
+    def parts(self) -> list:
+        """Material components as the shape functions couple them (voxels touching by a face, an edge
+        or a corner: the connectivity of the geodesic distances), each moved by the frames in it."""
         comps, n = self.image.connected_components(connectivity="vertex")
         f = np.floor(self._grid().world_to_index(self.frames) + 1e-9).astype(np.int64)
         f = np.clip(f, 0, np.asarray(comps.shape) - 1)
         of_frame = comps[f[:, 0], f[:, 1], f[:, 2]] - 1
-        return comps, n, [np.flatnonzero(of_frame == c) for c in range(n)]
+        return Part.of_components(self.image, comps, [np.flatnonzero(of_frame == c) for c in range(n)])
+
+    def load_surface(self, order: int = 2) -> SurfacePoints:
+        """``order`` x ``order`` Gauss points of every voxel face exposed to empty space."""
+        corners, area, normal = self.boundary_faces()
+        pts, w, face = face_points(corners, area, order)
+        return SurfacePoints(pts, w, normal[face], face, corners.mean(axis=1))
+
+    def node_points(self, q) -> np.ndarray:
+        """Each frame's origin t (n, 3) at state q."""
+        return np.asarray(q, dtype=float).reshape(self.n_nodes, 12)[:, 9:12].copy()
+
+    def point_sample_refusal(self, labels) -> str:
+        """Internal variables need point samples with the full volumetric term: refused with elastons
+        (a region's moments, not points) or F-bar / B-bar labels."""
+        if self.elaston:
+            return ('plasticity needs point samples; give the plastic label(s) elastic behaviour, or use '
+                    '[elasticity] quadrature = "midpoint" or "gauss-legendre" instead of elastons')
+        reduced = sorted(int(lab) for lab in labels if self.volumetric.get(int(lab), False))
+        if reduced:
+            return (f"plasticity needs the full volumetric term, but label(s) {reduced} use F-bar; [elasticity] "
+                    'volumetric = "full" (or a Poisson ratio below 0.4 under "auto")')
+        return ""
 
     # -- description -------------------------------------------------------------
     supported_by_contact = False  # no obstacles: static scenes must be held by fixed regions

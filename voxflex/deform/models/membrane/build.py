@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ....errors import InputError
-
+from ..kinds import NodeEstimate
 
 __all__ = ["build", "estimate", "footprint", "membrane_mesh"]
 
@@ -77,7 +77,7 @@ def footprint(scene):
 
 
 def estimate(scene, size, material_class: str):
-    """``(nodes, dofs, model_bytes, seconds)``: the mesh's vertices (made or read: cheap), 3 DOF each."""
+    """:class:`~voxflex.deform.models.kinds.NodeEstimate```: the mesh's vertices (made or read: cheap), 3 DOF each."""
     points, triangles = membrane_mesh(scene)
     clamped = 0
     if scene.membrane.rim == "clamped":
@@ -86,4 +86,5 @@ def estimate(scene, size, material_class: str):
         clamped = len(open_rim(triangles))
     nodes = len(points) - clamped  # clamped rim vertices are not DOFs of the model
     dofs = 3 * nodes
-    return nodes, dofs, BYTES_PER_DOF * dofs, int(scene.solver.steps) * 5 * SECONDS_PER_DOF_ITERATION * dofs
+    seconds = int(scene.solver.steps) * 5 * SECONDS_PER_DOF_ITERATION * dofs
+    return NodeEstimate(nodes, dofs, BYTES_PER_DOF * dofs, seconds, voxels=len(triangles), surface=len(points))

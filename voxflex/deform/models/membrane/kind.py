@@ -2,13 +2,37 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+from ...._checks import number, string
 from ....errors import InputError
+from ....rasterize.membrane_mesh import MEMBRANE_SHAPES
 from ..kinds import NodeKind
 
-__all__ = ["MEMBRANE", "RIMS", "check_scene"]
+__all__ = ["MEMBRANE", "RIMS", "MembraneSpec", "check_scene"]
 
 RIMS = ("free", "clamped")
 """``[membrane] rim``: leave the open rim to ``[[fixed]]`` regions, or hold every rim vertex."""
+
+
+@dataclass(frozen=True)
+class MembraneSpec:
+    """``[membrane]``: the sheet of ``[nodes] kind = "membrane"`` (:mod:`voxflex.deform.models.membrane.model`).
+
+    ``thickness`` h (m, required); ``rim``: ``"clamped"`` holds every vertex of the
+    mesh's open rim (the edges only one triangle uses) in place, ``"free"`` (the
+    default) leaves it to ``[[fixed]]`` regions.
+    """
+
+    thickness: float | None = None
+    rim: str = "free"
+
+    def __post_init__(self):
+        t = "membrane"
+        if self.thickness is None:
+            raise InputError("[membrane] needs thickness (m), e.g. thickness = 0.001")
+        object.__setattr__(self, "thickness", number(t, "thickness", self.thickness, positive=True))
+        string(t, "rim", self.rim, RIMS)
 
 
 def check_scene(scene) -> None:
@@ -62,8 +86,8 @@ MEMBRANE = NodeKind(
     estimator="voxflex.deform.models.membrane.build:estimate",
     image_builder="voxflex.deform.models.membrane.build:footprint",
     takes=frozenset({"force-loads", "dynamics"}),
-    shapes={"disk": 1, "rectangle": 2},
-    tables=("membrane",),
+    shapes=MEMBRANE_SHAPES,
+    tables={"membrane": MembraneSpec},
     load_kinds=("pressure",),
     check_scene="voxflex.deform.models.membrane.kind:check_scene",
 )

@@ -82,11 +82,11 @@ import scipy.sparse as sp
 from ....errors import InputError
 from ....rasterize.membrane_mesh import FLAT_TOL, _consistently_oriented, _sample_triangles, footprint_image, open_rim
 from ...chain.membrane import StVKMembrane, TriangleDeformationMapping
-from ..protocol import OnePass
+from ..protocol import OnePass, Part
+from .kind import MEMBRANE
 
 __all__ = ["MembraneModel", "VertexMap"]
 
-MEMBRANE_NODE_KIND = "membrane"
 """``[nodes] kind`` of the membrane model."""
 
 
@@ -215,9 +215,9 @@ class MembraneModel(OnePass):
     fraction : float, the load factor of the pressure (static runs; 1 at construction when not ramped)
     """
 
-    node_kind = MEMBRANE_NODE_KIND
+    kind = MEMBRANE
+    node_kind = MEMBRANE.name
     dofs_per_node = 3
-    dof_grid = None
     supported_by_contact = False
 
     def __init__(self, points, triangles, material, *, density: float | None = None, pressure: float = 0.0,
@@ -451,10 +451,14 @@ class MembraneModel(OnePass):
                           model=self)
         return np.array(self.points), self.triangles.copy(), ident
 
-    def boundary_faces(self):
+    def load_surface(self, order: int = 2):
         """Refused: a membrane has no voxel faces (traction loads need them)."""
         raise InputError('a membrane has no voxel faces for traction loads; push it with [[load]] kind = "pressure" '
                          'or kind = "force" on a region')
+
+    def node_points(self, q):
+        """None: the vertices are the surface a render draws."""
+        return None
 
     def volume_points(self):
         """The vertices with their share of the sheet's volume (lumped area times thickness, m^3)."""
@@ -477,10 +481,9 @@ class MembraneModel(OnePass):
                 "label": np.full(m, self.label), "cell": np.arange(m), "n_cells": m, "cell_kind": "samples",
                 "materials": dict(self.materials), "triangle_cell": np.arange(m)}
 
-    def components(self):
+    def parts(self) -> list:
         """The connected parts of the mesh (triangles sharing vertices) that need a support: those the
-        clamp does not hold (fewer than 3 non-collinear clamped vertices).  (Component image over the
-        footprint (nx, ny, nz) int, 0 outside; k; node indices (free vertices) of each part.)"""
+        clamp does not hold (fewer than 3 non-collinear clamped vertices), each moved by its free vertices."""
         from scipy.sparse.csgraph import connected_components
 
         n, T = self._n_all, self.triangles
@@ -500,7 +503,7 @@ class MembraneModel(OnePass):
         sel = remap[lab[T[tri, 0]]] >= 0
         comps[ijk[sel, 0], ijk[sel, 1], ijk[sel, 2]] = remap[lab[T[tri[sel], 0]]] + 1
         nodes_of = [self._index_of[np.flatnonzero((lab == c) & used)] for c in parts]
-        return comps, len(parts), [nd[nd >= 0] for nd in nodes_of]
+        return Part.of_components(image, comps, [nd[nd >= 0] for nd in nodes_of], cell="voxels of the footprint")
 
     def _clamped_rigidly(self, vertices) -> bool:
         """Whether clamped vertices hold a part against every rigid motion (3 of them not on one line)."""

@@ -49,7 +49,7 @@ Example
 -------
 >>> import numpy as np
 >>> from voxflex.image.label_image import LabelImage
->>> from voxflex.deform.materials.material import material
+>>> from voxflex.deform.materials.constitutive import material
 >>> from voxflex.voronoi.shape_functions import shepard
 >>> frames = np.array([[0.5, 1.0, 1.0], [3.5, 1.0, 1.0]])
 >>> model = RigidFrameModel.from_image(LabelImage(np.ones((4, 2, 2))), frames, lambda p: shepard(p, frames),
@@ -71,6 +71,7 @@ import scipy.sparse as sp
 
 from ....errors import InputError
 from ...chain.nodes import skew
+from .kind import RIGID
 
 __all__ = ["RigidFrameModel", "RigidPointMap", "rotation_derivatives", "wrap_rotation_vectors", "RIGID_TOL"]
 
@@ -222,9 +223,9 @@ class RigidFrameModel:
     origins : (n, 3) float, the reference points c_a at rest (m)
     """
 
-    node_kind = "rigid"
+    kind = RIGID
+    node_kind = RIGID.name
     dofs_per_node = 6
-    dof_grid = None
     supported_by_contact = False
 
     def __init__(self, inner, *, densities: Mapping[int, float] | None = None):
@@ -389,14 +390,18 @@ class RigidFrameModel:
         V, F, pmap = self.inner.boundary_surface()
         return V, F, RigidPointMap(pmap, self)
 
-    def boundary_faces(self):
-        return self.inner.boundary_faces()
+    def load_surface(self, order: int = 2):
+        return self.inner.load_surface(order)
+
+    def node_points(self, q) -> np.ndarray:
+        """Each frame's mass centre p (n, 3) at state q (the first three numbers of its state)."""
+        return np.asarray(q, dtype=float).reshape(self.n_nodes, 6)[:, :3].copy()
 
     def volume_points(self):
         return self.inner.volume_points()
 
-    def components(self):
-        return self.inner.components()
+    def parts(self) -> list:
+        return self.inner.parts()
 
     def sample_fields(self, q) -> dict:
         return self.inner.sample_fields(self.affine_state(q))

@@ -1,6 +1,7 @@
 """Build the full-resolution voxel model from a scene, and estimate what it will need before building it."""
 
 from __future__ import annotations
+from ..kinds import NodeEstimate
 
 __all__ = ["build", "estimate", "BYTES_PER_DOF", "SECONDS_PER_DOF_ITERATION", "ITERATIONS_PER_STEP", "CHUNK_BYTES"]
 
@@ -25,7 +26,7 @@ def build(scene, image, materials, *, cache: bool = True):
 
 
 def estimate(scene, size, material_class: str):
-    """``(nodes, dofs, model_bytes, seconds)`` from the object's ``size`` = (voxels, corner nodes, surface
+    """:class:`~voxflex.deform.models.kinds.NodeEstimate``` from the object's ``size`` = (voxels, corner nodes, surface
     nodes, voxel size) and the costliest material class (see :mod:`voxflex.resources`)."""
     voxels, corner_nodes, _, _ = size
     dofs = 3 * corner_nodes
@@ -33,4 +34,4 @@ def estimate(scene, size, material_class: str):
     model = BYTES_PER_DOF[material_class] * dofs + chunk
     seconds = int(scene.solver.steps) * ITERATIONS_PER_STEP[material_class] \
         * SECONDS_PER_DOF_ITERATION[material_class] * dofs
-    return corner_nodes, dofs, model, seconds
+    return NodeEstimate(corner_nodes, dofs, model, seconds)

@@ -60,7 +60,7 @@ tests pin; scenes default to the remedies (``[elasticity] volumetric =
 
 >>> import numpy as np
 >>> from voxflex.image.label_image import LabelImage
->>> from voxflex.deform.materials.material import material
+>>> from voxflex.deform.materials.constitutive import material
 >>> image = LabelImage(np.ones((4, 1, 1)))
 >>> model = VoxelModel.from_image(image, {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
 >>> model.n_nodes, model.n_elements
@@ -77,17 +77,18 @@ import scipy.sparse as sp
 from ...._linalg import vdot
 from ....errors import InputError, check_choice
 from ....image.grid import TrilinearGrid, trilinear_weights
-from ....image.surface import boundary_quads, triangulate
+from ....image.surface import boundary_quads, face_points, triangulate
 from ....sampling.quadrature import RULES, unit_cube_rule
 from ....voronoi.shape_functions import ShapeValues
 from ....voronoi.trilinear import trilinear_values
 from ...chain.mappings import PointMapping
 from ...chain.nodes import Points
 from ...materials.fbar import VOLUMETRIC, _energy_density, nearly_incompressible
-from ...materials.material import project_psd
+from ...materials.constitutive import project_psd
+from ..protocol import Part, SurfacePoints
 from . import _kernels as kern
 from .fbar import _b_matrices, _deviatoric, fbar_evaluate
-from .kind import HOURGLASS
+from .kind import HOURGLASS, VOXEL
 
 __all__ = ["VoxelModel", "tangent_is_constant"]
 
@@ -140,11 +141,12 @@ class VoxelModel:
         ``"stiffness"`` or ``"none"`` (only acts with mid-point quadrature).
     """
 
-    node_kind = "voxel"
+    kind = VOXEL
+    node_kind = VOXEL.name
     dofs_per_node = 3
 
     @property
-    def dof_grid(self) -> TrilinearGrid:
+    def dof_grid(self) -> TrilinearGrid:  # OnVoxelGrid
         """The voxel grid whose corners are the nodes (geometric multigrid uses it)."""
         return self.grid
 
@@ -822,16 +824,40 @@ class VoxelModel:
         T = np.asarray(transform, dtype=float)
         return self.rest @ T[:, :3].T + T[:, 3]
 
-    def components(self):
-        """Material components by face connectivity (voxels sharing only an edge or a corner
-        form a hinge): (component image, count, the nodes of each component)."""
+    def parts(self) -> list:
+        """Material components by face connectivity (voxels sharing only an edge or a corner form a
+        hinge), each with the corner nodes of its voxels (:class:`~voxflex.deform.models.protocol.Part`)."""
         comps, n = self.image.connected_components(connectivity="face")
         ijk = self.grid.element_ijk
         of_element = comps[ijk[:, 0], ijk[:, 1], ijk[:, 2]] - 1
         order = np.argsort(of_element, kind="stable")
         bounds = np.searchsorted(of_element[order], np.arange(n + 1))
         nodes = [np.unique(self.grid.element_nodes[order[bounds[c]:bounds[c + 1]]]) for c in range(n)]
-        return comps, n, nodes
+        return Part.of_components(self.image, comps, nodes)
+
+    def load_surface(self, order: int = 2) -> SurfacePoints:
+        """``order`` x ``order`` Gauss points of every voxel face exposed to empty space."""
+        corners, area, normal = self.boundary_faces()
+        pts, w, face = face_points(corners, area, order)
+        return SurfacePoints(pts, w, normal[face], face, corners.mean(axis=1))
+
+    def node_points(self, q):
+        """None: voxel corners are not drawn (the surface shows them)."""
+        return None
+
+    def point_sample_refusal(self, labels) -> str:
+        """Plasticity (internal variables per Gauss point) is evaluated per label in one call: refused on a
+        label with F-bar (its map is not per point) or of more than :data:`CHUNK_ELEMENTS` voxels."""
+        reduced = sorted(int(lab) for lab in labels if self.volumetric.get(int(lab), False))
+        if reduced:
+            return (f"plasticity needs the full volumetric term, but label(s) {reduced} use F-bar; [elasticity] "
+                    'volumetric = "full" (or a Poisson ratio below 0.4 under "auto")')
+        for lab in labels:
+            per = int(np.count_nonzero(self.element_label == lab))
+            if per > CHUNK_ELEMENTS:
+                return (f"plasticity on a voxel label of more than {CHUNK_ELEMENTS} voxels is not supported (label "
+                        f"{lab} has {per}); use coarser voxels or affine frames")
+        return ""
 
     supported_by_contact = False  # no obstacles: static scenes must be held by fixed regions
 

@@ -38,7 +38,7 @@ the scene's own voxel model becomes the first coarser row.
 Example
 -------
 >>> import voxflex as vf
->>> from voxflex.tradeoff import tradeoff
+>>> from voxflex.sweep import tradeoff
 >>> table = tradeoff("examples/cantilever.toml", frames=(5, 10), samples=(100,),
 ...                  quadratures=("midpoint",), progress=False)       # doctest: +SKIP
 >>> print(table.format())                                             # doctest: +SKIP
@@ -62,6 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .deform.models.kinds import default_kind, node_kind, reference_kind
 from .errors import ConvergenceError, InputError, VoxflexError, check_choice
 from .scene import OutputSpec, Scene
 
@@ -89,9 +90,9 @@ _SHORT_RUN = 1.0  # seconds: shorter runs are timed 3 times and the median repor
 class Configuration:
     """One model of the sweep.
 
-    ``kind`` is ``"voxel"`` (the voxel model on the image of grid ``level``:
-    0 the scene's image, 1 every voxel split in 2x2x2, -1 / -2 ... 2x / 4x
-    coarser) or ``"affine"`` (frames on the scene's image).
+    ``kind`` names a :class:`~voxflex.deform.models.kinds.NodeKind`: the reference kind (the voxel
+    model on the image of grid ``level``: 0 the scene's image, 1 every voxel split in 2x2x2, -1 / -2
+    ... 2x / 4x coarser) or a reduced kind (frames on the scene's image).
     """
 
     kind: str
@@ -103,16 +104,17 @@ class Configuration:
     samples: int | None = None
 
     def label(self) -> str:
-        if self.kind == "voxel":
-            return f"voxel level {self.level:+d}"
+        kind = node_kind(self.kind)
+        if kind.reference:
+            return f"{kind.name} level {self.level:+d}"
         extra = f" {self.samples} samples" if self.samples is not None else ""
         return f"{self.count} frames {self.shape_function} {self.quadrature}{extra}"
 
     def scene(self, scene: Scene) -> Scene:
         """``scene`` set up for this configuration (no output file: a sweep writes no result)."""
         nodes, elasticity = scene.nodes, scene.elasticity
-        if self.kind == "voxel":
-            nodes = dataclasses.replace(nodes, kind="voxel", shape_function=None)
+        if node_kind(self.kind).reference:
+            nodes = dataclasses.replace(nodes, kind=self.kind, shape_function=None, count=None, positions=None)
             elasticity = dataclasses.replace(elasticity, quadrature=self.quadrature)
         else:
             nodes = dataclasses.replace(nodes, kind=self.kind, count=self.count, shape_function=self.shape_function)
@@ -242,8 +244,8 @@ class TradeoffTable:
             mark = "*" if r["pareto"] else " "
             if r["role"] == "reference":
                 name = f"reference voxel h={r['voxel_size']:.4g}"
-            elif r["kind"] == "voxel":
-                name = f"voxel h={r['voxel_size']:.4g}"
+            elif node_kind(r["kind"]).reference:
+                name = f"{r['kind']} h={r['voxel_size']:.4g}"
             else:
                 name = (f"{r['count']} {r['shape_function']} {r['quadrature']}"
                         + (f" {r['samples']}" if r["quadrature"] != "gauss-legendre" else " (per voxel)"))
@@ -275,10 +277,11 @@ class TradeoffTable:
 
 
 def _describe_row(r: dict) -> str:
-    if r["kind"] == "voxel":
-        what = f"voxel model h={r['voxel_size']:.4g} ({r['dofs']} DOF)"
+    kind = node_kind(r["kind"])
+    if kind.reference:
+        what = f"{kind.name} model h={r['voxel_size']:.4g} ({r['dofs']} DOF)"
     else:
-        what = (f"{r['count']} affine frames, {r['shape_function']}, {r['quadrature']}"
+        what = (f"{kind.count(r['count'])}, {r['shape_function']}, {r['quadrature']}"
                 + (f", {r['samples']} samples" if r["quadrature"] != "gauss-legendre" else "")
                 + f" ({r['dofs']} DOF)")
     return f"{what}: {r['total_seconds']:.3g} s, {r['probe_error']:.3g} probe error"
@@ -421,15 +424,16 @@ def _tradeoff_impl(scene, frames, samples, shape_functions, quadratures, referen
 
     base = build_image(scene)
     ref_level = 1 if reference == "finer" else 0
-    voxel_q = scene.elasticity.quadrature if scene.nodes.kind == "voxel" else "gauss-legendre"
-    configs = [Configuration("voxel", role="reference", level=ref_level, quadrature=voxel_q)]
-    configs += [Configuration("voxel", role="refinement", level=ref_level - i, quadrature=voxel_q)
+    ref_kind, swept = reference_kind(), default_kind()
+    voxel_q = scene.elasticity.quadrature if scene.nodes.kind == ref_kind.name else ref_kind.default_quadrature
+    configs = [Configuration(ref_kind.name, role="reference", level=ref_level, quadrature=voxel_q)]
+    configs += [Configuration(ref_kind.name, role="refinement", level=ref_level - i, quadrature=voxel_q)
                 for i in range(1, voxel_levels + 1)]
     for sf in shape_functions:
         for q in quadratures:
             for n in frames:
                 for m in (samples if q in ("midpoint", "elaston") else (None,)):
-                    configs.append(Configuration("affine", count=n, shape_function=sf, quadrature=q, samples=m))
+                    configs.append(Configuration(swept.name, count=n, shape_function=sf, quadrature=q, samples=m))
     images = {0: base}
     for c in configs:
         if c.level not in images:
@@ -456,14 +460,15 @@ def _tradeoff_impl(scene, frames, samples, shape_functions, quadratures, referen
         if "error" in run:
             skipped.append((c.label(), run["error"]))
             continue
-        if c.kind != "voxel":  # a sampler makes at most one mid-point sample per voxel: requests may coincide
+        reference = node_kind(c.kind).reference
+        if not reference:  # a sampler makes at most one mid-point sample per voxel: requests may coincide
             key = (c.count, c.shape_function, c.quadrature, run["samples"])
             if key in seen:
                 skipped.append((c.label(), f"the sampler made {run['samples']} samples, as for {seen[key]} "
                                            "(the same model; shown once)"))
                 continue
             seen[key] = f"{c.samples} requested"
-        same_image = ref_level == 0 and (c.kind == "affine" or c.level == 0)
+        same_image = ref_level == 0 and (not reference or c.level == 0)
         rows.append(_row(c, run, ref_run, same_image=same_image, scene=scene))
     refine = next((r for r in rows if r["role"] == "refinement" and r["voxel_size"] == _level_size(base, ref_level - 1)),
                   None)
@@ -665,11 +670,12 @@ def _row(config, run, ref, *, same_image: bool, scene) -> dict:
         p = run["probes"][scene.probes[0].name]
         u = p[-1] - p[0]
     is_ref = config.role == "reference"
+    kind = node_kind(config.kind)
     return {
         "role": config.role,
         "kind": config.kind,
-        "count": run["dofs"] // 3 if config.kind == "voxel" else config.count,
-        "shape_function": "trilinear" if config.kind == "voxel" else config.shape_function,
+        "count": run["dofs"] // kind.dofs_per_node if kind.reference else config.count,
+        "shape_function": kind.default_shape_function if kind.reference else config.shape_function,
         "quadrature": config.quadrature,
         "samples": run["samples"],
         "voxel_size": run["voxel_size"],
@@ -766,7 +772,8 @@ def _plot(table: TradeoffTable, path: Path) -> Path:
     for r in table.rows:
         if r["role"] == "reference":
             continue
-        key = "voxel model (coarser grids)" if r["kind"] == "voxel" else f"{r['shape_function']}, {r['quadrature']}"
+        key = (f"{r['kind']} model (coarser grids)" if node_kind(r["kind"]).reference
+               else f"{r['shape_function']}, {r['quadrature']}")
         groups.setdefault(key, []).append(r)
     markers = iter("so^vD<>phX*")
     errs = [table.ranked_error(r) for r in table.rows if math.isfinite(table.ranked_error(r))]
@@ -778,7 +785,7 @@ def _plot(table: TradeoffTable, path: Path) -> Path:
         ok = np.isfinite(e) & (e > 0)
         ax.scatter(t[ok], e[ok], marker=next(markers, "o"), s=36, label=key, zorder=3)
         for r in rows:
-            if r["kind"] == "affine" and math.isfinite(r[metric]) and r[metric] > 0:
+            if not node_kind(r["kind"]).reference and math.isfinite(r[metric]) and r[metric] > 0:
                 ax.annotate(str(r["count"]), (r["total_seconds"], r[metric]), textcoords="offset points",
                             xytext=(4, 3), fontsize=7, color="0.3")
     ref = table.rows[0]
