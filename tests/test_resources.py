@@ -168,3 +168,19 @@ def test_bad_arguments():
     with pytest.raises(InputError, match="available"):
         res.check(_box(), available=-5)
     assert math.isfinite(res.check(_box(), available=8 * GiB).seconds)
+
+
+def test_a_membrane_is_estimated_from_its_mesh():
+    """The estimate asks the scene's node kind: a membrane's DOFs are its free vertices (3 each), not 20 frames
+    of a sphere as before the node kinds had estimators (120 DOF estimated for a 507-DOF model)."""
+    from pathlib import Path
+
+    import voxflex as vf
+    from voxflex.resources import estimate
+    from voxflex.scene import Scene
+
+    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "membrane_pressure.toml")
+    est = estimate(scene)
+    model = vf.model(scene)
+    assert est.node_kind == "membrane" and est.dofs == model.rest.size == 3 * model.n_nodes
+    assert est.nodes == model.n_nodes and "membrane vertices" in est.summary()
