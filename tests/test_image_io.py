@@ -446,7 +446,7 @@ def test_mhd_writes_header_and_data_file_only(tmp_path):
 
 def test_save_needs_a_label_image(tmp_path):
     with pytest.raises(InputError, match="LabelImage"):
-        image_io.save_image(np.zeros((2, 2, 2)), tmp_path / "a.npy")
+        save_image(np.zeros((2, 2, 2)), tmp_path / "a.npy")
 
 
 @pytest.mark.parametrize("ext", [e for e in SUPPORTED_EXTENSIONS if e not in NO_DIRECTION])

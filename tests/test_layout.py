@@ -155,3 +155,33 @@ def test_every_package_is_installed():
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     found = {_module_name(p.parent) for p in PACKAGE.rglob("__init__.py") if "__pycache__" not in p.parts}
     assert found - listed == set(), f"packages missing from pyproject.toml: {sorted(found - listed)}"
+
+
+def test_no_import_cycles():
+    """Modules import each other without cycles (also through imports inside functions): e.g. image.io no
+    longer imports image.label_image, nor the multigrid the linear solvers."""
+    graph = {}
+    for path in _sources():
+        if path.name == "__init__.py":
+            continue
+        me = _module_name(path)
+        graph[me] = {m for _, m in _imports(path) if m != me and not m.endswith(".__init__")}
+    modules = set(graph)
+    graph = {m: {d for d in deps if d in modules} for m, deps in graph.items()}
+    state, stack, cycles = {}, [], []
+
+    def visit(m):
+        state[m] = 1
+        stack.append(m)
+        for d in sorted(graph[m]):
+            if state.get(d) == 1:
+                cycles.append(stack[stack.index(d):] + [d])
+            elif d not in state:
+                visit(d)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+    assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)

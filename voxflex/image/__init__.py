@@ -1,6 +1,6 @@
 """Label images and their files."""
 
-from .io import SUPPORTED_EXTENSIONS, image_format, load_image, save_image
-from .label_image import CONNECTIVITIES, LabelImage
+from .io import SUPPORTED_EXTENSIONS, image_format
+from .label_image import CONNECTIVITIES, LabelImage, load_image, save_image
 
 __all__ = ["LabelImage", "CONNECTIVITIES", "load_image", "save_image", "image_format", "SUPPORTED_EXTENSIONS"]

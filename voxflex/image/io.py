@@ -74,7 +74,6 @@ import numpy as np
 
 from .._atomic import atomic_path
 from ..errors import InputError, did_you_mean
-from .label_image import LabelImage, _as_labels
 
 
 def _require(module: str, what: str):
@@ -139,8 +138,8 @@ def image_format(path) -> str:
     )
 
 
-def load_image(path, *, spacing=None) -> LabelImage:
-    """Read a label image; the extension picks the format (see the module notes).
+def read_image(path, *, spacing=None) -> dict:
+    """Read a label image file into the keyword arguments of a LabelImage; the extension picks the format.
 
     Parameters
     ----------
@@ -152,9 +151,10 @@ def load_image(path, *, spacing=None) -> LabelImage:
 
     Returns
     -------
-    LabelImage
-        Labels as uint8/uint16, spacing and origin in metres (origin = corner of
-        voxel 0), direction in voxflex's LPS world frame.
+    dict
+        ``labels`` (uint8/uint16), ``spacing`` and ``origin`` in metres (origin = corner of voxel 0),
+        ``direction`` in voxflex's LPS world frame, ``occupancy`` (or None): what
+        :meth:`voxflex.image.label_image.LabelImage.load` builds the image from.
 
     Raises
     ------
@@ -243,8 +243,8 @@ def looks_like_image(path) -> bool:
     return False  # pragma: no cover - every format is listed above
 
 
-def save_image(image: LabelImage, path) -> None:
-    """Write ``image``; the extension picks the format (see the module notes).
+def write_image(image, path) -> None:
+    """Write ``image`` (a LabelImage); the extension picks the format (see the module notes).
 
     An existing file is replaced as a whole (saving to a result ``.h5`` keeps
     only ``/image``).  The write is atomic: on failure no partial file is left and an existing
@@ -256,11 +256,6 @@ def save_image(image: LabelImage, path) -> None:
         Unknown extension, a rotated image saved to a format without direction
         (TIFF), a missing or unwritable folder.
     """
-    if not isinstance(image, LabelImage):
-        raise InputError(
-            f"save_image needs a LabelImage, got {type(image).__name__}; "
-            "build one with LabelImage(labels, spacing, origin)"
-        )
     path = Path(path)
     fmt = image_format(path)
     if fmt not in DIRECTION_FORMATS and not _is_identity(image.direction):
@@ -291,6 +286,30 @@ def save_image(image: LabelImage, path) -> None:
 
 
 # -- shared helpers -----------------------------------------------------------
+def _as_labels(labels) -> np.ndarray:
+    arr = np.asarray(labels)
+    if arr.ndim != 3:
+        raise InputError(f"label image must be 3-D, got shape {arr.shape}; pass a (nx, ny, nz) array")
+    if arr.size == 0:
+        raise InputError(f"label image is empty (shape {arr.shape}); give at least one voxel along each axis")
+    if arr.dtype == bool:
+        arr = arr.astype(np.uint8)
+    elif not np.issubdtype(arr.dtype, np.integer):
+        if not np.issubdtype(arr.dtype, np.floating):
+            raise InputError(f"label data must be integer, got dtype {arr.dtype}; convert the image to integer labels")
+        if not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
+            raise InputError(
+                "label data is not integer (fractional or NaN values); segment the image into integer labels first"
+            )
+    if arr.size and arr.min() < 0:
+        raise InputError(f"labels must be >= 0 (0 = empty), found {arr.min()}; relabel the image")
+    top = int(arr.max()) if arr.size else 0
+    dtype = np.uint8 if top <= 255 else np.uint16
+    if top > 65535:
+        raise InputError(f"labels must be <= 65535, found {top}; relabel the image")
+    return np.ascontiguousarray(arr, dtype=dtype)
+
+
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split()) or type(exc).__name__
     return text if len(text) <= 200 else text[:197] + "..."
@@ -362,14 +381,14 @@ def _frame_from_centre_affine(matrix, centre, path) -> tuple[np.ndarray, np.ndar
     return spacing, origin, direction
 
 
-def _centre_affine(image: LabelImage) -> tuple[np.ndarray, np.ndarray]:
+def _centre_affine(image) -> tuple[np.ndarray, np.ndarray]:
     """Axis vectors (columns, 3x3) and the centre of voxel 0 of ``image``."""
     matrix = image.direction * image.spacing
     return matrix, image.origin + matrix @ np.full(3, 0.5)
 
 
 def _build(path, fmt, given, *, labels, spacing, origin=None, direction=None, occupancy=None,
-           missing=None) -> LabelImage:  # fmt: skip
+           missing=None) -> dict:  # fmt: skip
     labels = _spatial_array(labels, path)
     if spacing is None:
         if given is not None:
@@ -407,10 +426,7 @@ def _build(path, fmt, given, *, labels, spacing, origin=None, direction=None, oc
         raise InputError(
             f"'{path.name}' has a direction of shape {direction.shape}, expected 3x3; fix the file's header"
         )
-    try:
-        return LabelImage(labels, spacing=spacing, origin=origin, direction=direction, occupancy=occupancy)
-    except InputError as exc:
-        raise InputError(f"'{path.name}': {exc}") from None
+    return {"labels": labels, "spacing": spacing, "origin": origin, "direction": direction, "occupancy": occupancy}
 
 
 # -- NumPy ----------------------------------------------------------------------

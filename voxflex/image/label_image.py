@@ -16,40 +16,18 @@ through :meth:`LabelImage.load` and :meth:`LabelImage.save`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError, check_choice
+from .io import _as_labels, read_image, write_image
 
 LABEL_DTYPES = (np.uint8, np.uint16)
 
 #: Named neighbourhoods for connected components: voxels that share a face
 #: (6 neighbours), a face or an edge (18), or a face, edge or corner (26).
 CONNECTIVITIES = {"face": 1, "edge": 2, "vertex": 3}
-
-
-def _as_labels(labels) -> np.ndarray:
-    arr = np.asarray(labels)
-    if arr.ndim != 3:
-        raise InputError(f"label image must be 3-D, got shape {arr.shape}; pass a (nx, ny, nz) array")
-    if arr.size == 0:
-        raise InputError(f"label image is empty (shape {arr.shape}); give at least one voxel along each axis")
-    if arr.dtype == bool:
-        arr = arr.astype(np.uint8)
-    elif not np.issubdtype(arr.dtype, np.integer):
-        if not np.issubdtype(arr.dtype, np.floating):
-            raise InputError(f"label data must be integer, got dtype {arr.dtype}; convert the image to integer labels")
-        if not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
-            raise InputError(
-                "label data is not integer (fractional or NaN values); segment the image into integer labels first"
-            )
-    if arr.size and arr.min() < 0:
-        raise InputError(f"labels must be >= 0 (0 = empty), found {arr.min()}; relabel the image")
-    top = int(arr.max()) if arr.size else 0
-    dtype = np.uint8 if top <= 255 else np.uint16
-    if top > 65535:
-        raise InputError(f"labels must be <= 65535, found {top}; relabel the image")
-    return np.ascontiguousarray(arr, dtype=dtype)
 
 
 def _as_vector(name, value, positive=False) -> np.ndarray:
@@ -346,16 +324,16 @@ class LabelImage:
     # -- files ----------------------------------------------------------------
     @classmethod
     def load(cls, path, *, spacing=None) -> "LabelImage":
-        """Read an image file; the extension picks the format (see :mod:`voxflex.image.io`)."""
-        from .io import load_image
-
-        return load_image(path, spacing=spacing)
+        """Read an image file; the extension picks the format (:func:`load_image`)."""
+        fields = read_image(path, spacing=spacing)
+        try:
+            return cls(**fields)
+        except InputError as exc:
+            raise InputError(f"'{Path(path).name}': {exc}") from None
 
     def save(self, path) -> None:
-        """Write the image; the extension picks the format (see :mod:`voxflex.image.io`)."""
-        from .io import save_image
-
-        save_image(self, path)
+        """Write the image; the extension picks the format (:func:`save_image`)."""
+        write_image(self, path)
 
 
 def _human_bytes(n: int) -> str:
@@ -364,3 +342,51 @@ def _human_bytes(n: int) -> str:
             return f"{n} B" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1024
     return f"{n} B"  # pragma: no cover
+
+
+def load_image(path, *, spacing=None) -> LabelImage:
+    """Read a label image; the extension picks the format (see :mod:`voxflex.image.io`).
+
+    Parameters
+    ----------
+    path : str or Path
+        The image file.
+    spacing : (3,) float, metres, optional
+        Voxel size for files that record none (a bare ``.npy``, a plain TIFF).
+        Files that record a voxel size keep it; giving a different one is an error.
+
+    Returns
+    -------
+    LabelImage
+        Labels as uint8/uint16, spacing and origin in metres (origin = corner of
+        voxel 0), direction in voxflex's LPS world frame.
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable or corrupt file, a file holding no image, fractional
+        labels, several components per voxel, a sheared affine, an invalid or
+        missing voxel size.
+    """
+    return LabelImage.load(path, spacing=spacing)
+
+
+def save_image(image: LabelImage, path) -> None:
+    """Write ``image``; the extension picks the format (see :mod:`voxflex.image.io`).
+
+    An existing file is replaced as a whole (saving to a result ``.h5`` keeps
+    only ``/image``).  The write is atomic: on failure no partial file is left and an existing
+    file at ``path`` is untouched.
+
+    Raises
+    ------
+    InputError
+        Not a LabelImage, an unknown extension, a rotated image saved to a format without direction
+        (TIFF), a missing or unwritable folder.
+    """
+    if not isinstance(image, LabelImage):
+        raise InputError(
+            f"save_image needs a LabelImage, got {type(image).__name__}; "
+            "build one with LabelImage(labels, spacing, origin)"
+        )
+    write_image(image, path)
