@@ -7,7 +7,15 @@ import pytest
 
 import voxflex as vf
 from voxflex import cache
-from voxflex.scene import FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene
+from voxflex.scene import (
+    FixedSpec,
+    LoadSpec,
+    MaterialSpec,
+    NodesSpec,
+    ObjectSpec,
+    ProbeSpec,
+    Scene,
+)
 
 
 def _scene(seed=0):

@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
+import paths
 import pytest
+from golden import LINEAR_CANTILEVER_TIP, RELATIVE
 
 from voxflex.cli import main
 from voxflex.result import Result
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = paths.ROOT / "examples"
 
 
 def _tip_displacement(stdout: str) -> list[float]:
@@ -25,9 +26,9 @@ def test_cantilever_example_end_to_end(tmp_path, capsys):
     stdout = capsys.readouterr().out
     assert "model: 81 nodes, 243 DOF, 32 voxels" in stdout and "steps: 1" in stdout
     # printed with 6 significant digits; the 8x2x2 reference of scikit-fem / warp.fem / sfepy
-    assert _tip_displacement(stdout)[2] == pytest.approx(-0.339310, abs=1e-5)
+    assert _tip_displacement(stdout)[2] == pytest.approx(LINEAR_CANTILEVER_TIP[8], abs=1e-5)
     # the file holds the full-precision value, 1e-5 relative
-    assert Result.load(out).probe_displacements()["tip"][2] == pytest.approx(-0.339310, rel=1e-5)
+    assert Result.load(out).probe_displacements()["tip"][2] == pytest.approx(LINEAR_CANTILEVER_TIP[8], rel=RELATIVE)
     assert (tmp_path / "vtk" / "result.pvd").exists() and (tmp_path / "vtk" / "result_0001.vtp").exists()
 
 

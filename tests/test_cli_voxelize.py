@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import paths
 import pytest
 
 from voxflex import LabelImage
@@ -75,9 +76,8 @@ def test_help_teaches(capsys):
 
 
 def test_bundled_bar_and_phantom(tmp_path, capsys):
-    from pathlib import Path
 
-    data = Path(__file__).resolve().parents[1] / "data"
+    data = paths.ROOT / "data"
     out = tmp_path / "bar.npz"
     assert main(["voxelize", str(data / "bar.stl"), "-o", str(out), "--voxel-size", "0.0005", "--occupancy"]) == 0
     image = LabelImage.load(out)

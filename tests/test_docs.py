@@ -11,11 +11,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import re
-from pathlib import Path
 
+import paths
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = paths.ROOT
 DOCS = ROOT / "docs"
 PAGES = ("scene.md", "results.md", "api.md", "cli.md", "conventions.md", "robustness.md")
 

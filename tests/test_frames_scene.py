@@ -12,11 +12,21 @@ import warnings
 from dataclasses import replace
 
 import numpy as np
+import paths
 import pytest
 
 import voxflex as vf
 from voxflex.result import Result
-from voxflex.scene import ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene
+from voxflex.scene import (
+    ElasticitySpec,
+    FixedSpec,
+    LoadSpec,
+    MaterialSpec,
+    NodesSpec,
+    ObjectSpec,
+    ProbeSpec,
+    Scene,
+)
 
 
 def _bar(h=0.1, **kw):
@@ -85,13 +95,12 @@ def test_a_static_frame_scene_with_zero_energy_modes_is_refused_before_solving()
     Static: refused at build time with one line naming the samples and the fixes (it used to run
     through 8 load cuts and fail).  Implicit Euler (mass makes each step well posed): only the
     SpuriousModesWarning."""
-    from pathlib import Path
 
     from voxflex.deform.models.frames.modes import SpuriousModesWarning
     from voxflex.errors import InputError
     from voxflex.scene import Scene
 
-    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "cantilever.toml")
+    scene = Scene.from_toml(paths.ROOT / "examples" / "cantilever.toml")
     scene = replace(scene, nodes=replace(scene.nodes, kind="affine"),
                     elasticity=replace(scene.elasticity, quadrature="midpoint"))
     with pytest.raises(InputError, match=r"32 midpoint samples leave \d+ zero-energy mode.*samples.*gauss-legendre"):
@@ -107,14 +116,13 @@ def test_a_static_frame_scene_with_a_near_zero_energy_mode_is_refused(tmp_path, 
     a sweep that model's probe was 16 % off and its surface 79 %).  Static: refused before solving,
     naming the ratio and the fixes; implicit Euler: a SpuriousModesWarning.  The ratio is stored with
     the cached precompute, so a second run judges it alike without recomputing it."""
-    from pathlib import Path
 
     from voxflex.deform.models.frames.modes import SpuriousModesWarning
     from voxflex.errors import InputError
     from voxflex.scene import Scene
 
     monkeypatch.setenv("VOXFLEX_CACHE_DIR", str(tmp_path))
-    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "cantilever.toml")
+    scene = Scene.from_toml(paths.ROOT / "examples" / "cantilever.toml")
     scene = replace(scene, nodes=replace(scene.nodes, kind="affine", count=8),
                     elasticity=replace(scene.elasticity, quadrature="elaston", samples=40))
     with pytest.raises(InputError, match=r"7 elaston samples leave a deformation mode \d+ times softer .*"

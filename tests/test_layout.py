@@ -15,9 +15,10 @@ import sys
 import tokenize
 from pathlib import Path
 
+import paths
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = paths.ROOT
 PACKAGE = ROOT / "voxflex"
 
 # rank of each stage; modules at the same rank may import each other (models ~ layers)

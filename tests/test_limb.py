@@ -7,16 +7,19 @@ from __future__ import annotations
 import subprocess
 import sys
 from dataclasses import replace
-from pathlib import Path
 
 import h5py
 import numpy as np
+import paths
 import pytest
 
 import voxflex as vf
 from voxflex.scene import Scene
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = paths.ROOT / "examples"
+
+
+pytestmark = pytest.mark.slow  # the limb's model takes about 10 s to build and solve
 
 
 @pytest.fixture(scope="module")

@@ -15,16 +15,23 @@ import signal
 from pathlib import Path
 
 import numpy as np
+import paths
 import pytest
 
 from voxflex._atomic import Interrupted, atomic_path, check_output_path
 from voxflex.cli import main
-from voxflex.cli._outputs import check_image_output, check_render_output, check_result_output, check_vtk_output, is_result_file
+from voxflex.cli._outputs import (
+    check_image_output,
+    check_render_output,
+    check_result_output,
+    check_vtk_output,
+    is_result_file,
+)
 from voxflex.errors import InputError
 from voxflex.image import LabelImage
 from voxflex.image.io import looks_like_image
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = paths.ROOT / "examples"
 
 
 def _listing(folder: Path) -> dict:

@@ -11,48 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from results import SQUEEZE_SCENE as SCENE
 
 import voxflex as vf
 from voxflex.cli import main
 from voxflex.result import Result
 from voxflex.scene import Scene
-
-SCENE = """
-[object]
-shape = "box"
-size = [2.0, 1.0, 1.0]
-voxel_size = 0.5
-origin = [0.0, 0.0, 0.0]
-[nodes]
-kind = "voxel"
-[[material]]
-model = "neo-hookean"
-young = 1e4
-poisson = 0.3
-[[fixed]]
-min = [-1.0, -1.0, -1.0]
-max = [0.01, 2.0, 2.0]
-components = "x"
-[[fixed]]
-min = [-1.0, -1.0, -1.0]
-max = [3.0, 0.01, 2.0]
-components = "y"
-[[fixed]]
-min = [-1.0, -1.0, -1.0]
-max = [3.0, 2.0, 0.01]
-components = "z"
-[[fixed]]
-min = [1.99, -1.0, -1.0]
-max = [3.0, 2.0, 2.0]
-components = "x"
-transform = [[-1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]
-[solver]
-steps = 5
-max_iterations = 20
-[[probe]]
-name = "end"
-point = [2.0, 0.5, 0.5]
-"""
 
 
 def test_failure_at_step_3_of_5_writes_the_two_converged_steps(tmp_path):

@@ -18,9 +18,9 @@ deflection; measured in the docstring of the test).
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
+import paths
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -34,7 +34,7 @@ from voxflex.errors import InputError
 from voxflex.result import Result, describe_result
 from voxflex.scene import Scene
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "plastic_bar.toml"
+EXAMPLE = paths.ROOT / "examples" / "plastic_bar.toml"
 L = 0.2
 
 

@@ -9,6 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import paths
 import pytest
 
 from voxflex.errors import InputError
@@ -97,7 +98,7 @@ def test_step_zero_has_no_displacement_colour_range(default_result, tmp_path):
 
 def test_animation_and_folder_outputs(tmp_path):
     from PIL import Image
-    from test_result import hand_result
+    from results import hand_result
 
     from voxflex.rendering import render
 
@@ -121,7 +122,7 @@ def test_mp4_without_ffmpeg_says_what_to_do(tmp_path):
         pytest.skip("imageio-ffmpeg is installed here; the error path cannot be exercised")
     except ImportError:
         pass
-    from test_result import hand_result
+    from results import hand_result
 
     from voxflex.rendering import render
 
@@ -131,7 +132,7 @@ def test_mp4_without_ffmpeg_says_what_to_do(tmp_path):
 
 
 def test_render_cli(tmp_path, capsys):
-    from test_result import hand_result
+    from results import hand_result
 
     from voxflex.cli import main
 
@@ -160,7 +161,7 @@ def test_missing_opengl_is_a_one_line_error(monkeypatch, tmp_path, default_resul
 # ---------------------------------------------------------------------------
 # views, fitting, annotations (issue 15)
 # ---------------------------------------------------------------------------
-SHARED_MESHES = Path(__file__).resolve().parents[2] / "shared" / "meshes"
+SHARED_MESHES = paths.MESHES
 
 
 def _dark(image: np.ndarray) -> np.ndarray:
@@ -286,7 +287,7 @@ def test_gravity_arrow_and_triad_are_drawn(default_result):
 
 
 def test_a_result_without_gravity_has_no_arrow(tmp_path):
-    from test_result import hand_result
+    from results import hand_result
 
     from voxflex import rendering
 
@@ -297,7 +298,7 @@ def test_a_result_without_gravity_has_no_arrow(tmp_path):
 
 
 def test_affine_frames_are_drawn_as_dots():
-    from test_result import hand_result
+    from results import hand_result
 
     from voxflex.rendering import render_frames
     from voxflex.result import Result
@@ -320,7 +321,7 @@ def test_affine_frames_are_drawn_as_dots():
 
 
 def test_colour_by_a_field(tmp_path):
-    from test_result import hand_result
+    from results import hand_result
 
     from voxflex.rendering import render, render_frames
 
@@ -357,7 +358,7 @@ def test_bad_view_options_are_one_line_errors(default_result, tmp_path):
 
 def test_render_cli_view_options(tmp_path):
     from PIL import Image
-    from test_result import hand_result
+    from results import hand_result
 
     from voxflex.cli import main
 
@@ -454,7 +455,7 @@ def test_cables_are_drawn_through_their_deformed_eyelets(tmp_path):
     from voxflex.result import Result
     from voxflex.scene import Scene
 
-    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "cable_bar.toml")
+    scene = Scene.from_toml(paths.ROOT / "examples" / "cable_bar.toml")
     scene = replace(scene, object=replace(scene.object, voxel_size=0.01), solver=replace(scene.solver, steps=1),
                     cables=(replace(scene.cables[0], shorten=0.004),))
     result = vf.simulate(scene, progress=False)
@@ -483,7 +484,7 @@ def test_plastic_bar_renders(tmp_path):
     from voxflex.rendering import render_frames
     from voxflex.scene import Scene
 
-    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "plastic_bar.toml")
+    scene = Scene.from_toml(paths.ROOT / "examples" / "plastic_bar.toml")
     result = vf.simulate(replace(scene, object=replace(scene.object, voxel_size=0.01)), progress=False)
     (image,) = render_frames(result, [-1], window_size=(480, 320), show_rest=False, view="front")
     assert _coloured(image).mean() > 0.02  # the bar: a thin strip across the picture
@@ -498,7 +499,7 @@ def test_obstacles_are_drawn_where_the_scene_puts_them():
     from voxflex.rendering import OBSTACLE_COLOUR, _obstacle_meshes, render_frames
     from voxflex.scene import Scene
 
-    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "pushed_block.toml")
+    scene = Scene.from_toml(paths.ROOT / "examples" / "pushed_block.toml")
     scene = replace(scene, object=replace(scene.object, voxel_size=0.1), solver=replace(scene.solver, steps=2))
     result = vf.simulate(scene, progress=False)
     ob = scene.obstacles[0]
@@ -522,7 +523,7 @@ def test_a_plane_obstacle_is_a_patch_under_the_body():
     from voxflex.rendering import _obstacle_meshes
     from voxflex.scene import Scene
 
-    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "ball_on_plane.toml")
+    scene = Scene.from_toml(paths.ROOT / "examples" / "ball_on_plane.toml")
     result = vf.simulate(replace(scene, solver=replace(scene.solver, steps=3)), progress=False)
     (plane,) = _obstacle_meshes(result, 3)
     ob = scene.obstacles[0]
@@ -566,7 +567,7 @@ def test_a_result_whose_scene_text_was_removed_renders_the_same(tmp_path):
     from voxflex.result import Result
     from voxflex.scene import Scene
 
-    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "ball_on_plane.toml")
+    scene = Scene.from_toml(paths.ROOT / "examples" / "ball_on_plane.toml")
     scene = replace(scene, solver=replace(scene.solver, steps=3))
     assert scene.gravity is not None and scene.solver.kind == "implicit-euler" and scene.title
     path = tmp_path / "r.h5"

@@ -14,6 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import paths
 import pytest
 
 import voxflex.resources as res
@@ -21,7 +22,7 @@ from voxflex.errors import InputError
 from voxflex.image.label_image import LabelImage
 from voxflex.scene import MaterialSpec, NodesSpec, ObjectSpec, Scene, SolverSpec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = paths.ROOT
 GiB = 1 << 30
 
 
@@ -173,13 +174,12 @@ def test_bad_arguments():
 def test_a_membrane_is_estimated_from_its_mesh():
     """The estimate asks the scene's node kind: a membrane's DOFs are its free vertices (3 each), not 20 frames
     of a sphere as before the node kinds had estimators (120 DOF estimated for a 507-DOF model)."""
-    from pathlib import Path
 
     import voxflex as vf
     from voxflex.resources import estimate
     from voxflex.scene import Scene
 
-    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "membrane_pressure.toml")
+    scene = Scene.from_toml(paths.ROOT / "examples" / "membrane_pressure.toml")
     est = estimate(scene)
     model = vf.model(scene)
     assert est.node_kind == "membrane" and est.dofs == model.rest.size == 3 * model.n_nodes

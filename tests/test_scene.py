@@ -8,7 +8,18 @@ import os
 import pytest
 
 from voxflex.errors import InputError
-from voxflex.scene import FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene, SolverSpec, default_scene_path, describe_scene
+from voxflex.scene import (
+    FixedSpec,
+    LoadSpec,
+    MaterialSpec,
+    NodesSpec,
+    ObjectSpec,
+    ProbeSpec,
+    Scene,
+    SolverSpec,
+    default_scene_path,
+    describe_scene,
+)
 
 # The SPEC's scene table, every key (the comments of the SPEC's example turned into keys).
 SPEC_SCENE = """

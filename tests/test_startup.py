@@ -18,9 +18,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import paths
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = paths.ROOT
 BAR = ROOT / "data" / "bar.stl"  # the default scene's mesh
 
 # modules that no voxflex start-up needs: rendering and VTK I/O, progress bars, optional scientific stacks

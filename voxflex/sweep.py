@@ -561,8 +561,9 @@ def _run_all(tasks, workers, scheduler, bar) -> list:
                 raise InputError(f"cannot reach the Dask scheduler at '{scheduler}' ({exc}); check the address "
                                  "and that the scheduler runs") from None
         else:
+            # dashboard on a free port (None means the default 8787 here, and a warning when it is taken)
             cluster = stack.enter_context(LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                                                       dashboard_address=None))
+                                                       dashboard_address=":0"))
             client = stack.enter_context(Client(cluster))
         futures = [client.submit(_task, *task, pure=False) for task in tasks]
         for _ in as_completed(futures):
