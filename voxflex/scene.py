@@ -42,6 +42,7 @@ from ._checks import string as _string
 from ._checks import valid_keys as _valid_keys
 from ._checks import vector as _vector
 from .deform.layers.cable import Cable
+from .deform.layers.obstacles import OBSTACLE_KEYS as _OBSTACLE_KEYS
 from .deform.layers.obstacles import OBSTACLE_KINDS
 from .deform.layers.obstacles import POINT_RULES as CONTACT_POINT_RULES
 from .deform.materials.catalogue import MATERIAL_NAMES, MODEL_CONSTANTS, POISSON_RANGE, STRAIN_NAMES, check_constants
@@ -498,12 +499,6 @@ class OutputSpec:
         object.__setattr__(self, "keep", check_keep(self.keep, where="[output] keep"))
 
 
-_OBSTACLE_KEYS = {
-    "plane": ("point", "normal"),
-    "sphere": ("center", "radius"),
-    "box": ("min", "max"),
-    "sdf": ("file",),
-}
 
 
 @dataclass(frozen=True)

@@ -35,13 +35,21 @@ import numpy as np
 
 from ...errors import InputError
 
-__all__ = ["Obstacle", "Plane", "Sphere", "Box", "DistanceField", "OBSTACLE_KINDS", "obstacle"]
+__all__ = ["Obstacle", "Plane", "Sphere", "Box", "DistanceField", "OBSTACLE_KINDS", "OBSTACLE_KEYS", "obstacle"]
 
 POINT_RULES = ("surface", "vertices")
 """Named collision-point rules: 2x2 Gauss points of every exposed voxel face, or the surface vertices
 (an integer k gives k x k Gauss points per face)."""
 
-OBSTACLE_KINDS = ("plane", "sphere", "box", "sdf")
+OBSTACLE_KEYS = {
+    "plane": ("point", "normal"),
+    "sphere": ("center", "radius"),
+    "box": ("min", "max"),
+    "sdf": ("file",),
+}
+"""Each obstacle kind and the parameters it takes (``[[obstacle]]`` keys besides ``friction`` and ``motion``)."""
+
+OBSTACLE_KINDS = tuple(OBSTACLE_KEYS)
 """``[[obstacle]] kind`` values."""
 
 _RIGID_TOL = 1e-9  # |R^T R - I| and |det R - 1| allowed in a motion (round-off of a written rotation)
