@@ -103,7 +103,7 @@ def test_info_on_a_result_calls_describe_result(tmp_path, capsys, monkeypatch):
     path = tmp_path / "result.h5"
     with h5py.File(path, "w") as f:
         f["time"] = np.zeros(2)
-    fake = types.ModuleType("voxflex.result")
+    fake = types.ModuleType("voxflex.result_text")
     fake.describe_result = lambda p: f"result at {p.name}"
     monkeypatch.setitem(sys.modules, "voxflex.result", fake)
     assert main(["info", str(path)]) == 0

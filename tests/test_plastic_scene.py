@@ -31,7 +31,8 @@ from voxflex.deform.solve.boundary import FixedRegion, fixed_dofs
 from voxflex.deform.solve.options import SolverOptions
 from voxflex.deform.solve.stepping import solve
 from voxflex.errors import InputError
-from voxflex.result import Result, describe_result
+from voxflex.result import Result
+from voxflex.result_text import describe_result
 from voxflex.scene import Scene
 
 EXAMPLE = paths.ROOT / "examples" / "plastic_bar.toml"

@@ -13,7 +13,8 @@ from results import hand_result  # noqa: E402 - shared with test_render
 
 import voxflex
 from voxflex.errors import InputError
-from voxflex.result import Result, describe_result
+from voxflex.result import Result
+from voxflex.result_text import describe_result
 
 EXAMPLES = paths.ROOT / "examples"
 

@@ -27,6 +27,7 @@ import pytest
 
 import voxflex as vf
 import voxflex.resources as res
+import voxflex.result_text
 from voxflex._atomic import Interrupted
 from voxflex.cli import main
 from voxflex.errors import InputError
@@ -198,7 +199,7 @@ def test_every_and_keep(model, tmp_path):
     assert np.array_equal(kept.nodes_state, held.nodes_state[[0, 15, 20, 23]])
     last = _run(model, steps, keep=2)  # without a file: the rest state and the last 2
     assert last.step.tolist() == [0, 22, 23] and np.array_equal(last.probes["tip"], held.probes["tip"][[0, 22, 23]])
-    text = vf.result.describe_result(path)
+    text = vf.result_text.describe_result(path)
     assert "the rest state and 5 of 23 steps" in text
     for bad in (0, -1, "some", 1.5, True):
         with pytest.raises(InputError, match="keep must be|unknown keep"):

@@ -268,8 +268,8 @@ def _object_size(obj, h=None):
 
 def _material_class(scene) -> str:
     """"constant", "nonlinear" or "reduced": the costliest material class of the scene's labels."""
-    from .deform.materials.fbar import nearly_incompressible
     from .deform.materials.constitutive import material
+    from .deform.materials.fbar import nearly_incompressible
     from .deform.models.voxel.model import tangent_is_constant
     from .errors import InputError
 

@@ -45,7 +45,13 @@ from .deform.layers.cable import Cable
 from .deform.layers.obstacles import OBSTACLE_KEYS as _OBSTACLE_KEYS
 from .deform.layers.obstacles import OBSTACLE_KINDS
 from .deform.layers.obstacles import POINT_RULES as CONTACT_POINT_RULES
-from .deform.materials.catalogue import MATERIAL_NAMES, MODEL_CONSTANTS, POISSON_RANGE, STRAIN_NAMES, check_constants
+from .deform.materials.catalogue import (
+    MATERIAL_NAMES,
+    MODEL_CONSTANTS,
+    POISSON_RANGE,
+    STRAIN_NAMES,
+    check_constants,
+)
 from .deform.materials.fbar import VOLUMETRIC
 from .deform.models.fields import check_field_names
 from .deform.models.kinds import default_kind, node_kind, node_kinds

@@ -3,7 +3,7 @@
 Images (any extension :mod:`voxflex.image.io` reads) are loaded and described
 by :meth:`voxflex.LabelImage.describe`; ``.toml`` scenes by
 ``voxflex.scene.describe_scene``; HDF5 files holding ``/time`` (result files)
-by ``voxflex.result.describe_result``.  The last two are imported lazily.
+by ``voxflex.result_text.describe_result``.  The last two are imported lazily.
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def run(args) -> int:
     if name.endswith(".toml"):
         text = _describer("voxflex.scene", "describe_scene", "scene")(path)
     elif name.endswith((".h5", ".hdf5")) and _is_result_file(path):
-        text = _describer("voxflex.result", "describe_result", "result")(path)
+        text = _describer("voxflex.result_text", "describe_result", "result")(path)
     else:
         from ..image import LabelImage
 

@@ -151,7 +151,12 @@ def _every_state(result, output):
 
 def check_outputs(args, scene, scene_path, output) -> None:
     """Validate -o (or the scene's [output] file), --render and --vtk before the run starts."""
-    from ._outputs import check_render_output, check_result_output, check_vtk_output, run_inputs
+    from ._outputs import (
+        check_render_output,
+        check_result_output,
+        check_vtk_output,
+        run_inputs,
+    )
 
     inputs = run_inputs(scene_path, scene)
     option = "-o" if args.output else "[output] file"
@@ -164,7 +169,7 @@ def check_outputs(args, scene, scene_path, output) -> None:
 
 def summary(result, *, scene_path, output, wall, extras=()) -> str:
     """The short report printed after a run."""
-    from ..result import field_lines
+    from ..result_text import field_lines
 
     totals = result.run_totals()
     lines = [

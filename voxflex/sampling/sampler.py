@@ -49,7 +49,14 @@ from ..voronoi.shape_functions import ShapeValues
 from ._geodesic import VoxelGraph
 from .quadrature import gauss_legendre_cube
 from .samples import KINDS, Samples
-from .volume_moments import EXPONENT_INDEX, EXPONENTS, _region_moments_impl, box_moment_table, monomials, shift_table
+from .volume_moments import (
+    EXPONENT_INDEX,
+    EXPONENTS,
+    _region_moments_impl,
+    box_moment_table,
+    monomials,
+    shift_table,
+)
 
 __all__ = ["sample", "SamplingCountWarning", "LLOYD_ITERATIONS"]
 

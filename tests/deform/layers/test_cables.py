@@ -183,7 +183,7 @@ def test_cable_bar_reaction_tension_and_beam_theory(tmp_path):
         ratios.append(theta / theory)
         # the file holds the same tensions
         np.testing.assert_array_equal(Result.load(tmp_path / f"bar_{h}.h5").cable_tension, result.cable_tension)
-        from voxflex.result import describe_result
+        from voxflex.result_text import describe_result
         # the summary names the final tension, printed to 6 significant digits
         assert f"cable tensions at the end: [{T[-1]:.6g}] N" in describe_result(tmp_path / f"bar_{h}.h5")
     r10, r5 = ratios

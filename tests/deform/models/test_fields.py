@@ -24,7 +24,8 @@ import pytest
 
 import voxflex as vf
 from voxflex.deform.models import fields as vff
-from voxflex.result import Result, describe_result
+from voxflex.result import Result
+from voxflex.result_text import describe_result
 from voxflex.scene import Scene
 
 E_YOUNG, NU, STRETCH = 1e4, 0.3, 1.1

@@ -40,9 +40,13 @@ from typing import NamedTuple
 import numpy as np
 
 from ...errors import InputError
-from .laws import Law
 from .constitutive import Material
-from .strains import apply_with_gradient, geometric_with_gradient, jacobian_with_gradient
+from .laws import Law
+from .strains import (
+    apply_with_gradient,
+    geometric_with_gradient,
+    jacobian_with_gradient,
+)
 
 __all__ = [
     "ElastonEnergy",

@@ -49,7 +49,13 @@ import scipy.sparse as sp
 from ..._linalg import vdot
 from ...errors import ConvergenceError, InputError
 from ..models.protocol import END_STEP_PASSES, ConstantStiffness, end_step
-from .boundary import FixedRegion, ForceRegion, fixed_dofs, prescribed_positions, region_forces
+from .boundary import (
+    FixedRegion,
+    ForceRegion,
+    fixed_dofs,
+    prescribed_positions,
+    region_forces,
+)
 from .newton import _FreeBlock, _newton, _PatternAdd, _Problem
 from .options import SolverOptions, StepRecord
 from .supports import check_supports

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from ....errors import InputError
-from .kind import DEFAULT_FRAMES
 from ..kinds import NodeEstimate
+from .kind import DEFAULT_FRAMES
 
 SAMPLES_PER_FRAME = 20
 """Mid-point / elaston samples per frame when a scene does not say ``[elasticity] samples``.

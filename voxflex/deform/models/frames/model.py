@@ -79,10 +79,14 @@ from ....errors import InputError, check_choice
 from ....image.grid import TrilinearGrid
 from ....image.surface import boundary_quads, face_points, triangulate
 from ....sampling.voxel import voxel_samples
-from ...chain.mappings import DeformationGradientMapping, DeformationGradientWithGradientMapping, PointMapping
+from ...chain.mappings import (
+    DeformationGradientMapping,
+    DeformationGradientWithGradientMapping,
+    PointMapping,
+)
 from ...chain.nodes import AffineFrames
-from ...materials.fbar import VOLUMETRIC, _bar_evaluate, nearly_incompressible
 from ...materials.constitutive import project_psd
+from ...materials.fbar import VOLUMETRIC, _bar_evaluate, nearly_incompressible
 from ..protocol import OnePass, Part, SurfacePoints
 from . import _kernels as K
 from ._kernels import frame_tables

@@ -18,7 +18,11 @@ SECONDS_PER_DOF_ITERATION = 2.5e-5
 def membrane_mesh(scene):
     """(points (n, 3), triangles (m, 3)) of a membrane scene: a disk or rectangle made at
     ``voxel_size`` (the target edge length), or the mesh file as it is."""
-    from ....rasterize.membrane_mesh import disk_mesh, load_membrane_mesh, rectangle_mesh
+    from ....rasterize.membrane_mesh import (
+        disk_mesh,
+        load_membrane_mesh,
+        rectangle_mesh,
+    )
 
     obj = scene.object
     if obj.mesh is not None:

@@ -80,7 +80,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from ....errors import InputError
-from ....rasterize.membrane_mesh import FLAT_TOL, _consistently_oriented, _sample_triangles, footprint_image, open_rim
+from ....rasterize.membrane_mesh import (
+    FLAT_TOL,
+    _consistently_oriented,
+    _sample_triangles,
+    footprint_image,
+    open_rim,
+)
 from ...chain.membrane import StVKMembrane, TriangleDeformationMapping
 from ..protocol import OnePass, Part
 from .kind import MEMBRANE

@@ -1,6 +1,7 @@
 """Build the full-resolution voxel model from a scene, and estimate what it will need before building it."""
 
 from __future__ import annotations
+
 from ..kinds import NodeEstimate
 
 __all__ = ["build", "estimate", "BYTES_PER_DOF", "SECONDS_PER_DOF_ITERATION", "ITERATIONS_PER_STEP", "CHUNK_BYTES"]

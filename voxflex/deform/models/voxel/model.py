@@ -83,8 +83,8 @@ from ....voronoi.shape_functions import ShapeValues
 from ....voronoi.trilinear import trilinear_values
 from ...chain.mappings import PointMapping
 from ...chain.nodes import Points
-from ...materials.fbar import VOLUMETRIC, _energy_density, nearly_incompressible
 from ...materials.constitutive import project_psd
+from ...materials.fbar import VOLUMETRIC, _energy_density, nearly_incompressible
 from ..protocol import Part, SurfacePoints
 from . import _kernels as kern
 from .fbar import _b_matrices, _deviatoric, fbar_evaluate

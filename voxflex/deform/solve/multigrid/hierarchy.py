@@ -90,7 +90,13 @@ import scipy.sparse as sp
 
 from ....errors import InputError, check_choice
 from ....image.grid import CORNER_OFFSETS, TrilinearGrid
-from .stencil import VoxelStencil, _coupled_offsets, _gather_forward, _unit_stencil, _voxel_keys
+from .stencil import (
+    VoxelStencil,
+    _coupled_offsets,
+    _gather_forward,
+    _unit_stencil,
+    _voxel_keys,
+)
 
 SMOOTHERS = ("gauss-seidel", "symmetric-gauss-seidel", "jacobi")
 
