@@ -105,7 +105,7 @@ def test_info_on_a_result_calls_describe_result(tmp_path, capsys, monkeypatch):
         f["time"] = np.zeros(2)
     fake = types.ModuleType("voxflex.result_text")
     fake.describe_result = lambda p: f"result at {p.name}"
-    monkeypatch.setitem(sys.modules, "voxflex.result", fake)
+    monkeypatch.setitem(sys.modules, "voxflex.result_text", fake)
     assert main(["info", str(path)]) == 0
     assert capsys.readouterr().out.strip() == "result at result.h5"
 
