@@ -186,3 +186,26 @@ def test_no_import_cycles():
         if m not in state:
             visit(m)
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+def test_benchmarks_and_examples_import_what_exists():
+    """Every ``from voxflex... import name`` in benchmarks/ and examples/ names a module and a name that exist
+    (they are not run by the suite; a moved module must not break them silently)."""
+    import importlib
+
+    bad = []
+    for path in sorted([*(ROOT / "benchmarks").glob("*.py"), *(ROOT / "examples").glob("*.py")]):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("voxflex"):
+                mod = importlib.import_module(node.module)
+                for alias in node.names:
+                    if not hasattr(mod, alias.name):
+                        try:
+                            importlib.import_module(f"{node.module}.{alias.name}")
+                        except ImportError:
+                            bad.append(f"{path.name}: {node.module}.{alias.name}")
+            elif isinstance(node, ast.Import):
+                for alias in node.names:
+                    if alias.name.startswith("voxflex"):
+                        importlib.import_module(alias.name)
+    assert not bad, "missing: " + ", ".join(bad)
