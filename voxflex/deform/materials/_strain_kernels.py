@@ -189,48 +189,33 @@ def _tensor_kernel(F, s, kind, want_j, want_g, E, J, G):
 
 # ----------------------------------------------------------------------------- corotational
 @njit(error_model="numpy")
-def _corot_solve(method, A, sig, T, Tinv, Om, D, X):
-    """Split A = Om M + D (Om skew, D in M's subspace); see the module docstring."""
-    if method == QR:
-        _matmul(A, Tinv, X)
-        for p in range(3):
-            for q in range(3):
-                if p > q:
-                    Om[p, q] = X[p, q]
-                elif p < q:
-                    Om[p, q] = -X[q, p]
-                else:
-                    Om[p, q] = 0.0
-        for p in range(3):
-            for q in range(3):
-                acc = 0.0
-                for r in range(q + 1):  # T upper triangular
-                    acc += (X[p, r] - Om[p, r]) * T[r, q]
-                D[p, q] = acc
-    else:
-        for p in range(3):
-            Om[p, p] = 0.0
-            D[p, p] = A[p, p]
-            for q in range(3):
-                if q != p:
-                    den = sig[p] + sig[q]
-                    Om[p, q] = (A[p, q] - A[q, p]) / den
-                    D[p, q] = (sig[p] * A[p, q] + sig[q] * A[q, p]) / den
+def _corot_solve(A, T, Tinv, Om, D, X):
+    """Split A = Om T + D with Om skew and D upper triangular (the QR factor's subspace); see the module
+    docstring.  (The polar and SVD variants have closed forms: :func:`_corot_polar`.)"""
+    _matmul(A, Tinv, X)
+    for p in range(3):
+        for q in range(3):
+            if p > q:
+                Om[p, q] = X[p, q]
+            elif p < q:
+                Om[p, q] = -X[q, p]
+            else:
+                Om[p, q] = 0.0
+    for p in range(3):
+        for q in range(3):
+            acc = 0.0
+            for r in range(q + 1):  # T upper triangular
+                acc += (X[p, r] - Om[p, r]) * T[r, q]
+            D[p, q] = acc
 
 
 @njit(error_model="numpy")
 def _corot_qr(F, s, want_j, want_g, E, J, G):
     """E = sym(T) - I with F = R T (Gram-Schmidt), by the generic solves of the module docstring."""
-    method = QR
     n = F.shape[0]
     R = np.empty((3, 3))
-    P = np.empty((3, 3))  # frame in which the solve is done (V or I)
-    Mf = np.zeros((3, 3))  # M in that frame
-    Mw = np.empty((3, 3))  # M in the world (body) frame
     T = np.zeros((3, 3))
     Tinv = np.zeros((3, 3))
-    sig = np.zeros(3)
-    RP = np.empty((3, 3))
     A = np.empty((3, 3))
     X = np.empty((3, 3))
     Om = np.empty((9, 3, 3))
@@ -239,9 +224,7 @@ def _corot_qr(F, s, want_j, want_g, E, J, G):
     Xi = np.empty((3, 3))
     D2 = np.empty((3, 3))
     S = np.empty((3, 3))
-    Sf = np.empty((3, 3))
     tmp = np.empty((3, 3))
-    tmp2 = np.empty((3, 3))
     for e in range(n):
         f = F[e]
         # modified Gram-Schmidt on the columns: F = R T
@@ -249,7 +232,6 @@ def _corot_qr(F, s, want_j, want_g, E, J, G):
             for b in range(3):
                 R[a, b] = f[a, b]
                 T[a, b] = 0.0
-                P[a, b] = 1.0 if a == b else 0.0
         for c in range(3):
             for d in range(c):
                 dot = 0.0
@@ -268,46 +250,26 @@ def _corot_qr(F, s, want_j, want_g, E, J, G):
         Tinv[0, 1] = -T[0, 1] / (T[0, 0] * T[1, 1])
         Tinv[1, 2] = -T[1, 2] / (T[1, 1] * T[2, 2])
         Tinv[0, 2] = (T[0, 1] * T[1, 2] - T[0, 2] * T[1, 1]) / (T[0, 0] * T[1, 1] * T[2, 2])
-        for a in range(3):
-            for b in range(3):
-                Mf[a, b] = T[a, b]
-                Mw[a, b] = T[a, b]
         for k in range(6):
             a, b = _VA[k], _VB[k]
-            E[e, k] = Mw[a, a] - 1.0 if a == b else Mw[a, b] + Mw[b, a]
+            E[e, k] = T[a, a] - 1.0 if a == b else T[a, b] + T[b, a]
         if not (want_j or want_g):
             continue
-        _matmul(R, P, RP)
         for i in range(3):
             for j in range(3):
                 h = 3 * i + j
-                # A = P^T R^T e_ij P = outer((R P)[i, :], P[j, :])
+                # A = R^T e_ij = outer(R[i, :], e_j)
                 for a in range(3):
                     for b in range(3):
-                        A[a, b] = RP[i, a] * P[j, b]
-                _corot_solve(method, A, sig, T, Tinv, Om[h], Dm[h], X)
+                        A[a, b] = R[i, a] if b == j else 0.0
+                _corot_solve(A, T, Tinv, Om[h], Dm[h], X)
                 if want_j:
-                    # dM in the world frame: P D P^T
-                    _matmul(P, Dm[h], tmp)
-                    for a in range(3):
-                        for b in range(3):
-                            acc = 0.0
-                            for c in range(3):
-                                acc += tmp[a, c] * P[b, c]
-                            tmp2[a, b] = acc
+                    D = Dm[h]
                     for k in range(6):
                         a, b = _VA[k], _VB[k]
-                        J[e, k, i, j] = tmp2[a, a] if a == b else tmp2[a, b] + tmp2[b, a]
+                        J[e, k, i, j] = D[a, a] if a == b else D[a, b] + D[b, a]
         if want_g:
             _stress_matrix(s[e], S)
-            # S in the solve frame: P^T S P
-            _matmul(S, P, tmp)
-            for a in range(3):
-                for b in range(3):
-                    acc = 0.0
-                    for c in range(3):
-                        acc += P[c, a] * tmp[c, b]
-                    Sf[a, b] = acc
             for h1 in range(9):
                 for h2 in range(h1, 9):
                     O1, O2, D1, D2_ = Om[h1], Om[h2], Dm[h1], Dm[h2]
@@ -321,13 +283,13 @@ def _corot_qr(F, s, want_j, want_g, E, J, G):
                         for b in range(3):
                             acc = 0.0
                             for c in range(3):
-                                acc += tmp[a, c] * Mf[c, b] - O1[a, c] * D2_[c, b] - O2[a, c] * D1[c, b]
+                                acc += tmp[a, c] * T[c, b] - O1[a, c] * D2_[c, b] - O2[a, c] * D1[c, b]
                             B[a, b] = acc
-                    _corot_solve(method, B, sig, T, Tinv, Xi, D2, X)
+                    _corot_solve(B, T, Tinv, Xi, D2, X)
                     v = 0.0
                     for a in range(3):
                         for b in range(3):
-                            v += Sf[a, b] * D2[a, b]
+                            v += S[a, b] * D2[a, b]
                     G[e, h1 // 3, h1 % 3, h2 // 3, h2 % 3] = v
                     G[e, h2 // 3, h2 % 3, h1 // 3, h1 % 3] = v
 
