@@ -74,7 +74,7 @@ from .shape_functions import ShapeValues
 
 __all__ = ["ShapeFunction", "shape_function"]
 
-KINDS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard")
+KINDS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard", "reproducing-kernel")
 _RIDGE = 1e-8
 #: fitted weights up to this are dropped as zero: the compiled and numpy evaluations of the same
 #: polynomial differ by round-off (~1e-16), which must not decide whether a frame is a parent
@@ -364,8 +364,8 @@ def _evaluate_impl(X, npos, nfr, ncoef, h, P):
     return fi, wn, dn, hn, pruned
 
 
-def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distance="geodesic", compliance=None,
-                   resolution=3.0, seed_owner=None, smooth=True) -> ShapeFunction:
+def shape_function(image, frames, *, kind="natural-neighbour", parents=None, distance="geodesic", compliance=None,
+                   resolution=3.0, seed_owner=None, smooth=True, support=None):
     """Shape functions of ``frames`` over the material of ``image``.
 
     Parameters
@@ -374,7 +374,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
     frames : (n, 3) float array, metres
         Frame positions, each in a material voxel, at most one per voxel, at
         least one in every connected component of the material.
-    kind : {"natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard"}
+    kind : {"natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard", "reproducing-kernel"}
         ``"natural-neighbour"`` is Sibson's coordinates.  ``"distance-ratio"``:
         ``w_i ~ 1 / h_i`` over the point's natural neighbours i (the frames
         whose cells it would steal from), ``h_i`` its geodesic distance to frame
@@ -384,8 +384,17 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
         ``"shepard"``: ``w_i ~ d_i^-2`` over all frames (geodesic ``d_i``; one
         full propagation per frame, so the cost grows as n times the image),
         for comparison: no linear precision, global support.
-    parents : int
-        At most this many frames per point (>= 1); see the module notes.
+        ``"reproducing-kernel"``: geodesic Wendland kernels of radius ``support``
+        local frame spacings, corrected at the voxel corners to reproduce linear
+        fields exactly and interpolated trilinearly in between
+        (:mod:`voxflex.voronoi.reproducing_kernel`; returns a
+        :class:`~voxflex.voronoi.reproducing_kernel.ReproducingKernel`).
+    parents : int, optional
+        At most this many frames per point (>= 1; default 4); see the module
+        notes.  Reproducing-kernel weights are never truncated (that would break
+        the partition of unity, linear precision and conformity): every frame
+        whose kernel reaches a point is a parent, and a ``parents`` below that
+        number is raised with a warning.
     distance : {"geodesic", "compliance"}
     compliance : dict {label: young_modulus}, with ``distance="compliance"``.
     resolution : float
@@ -407,11 +416,15 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
         ``parents`` at the voxel centres but may give a point more parents (the
         union over its 27 neighbouring voxels), and smooths the value 1 at a
         frame (unless the frame owns a seed region).  ``False``: the
-        voxel-by-voxel values, pruned to ``parents``.
+        voxel-by-voxel values, pruned to ``parents``.  Not used by
+        ``"reproducing-kernel"`` (continuous by construction).
+    support : float, optional
+        ``"reproducing-kernel"`` only: the kernel radius in local frame spacings
+        (default :data:`~voxflex.voronoi.reproducing_kernel.DEFAULT_SUPPORT`).
 
     Returns
     -------
-    ShapeFunction
+    ShapeFunction or ReproducingKernel
 
     References
     ----------
@@ -422,9 +435,15 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
     """
     check_choice("kind", kind, KINDS)
     comp = _compliance_for(distance, compliance)
-    if isinstance(parents, bool) or not isinstance(parents, (int, np.integer)) or int(parents) < 1:
+    rk = kind == "reproducing-kernel"
+    if parents is None:
+        parents = None if rk else 4
+    elif isinstance(parents, bool) or not isinstance(parents, (int, np.integer)) or int(parents) < 1:
         raise InputError(f"parents must be an integer >= 1, got {parents!r}")
-    parents = int(parents)
+    else:
+        parents = int(parents)
+    if support is not None and not rk:
+        raise InputError(f'support applies to kind = "reproducing-kernel" only, not "{kind}"')
     resolution = float(resolution)
     if not resolution > 0:
         raise InputError(f"resolution must be > 0, got {resolution}")
@@ -457,6 +476,19 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=4, distan
     if np.any(own[mflat] < 0):
         raise InputError("a connected component of the material has no frame; place one in every component "
                          "(place_frames does)")
+    if rk:
+        import warnings
+
+        from .reproducing_kernel import DEFAULT_SUPPORT, reproducing_kernel
+
+        sf = reproducing_kernel(image, F, d, own, mask, cost, pshape,
+                                support=DEFAULT_SUPPORT if support is None else support,
+                                anchored=anchored if np.any(anchored) else None, seed_owner=seed_owner)
+        if parents is not None and parents < sf.parents:
+            warnings.warn(f"reproducing-kernel weights have up to {sf.parents} parents per point (every frame whose "
+                          f"kernel reaches it); parents = {parents} would truncate them (breaking the partition of "
+                          f"unity, linear precision and conformity), so all are kept", UserWarning, stacklevel=2)
+        return sf
 
     # nodes: frames, then the lattice (without the frame voxels)
     s = max(1, int(round((nmat / n) ** (1.0 / 3.0) / resolution)))

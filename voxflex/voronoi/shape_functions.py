@@ -29,7 +29,7 @@ from ..errors import InputError
 
 __all__ = ["ShapeValues", "shepard", "keep_largest", "SHAPE_FUNCTION_KINDS", "VOXEL_SHAPE_FUNCTIONS"]
 
-SHAPE_FUNCTION_KINDS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard")
+SHAPE_FUNCTION_KINDS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard", "reproducing-kernel")
 """Shape functions of frames over a label image (``natural-neighbour`` is ``sibson``)."""
 
 VOXEL_SHAPE_FUNCTIONS = ("trilinear", "barycentric")

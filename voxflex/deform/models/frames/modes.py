@@ -24,7 +24,43 @@ from ...chain.mappings import DeformationGradientWithGradientMapping
 from ...chain.nodes import AffineFrames
 
 __all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness", "softest_mode",
-           "SOFT_RATIO"]
+           "SOFT_RATIO", "gauge_modes"]
+
+GAUGE_TOL = 1e-8
+"""A gauge candidate (:meth:`AffineFrames.gauge_modes`) whose deformation gradient and motion at the
+samples are below this fraction of those of a unit dilation is exact (moves nothing)."""
+
+
+def gauge_modes(frames, values, *, tol: float = GAUGE_TOL) -> np.ndarray:
+    """(12n, g) orthonormal basis of the affine frames' motions that move no sample and deform none.
+
+    With weights that reproduce linear fields at every sample (reproducing kernels) ``g = 18``
+    (:meth:`~voxflex.deform.chain.nodes.AffineFrames.gauge_modes`): the 12n DOFs describe the
+    motion redundantly, and a free body's stiffness (and consistent mass) has 18 zero
+    eigenvalues besides the 6 rigid ones that are not spurious (nothing moves).  Where linear
+    precision is given up somewhere (a clamp's own voxels, natural-neighbour weights near the
+    surface) fewer or none are exact.  Exactness: the singular values of the map from the
+    candidates to (F, x / L) at the samples, below ``tol`` times the response to a unit dilation.
+    """
+    from ...chain.mappings import DeformationGradientMapping, PointMapping
+
+    X = np.asarray(frames, dtype=np.float64)
+    n = len(X)
+    nodes = AffineFrames(X)
+    Z = nodes.gauge_modes()
+    rest = nodes.rest
+    Fm, Pm = DeformationGradientMapping(nodes, values), PointMapping(nodes, values)
+    F0, x0 = Fm.apply(rest), Pm.apply(rest)
+    L = float(np.ptp(X, axis=0).max()) if n > 1 else 1.0
+    L = L if L > 0 else 1.0
+    cols = []
+    for z in Z.T:
+        q = rest + z.reshape(n, 12)
+        cols.append(np.concatenate([(Fm.apply(q) - F0).ravel(), ((Pm.apply(q) - x0) / L).ravel()]))
+    Mz = np.stack(cols, axis=1)
+    _, sv, Vt = np.linalg.svd(Mz, full_matrices=False)
+    ref = np.sqrt(max(values.m, 1) / n)  # |F| over the samples of the unit dilation A_a = I / sqrt(3n)
+    return Z @ Vt[sv <= tol * ref].T
 
 
 class SpuriousModesWarning(UserWarning):
@@ -91,7 +127,8 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
 
 
 def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None) -> int:
-    """Number of zero eigenvalues of the free-body stiffness (six for a sound quadrature).
+    """Number of zero eigenvalues of the free-body stiffness (six for a sound quadrature), the exact
+    gauge modes of linearly precise weights (:func:`gauge_modes`, which move nothing) not counted.
 
     Parameters
     ----------
@@ -115,6 +152,9 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
     K = free_body_stiffness(frames, samples, gradient=gradient) if stiffness is None else stiffness
     from ...._blas import one_thread
 
+    G = gauge_modes(frames, samples.values)
+    if G.shape[1]:  # motions that move nothing are not zero-energy deformations: deflate them
+        K = K + (np.trace(K) / len(K)) * (G @ G.T)
     with one_thread():  # threaded BLAS stalls on small dense work here
         ev = np.linalg.eigvalsh(K)
     top = float(ev.max()) if ev.size else 0.0
@@ -155,7 +195,7 @@ def softest_mode(frames, samples, reference, free=None, *, stiffness=None) -> fl
     (one mid-point sample per voxel: :func:`voxflex.sampling.voxel.voxel_samples`).  Spurious
     (hourglass) modes that under-integration leaves nearly free have ``lambda`` near 0; a sound
     quadrature 0.1 - 1.  Without ``free`` the six rigid modes, zero in both, are deflated (given
-    unit ratio).  None when the reference itself leaves a zero-energy mode among those DOFs.
+    unit ratio), and so are the gauge modes (:func:`gauge_modes`) when both have them.  None when the reference itself leaves a zero-energy mode among those DOFs.
 
     Parameters
     ----------
@@ -179,6 +219,9 @@ def softest_mode(frames, samples, reference, free=None, *, stiffness=None) -> fl
     Kr = free_body_stiffness(frames, reference)
     if free is None:
         R = _rigid_modes(np.asarray(frames, dtype=np.float64))
+        G = gauge_modes(frames, reference.values)
+        if G.shape[1] and gauge_modes(frames, samples.values).shape[1] == G.shape[1]:
+            R = np.concatenate([R, G], axis=1)  # both move nothing along them: deflated like the rigid modes
         scale = np.trace(Kr) / len(Kr)
         Ks = Ks + scale * (R @ R.T)
         Kr = Kr + scale * (R @ R.T)
