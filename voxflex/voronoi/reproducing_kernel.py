@@ -314,6 +314,35 @@ def _rk_corners(indptr, fidx, phi, frames, rho, corners, eps, lebesgue_max, todo
                     keep[e] = False
                     nd += 1
                     break
+        # one step of iterative refinement on the moment residuals (1 - sum w, -sum w (X - c)) over the
+        # kept directions: near-singular corners (condition ~1e-6) otherwise keep residuals ~1e-11
+        r0 = 1.0
+        t0 = 0.0
+        t1 = 0.0
+        t2 = 0.0
+        for k in range(a, b):
+            f = fidx[k]
+            r0 -= w[k]
+            t0 -= w[k] * (frames[f, 0] - corners[q, 0])
+            t1 -= w[k] * (frames[f, 1] - corners[q, 1])
+            t2 -= w[k] * (frames[f, 2] - corners[q, 2])
+        t0 -= r0 * xb0
+        t1 -= r0 * xb1
+        t2 -= r0 * xb2
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for e in range(3):
+            if keep[e]:
+                coef = (V[0, e] * t0 + V[1, e] * t1 + V[2, e] * t2) / ev[e] / l2
+                g0 += V[0, e] * coef
+                g1 += V[1, e] * coef
+                g2 += V[2, e] * coef
+        for k in range(a, b):
+            s = phi[k] / S
+            f = fidx[k]
+            w[k] += s * (r0 + (frames[f, 0] - corners[q, 0] - xb0) * g0 + (frames[f, 1] - corners[q, 1] - xb1) * g1
+                         + (frames[f, 2] - corners[q, 2] - xb2) * g2)
         dropped[q] = nd
         delta2[q] = max(d2, 0.0)
         lebesgue[q] = L1
@@ -360,6 +389,11 @@ def _rk_corners_numpy(indptr, fidx, phi, frames, rho, corners, eps, lebesgue_max
         W2, d22 = weights(keep)
         Wp = np.where(drop[:, None], W2, Wp)
         d2 = np.where(drop, d22, d2)
+    r0 = 1.0 - Wp.sum(1)
+    t = -np.einsum("qk,qki->qi", Wp, R) - r0[:, None] * xb
+    coef = np.where(keep, np.einsum("qie,qi->qe", V, t) / np.where(keep, ev, 1.0), 0.0) / l2[:, None]
+    g = np.einsum("qie,qe->qi", V, coef)
+    Wp = Wp + s * (r0[:, None] + np.einsum("qki,qi->qk", Rc, g))
     w = Wp[row, pos]
     lam = np.where(ok, np.where(top[:, 0] > 0, ev[:, 0] / np.where(top[:, 0] > 0, top[:, 0], 1.0), 0.0), -1.0)
     delta2 = np.where(ok, np.maximum(d2, 0.0), 0.0)
@@ -785,6 +819,7 @@ def reproducing_kernel(image, frames, d, own, mask, cost, pshape, *, support=DEF
     todo = np.ones(nn, dtype=bool)
     old = None
     nbad_last = None
+    stalled = 0
     lam = np.zeros(nn)
     delta2 = np.zeros(nn)
     dropped = np.zeros(nn, dtype=np.int64)
@@ -805,15 +840,19 @@ def reproducing_kernel(image, frames, d, own, mask, cost, pshape, *, support=DEF
         if anchor_of is not None:
             bad &= anchor_of < 0
         nbad = int(bad.sum())
-        # stop when nothing is bad, at the last round, or when growing stopped helping (frames on a plane
-        # across a thin part: larger kernels see the same plane)
-        if nbad == 0 or rnd == MAX_GROWTH_ROUNDS or (nbad_last is not None and nbad > 0.9 * nbad_last):
+        # stop when nothing is bad, at the last round, or when two rounds in a row did not help (frames
+        # on a plane across a thin part: larger kernels see the same plane)
+        stalled = stalled + 1 if (nbad_last is not None and nbad > 0.9 * nbad_last) else 0
+        if nbad == 0 or rnd == MAX_GROWTH_ROUNDS or stalled >= 2:
             break
         nbad_last = nbad
-        grow = set()
-        for o in np.unique(node_owner[bad]).tolist():
-            grow.add(o)
-            grow.update(nbrs[o])
+        # grow the kernels of the bad corners' cells and of the cells within ``rnd + 1`` Voronoi
+        # neighbours: the frames a corner lacks may be further than the next cell
+        grow = set(np.unique(node_owner[bad]).tolist())
+        ring = set(grow)
+        for _ in range(rnd + 1):
+            ring = {b_ for a_ in ring for b_ in nbrs[a_]} - grow
+            grow |= ring
         grow = np.array(sorted(grow), dtype=np.int64)
         grown[grow] = True
         rho[grow] *= GROWTH
