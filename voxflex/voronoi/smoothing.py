@@ -83,11 +83,13 @@ def _b2(t):  # pragma: no cover - compiled
 
 
 @njit
-def _blend_kernel(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts):  # pragma: no cover - compiled
+def _blend_kernel(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts, J):  # pragma: no cover - compiled
     """Blend of the voxel-centre weights (CSR rows per material voxel) at lattice points u (m, 3).
 
     With ``P == 0`` it only counts the parents of each point into ``counts`` (-1: no material in the
-    stencil); otherwise it fills idx/w/dw/ddw (derivatives in lattice coordinates).
+    stencil); otherwise it fills idx/w/dw/ddw, the derivatives mapped to world ones by ``J`` (3, 3)
+    (``d/dx = J d/du``, ``J = direction / spacing``): in the kernel, because the einsum doing it
+    afterwards took 1.8 s of the bunny's precompute (94k points, 2 mm, 40 frames).
     """
     m = u.shape[0]
     nx, ny, nz = vid.shape
@@ -99,6 +101,8 @@ def _blend_kernel(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts):  #
     bv = np.empty(3)
     dv = np.empty(3)
     hv = np.empty(3)
+    gl = np.empty(3)
+    Hl = np.empty((3, 3))
     for s in range(m):
         nf = 0
         S = 0.0
@@ -196,11 +200,20 @@ def _blend_kernel(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts):  #
             idx[s, t] = fr[o]
             w[s, t] = wv
             for p in range(3):
-                dw[s, t, p] = (dN[o, p] - wv * dS[p]) / S
+                gl[p] = (dN[o, p] - wv * dS[p]) / S
             for p in range(3):
                 for q in range(3):
-                    ddw[s, t, p, q] = (HN[o, p, q] - dw[s, t, p] * dS[q] - dS[p] * dw[s, t, q]
-                                       - wv * HS[p, q]) / S
+                    Hl[p, q] = (HN[o, p, q] - gl[p] * dS[q] - dS[p] * gl[q] - wv * HS[p, q]) / S
+            for a in range(3):
+                dw[s, t, a] = J[a, 0] * gl[0] + J[a, 1] * gl[1] + J[a, 2] * gl[2]
+            for a in range(3):
+                for b in range(a, 3):
+                    acc = 0.0
+                    for p in range(3):
+                        for q in range(3):
+                            acc += J[a, p] * (Hl[p, q] + Hl[q, p]) * J[b, q]
+                    ddw[s, t, a, b] = 0.5 * acc
+                    ddw[s, t, b, a] = 0.5 * acc
 
 
 class SmoothWeights:
@@ -255,6 +268,8 @@ class SmoothWeights:
         non-zero weight; pruning makes the functions discontinuous where the set changes).
         """
         X = np.asarray(points, dtype=float)
+        if self.backend != "numpy" and len(X):
+            return self._compiled(X, prune)
         out = [self._chunk(X[a:a + chunk], prune) for a in range(0, len(X), chunk)]
         if not out:
             z = np.zeros((0, 1))
@@ -272,14 +287,16 @@ class SmoothWeights:
         ddw = np.concatenate([pad(o[3], 0.0) for o in out])
         return ShapeValues(index=index, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=self.n_frames)
 
-    def _chunk(self, X, prune):
-        if self.backend == "numpy":
-            return self._chunk_numpy(X, prune)
+    def _compiled(self, X, prune):
+        """All points at once: one kernel pass counting the parents, one filling the output in place
+        (the chunks' padding and concatenation took 1.2 s of the bunny's precompute)."""
         u = np.ascontiguousarray(self.image.world_to_index(X) - 0.5)
         counts = np.zeros(len(X), dtype=np.int64)
         W = self._W
-        _blend_kernel(u, self._vid, W.indptr.astype(np.int64), W.indices.astype(np.int64), W.data, 0,
-                      np.zeros((0, 1), np.int64), np.zeros((0, 1)), np.zeros((0, 1, 3)), np.zeros((0, 1, 3, 3)), counts)
+        J = np.ascontiguousarray(self._dir / self._step[None, :])
+        ip, ix = W.indptr.astype(np.int64), W.indices.astype(np.int64)
+        _blend_kernel(u, self._vid, ip, ix, W.data, 0, np.zeros((0, 1), np.int64), np.zeros((0, 1)),
+                      np.zeros((0, 1, 3)), np.zeros((0, 1, 3, 3)), counts, J)
         if np.any(counts < 0):
             bad = int(np.flatnonzero(counts < 0)[0])
             raise InputError(f"point {X[bad].tolist()} lies outside the material; evaluate shape functions inside the object")
@@ -288,12 +305,13 @@ class SmoothWeights:
         w = np.zeros((len(X), P))
         dw = np.zeros((len(X), P, 3))
         ddw = np.zeros((len(X), P, 3, 3))
-        _blend_kernel(u, self._vid, W.indptr.astype(np.int64), W.indices.astype(np.int64), W.data, P,
-                      idx, w, dw, ddw, counts)
-        J = self._dir / self._step[None, :]
-        dw = dw @ J.T
-        ddw = np.einsum("ak,mfkl,bl->mfab", J, ddw, J)
-        return _finish(idx, w, dw, ddw, prune)
+        _blend_kernel(u, self._vid, ip, ix, W.data, P, idx, w, dw, ddw, counts, J)
+        if prune > 0:
+            idx, w, dw, ddw = _finish(idx, w, dw, ddw, prune)
+        return ShapeValues(index=idx, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=self.n_frames)
+
+    def _chunk(self, X, prune):
+        return self._chunk_numpy(X, prune)
 
     def _chunk_numpy(self, X, prune):
         m = len(X)
