@@ -21,6 +21,10 @@ def _rigid_model(scene: Scene, image, materials, *, cache: bool = True):
     from .model import RigidFrameModel
 
     fix = 'use [nodes] kind = "affine"'
+    if scene.nodes.shape_function == "reproducing-kernel":
+        raise InputError('rigid frames take their reference points at the frames\' mass centres, which reproducing-'
+                         'kernel weights (negative in places: some frames\' shares are negative) do not define; use '
+                         f'another [nodes] shape_function, or {fix}')
     if scene.solver.kind != "static":
         raise InputError(f'rigid frames run static scenes only (their mass matrix depends on the rotation); {fix} '
                          'for dynamics')
