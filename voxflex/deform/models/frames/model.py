@@ -52,16 +52,17 @@ every voxel (dense 12x12 blocks between frames that share material);
 ``lumped`` gives every voxel centre's mass to its frames in proportion to
 their weights, each frame carrying its share as its own affine body
 (block-diagonal, symmetric positive definite, exact total mass and momentum).
-With weights that are negative somewhere (reproducing kernels) those shares
-give indefinite blocks and even negative masses, so each block keeps the exact
-mass and first moment of its frame (a uniform acceleration, free fall, is still
-lumped exactly) with the central second moment of the positive part of the
-weights (:func:`_positive_blocks`): positive definite; a frame whose own share
-is not positive takes the positive part's block (free fall is then not exact
-there).  Linearly precise weights make 18 motions of the
-frames move nothing (:func:`~voxflex.deform.models.frames.modes.gauge_modes`): the consistent
-mass ``J^T M J`` is singular along them, so they get the frames' mean matrix-entry mass (no force
-excites them: every force is ``J^T f`` and ``J`` vanishes on them).
+With weights that are negative somewhere (reproducing kernels) such blocks are
+indefinite (35 of 40 frames on the cantilever), and made positive (the positive
+part of the weights) they no longer move the material by g under its own weight
+where a held frame's weight is negative (1.8 g at the tip of a clamped beam in the
+first implicit-Euler step): ``lumped`` is then ``J^T diag(m) J`` over the voxel
+centres, the points gravity acts on (one per voxel instead of the consistent
+mass's eight), so free fall is exact and the matrix positive semi-definite.
+Linearly precise weights make 18 motions of the frames move nothing
+(:func:`~voxflex.deform.models.frames.modes.gauge_modes`): either mass is singular
+along them, so they get the frames' mean matrix-entry mass (no force excites them:
+every force is ``J^T f`` and ``J`` vanishes on them).
 
 Example
 -------
@@ -104,34 +105,6 @@ from . import _kernels as K
 from ._kernels import frame_tables
 
 __all__ = ["FrameModel"]
-
-
-def _positive_blocks(exact, positive):
-    """Lumped 4x4 mass blocks ``[[J, s], [s^T, m]]`` per frame (n, 4, 4) that stay positive definite
-    with weights that are negative somewhere.
-
-    ``exact``: the moments of the weights themselves (mass m, first moment s, second J: indefinite for
-    35 of 40 reproducing-kernel frames on the cantilever, some m <= 0); ``positive``: those of the
-    positive part of each point's weights, renormalised (positive semi-definite, total mass exact).
-    Where the frame's own mass ``m`` is positive (above 1e-3 of the mean) the block keeps the exact
-    ``m`` and ``s`` -- so a uniform acceleration (free fall) is lumped exactly: the block applied to
-    (0, g) gives the consistent force -- with the positive part's central second moment scaled to
-    that mass, ``J = J+_c m / m+ + s s^T / m`` (positive definite: its Schur complement is ``J+_c``);
-    elsewhere the positive part's block."""
-    m = exact[:, 3, 3]
-    mp = positive[:, 3, 3]
-    good = (m > 1e-3 * max(float(np.mean(np.abs(m))), 1e-300)) & (mp > 0)
-    out = positive.copy()
-    if np.any(good):
-        sp_ = positive[good, :3, 3]
-        central = positive[good, :3, :3] - sp_[:, :, None] * sp_[:, None, :] / mp[good, None, None]
-        s = exact[good, :3, 3]
-        mg = m[good]
-        out[good, :3, :3] = central * (mg / mp[good])[:, None, None] + s[:, :, None] * s[:, None, :] / mg[:, None, None]
-        out[good, :3, 3] = s
-        out[good, 3, :3] = s
-        out[good, 3, 3] = mg
-    return out
 
 
 ELASTON_CHUNK = 1 << 22
@@ -571,44 +544,45 @@ class FrameModel(OnePass):
             # across a frame's support): the 2x2x2 Gauss points of every voxel integrate it
             s = voxel_samples(self.image, self.shape_function, rule="gauss-legendre", use_occupancy=self.use_occupancy)
             m8 = np.repeat(mp / self._mass_points()[1], 8) * s.volume  # density of each voxel x Gauss volumes
-            J = PointMapping(self.nodes, s.values).jacobian(self.rest)
-            M = (J.T @ sp.diags(np.repeat(m8, 3)) @ J).tocsr()
-            from .modes import gauge_modes
-
-            G = gauge_modes(self.frames, s.values)
-            if G.shape[1]:
-                # linearly precise weights (reproducing kernels): the gauge motions move no point, so the
-                # consistent mass is singular along them (and so is a free body's stiffness); they get the
-                # frames' mean matrix-entry mass, which no force excites (every force is J^T f, and J G = 0)
-                a = (np.arange(M.shape[0]) % 12) < 9
-                mu = float(M.diagonal()[a].mean())
-                M = (M + sp.csr_matrix(mu * (G @ G.T))).tocsr()
-            return M
+            return self._point_mass(s.values, m8)
         _, _, pmap = self._mass_layer()
         v = pmap.shape
+        if np.any(v.w < 0):
+            # weights negative somewhere (reproducing kernels): per-frame blocks would be indefinite (35 of 40
+            # frames on the cantilever) and, made positive, would not accelerate the material by g under its
+            # own weight where a held frame's weight is negative (1.8 g at a beam's tip): the mass of the
+            # voxel centres, the points gravity acts on, through the weights themselves
+            return self._point_mass(v, mp)
         n = self.n_nodes
         X = v.rest
         ok = v.index >= 0
-        idx = np.where(ok, v.index, 0)  # per frame below: sum m w [r; 1][r; 1]^T with r = X - X_a
+        blocks = np.zeros((n, 4, 4))  # per frame: sum m w [r; 1][r; 1]^T with r = X - X_a
+        idx = np.where(ok, v.index, 0)
         r = np.concatenate([X[:, None, :] - self.frames[idx], np.ones(idx.shape + (1,))], axis=2)  # (m, P, 4)
-        w = np.where(ok, v.w, 0.0)
-
-        def moments(weights):
-            out = np.zeros((n, 4, 4))
-            mw = weights * mp[:, None]
-            np.add.at(out, idx[ok], (mw[..., None, None] * r[..., :, None] * r[..., None, :])[ok])
-            return out
-
-        blocks = moments(w)
-        if np.any(w < 0):
-            blocks = _positive_blocks(blocks, moments(np.maximum(w, 0.0) / np.maximum(w, 0.0).sum(1, keepdims=True)))
-
+        mw = np.where(ok, v.w, 0.0) * mp[:, None]
+        contrib = mw[..., None, None] * r[..., :, None] * r[..., None, :]
+        np.add.at(blocks, idx[ok], contrib[ok])
         # DOF layout: A row i (3 entries) then t_i; x_i = sum_j A_ij r_j + t_i couples A_i. with t_i
         full = np.zeros((n, 12, 12))
         for i in range(3):
             dofs = [3 * i, 3 * i + 1, 3 * i + 2, 9 + i]
             full[:, np.ix_(dofs, dofs)[0], np.ix_(dofs, dofs)[1]] = blocks
         return sp.block_diag(list(full), format="csr")
+
+    def _point_mass(self, values, masses) -> sp.csr_matrix:
+        """``J^T diag(m) J`` of point masses ``masses`` (k,) at the points of ``values``, with the gauge
+        motions of linearly precise weights (:func:`~voxflex.deform.models.frames.modes.gauge_modes`,
+        along which it is singular: they move no point) given the frames' mean matrix-entry mass, which
+        no force excites (every force is ``J^T f``, and ``J`` vanishes on them)."""
+        from .modes import gauge_modes
+
+        J = PointMapping(self.nodes, values).jacobian(self.rest)
+        M = (J.T @ sp.diags(np.repeat(masses, 3)) @ J).tocsr()
+        G = gauge_modes(self.frames, values)
+        if G.shape[1]:
+            a = (np.arange(M.shape[0]) % 12) < 9
+            M = (M + sp.csr_matrix(float(M.diagonal()[a].mean()) * (G @ G.T))).tocsr()
+        return M
 
     def gravity_force(self, densities: Mapping[int, float], g) -> np.ndarray:
         """Generalised gravity force (n, 12): ``J^T (m g)`` at the mass points."""
