@@ -323,6 +323,26 @@ def _ball(mask, cost, shape, spacing, p, radius, out_idx, out_d):
     s2 = shape[2]
     v0 = i0 * s1 + j0 * s2 + k0
     c0 = cost[v0]
+    # a box of material of one slowness needs no line-of-sight test (every segment stays in it): the
+    # usual case for a frame inside the object, 0.8 s of the bunny's placement at 2 mm with the tests
+    full = True
+    for a in range(-radius, radius + 1):
+        i = i0 + a
+        for b in range(-radius, radius + 1):
+            j = j0 + b
+            for c in range(-radius, radius + 1):
+                k = k0 + c
+                if i < 0 or i >= shape[0] or j < 0 or j >= shape[1] or k < 0 or k >= shape[2]:
+                    full = False
+                    break
+                v = i * s1 + j * s2 + k
+                if mask[v] == 0 or cost[v] != c0:
+                    full = False
+                    break
+            if not full:
+                break
+        if not full:
+            break
     cnt = 0
     for a in range(-radius, radius + 1):
         i = i0 + a
@@ -343,7 +363,7 @@ def _ball(mask, cost, shape, spacing, p, radius, out_idx, out_d):
                 dy = (j + 0.5 - p[1])
                 dz = (k + 0.5 - p[2])
                 ok = True
-                steps = int(4.0 * (abs(dx) + abs(dy) + abs(dz))) + 1
+                steps = 1 if full else int(4.0 * (abs(dx) + abs(dy) + abs(dz))) + 1
                 for q in range(1, steps):
                     f = q / steps
                     ii = int(math.floor(p[0] + f * dx))

@@ -31,7 +31,7 @@ GAUGE_TOL = 1e-8
 samples are below this fraction of those of a unit dilation is exact (moves nothing)."""
 
 
-def gauge_modes(frames, values, *, tol: float = GAUGE_TOL) -> np.ndarray:
+def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 1024) -> np.ndarray:
     """(12n, g) orthonormal basis of the affine frames' motions that move no sample and deform none.
 
     With weights that reproduce linear fields at every sample (reproducing kernels) ``g = 18``
@@ -40,25 +40,32 @@ def gauge_modes(frames, values, *, tol: float = GAUGE_TOL) -> np.ndarray:
     eigenvalues besides the 6 rigid ones that are not spurious (nothing moves).  Where linear
     precision is given up somewhere (a clamp's own voxels, natural-neighbour weights near the
     surface) fewer or none are exact.  Exactness: the singular values of the map from the
-    candidates to (F, x / L) at the samples, below ``tol`` times the response to a unit dilation.
+    candidates to (F, x / L) at the samples, below ``tol`` times the response to a unit dilation;
+    the map is reduced by a QR over chunks of ``chunk`` samples (memory bounded for any count).
     """
-    from ...chain.mappings import DeformationGradientMapping, PointMapping
+    import scipy.linalg as sla
 
     X = np.asarray(frames, dtype=np.float64)
     n = len(X)
-    nodes = AffineFrames(X)
-    Z = nodes.gauge_modes()
-    rest = nodes.rest
-    Fm, Pm = DeformationGradientMapping(nodes, values), PointMapping(nodes, values)
-    F0, x0 = Fm.apply(rest), Pm.apply(rest)
+    Z = AffineFrames(X).gauge_modes()
+    A = Z.reshape(n, 12, 18)[:, :9, :].reshape(n, 3, 3, 18)  # the candidates move no translation
     L = float(np.ptp(X, axis=0).max()) if n > 1 else 1.0
     L = L if L > 0 else 1.0
-    cols = []
-    for z in Z.T:
-        q = rest + z.reshape(n, 12)
-        cols.append(np.concatenate([(Fm.apply(q) - F0).ravel(), ((Pm.apply(q) - x0) / L).ravel()]))
-    Mz = np.stack(cols, axis=1)
-    _, sv, Vt = np.linalg.svd(Mz, full_matrices=False)
+    R = np.zeros((0, 18))
+    for a in range(0, values.m, chunk):
+        b = min(values.m, a + chunk)
+        idx = values.index[a:b]
+        ok = idx >= 0
+        ii = np.where(ok, idx, 0)
+        w = np.where(ok, values.w[a:b], 0.0)
+        dw = np.where(ok[..., None], values.dw[a:b], 0.0)
+        Aa = A[ii]  # (c, P, 3, 3, 18)
+        u = np.einsum("cpijk,cpj->cpik", Aa, values.rest[a:b, None, :] - X[ii])  # dA_a (X - X_a)
+        x = np.einsum("cp,cpik->cik", w, u)
+        F = np.einsum("cp,cpijk->cijk", w, Aa) + np.einsum("cpik,cpj->cijk", u, dw)
+        rows = np.concatenate([F.reshape(-1, 18), x.reshape(-1, 18) / L])
+        R = sla.qr(np.concatenate([R, rows]), mode="r", check_finite=False)[0][:18]
+    _, sv, Vt = np.linalg.svd(R, full_matrices=False)
     ref = np.sqrt(max(values.m, 1) / n)  # |F| over the samples of the unit dilation A_a = I / sqrt(3n)
     return Z @ Vt[sv <= tol * ref].T
 
