@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from .._jit import njit
+from .._jit import njit, prange
 
 PAD = 2
 #: radius (in voxels) of the ball around a seed whose distances are set exactly
@@ -382,18 +382,40 @@ def _ball(mask, cost, shape, spacing, p, radius, out_idx, out_d):
 
 @njit
 def _seed_arrays(mask, cost, shape, spacing, points, owners, radius):
-    """Seeds (flat index, distance, owner) for point sources ``points`` (s, 3) in padded index coords."""
+    """Seeds (flat index, distance, owner) for point sources ``points`` (s, 3) in padded index coords.
+
+    The balls are computed over the threads, each in its own slice, then packed in the points' order
+    (the same arrays as one thread: a fixed region's thousands of voxel seeds took 0.37 s of the
+    bunny's weights)."""
     per = (2 * radius + 1) ** 3
-    idx = np.empty(points.shape[0] * per, dtype=np.int64)
-    d = np.empty(points.shape[0] * per, dtype=np.float64)
-    own = np.empty(points.shape[0] * per, dtype=np.int64)
-    tot = 0
-    for s in range(points.shape[0]):
-        cnt = _ball(mask, cost, shape, spacing, points[s], radius, idx[tot:], d[tot:])
-        for q in range(cnt):
-            own[tot + q] = owners[s]
-        tot += cnt
-    return idx[:tot], d[:tot], own[:tot]
+    ns = points.shape[0]
+    idx = np.empty(ns * per, dtype=np.int64)
+    d = np.empty(ns * per, dtype=np.float64)
+    counts = _balls(mask, cost, shape, spacing, points, radius, idx, d)
+    tot = int(counts.sum())
+    oi = np.empty(tot, dtype=np.int64)
+    od = np.empty(tot, dtype=np.float64)
+    own = np.empty(tot, dtype=np.int64)
+    k = 0
+    for s in range(ns):
+        for q in range(counts[s]):
+            oi[k] = idx[s * per + q]
+            od[k] = d[s * per + q]
+            own[k] = owners[s]
+            k += 1
+    return oi, od, own
+
+
+@njit(parallel=True)
+def _balls(mask, cost, shape, spacing, points, radius, idx, d):
+    """:func:`_ball` of every point into its slice ``[s * per, (s + 1) * per)``; returns the counts."""
+    per = (2 * radius + 1) ** 3
+    ns = points.shape[0]
+    counts = np.zeros(ns, dtype=np.int64)
+    for s in prange(ns):
+        counts[s] = _ball(mask, cost, shape, spacing, points[s], radius, idx[s * per:(s + 1) * per],
+                          d[s * per:(s + 1) * per])
+    return counts
 
 
 def march(mask, cost, shape, spacing, points, owners, *, fmm, dist=None, owner=None):

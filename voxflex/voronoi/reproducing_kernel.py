@@ -84,7 +84,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from .._jit import njit
+from .._jit import njit, prange
 from ..errors import InputError
 from ..image.grid import CORNER_OFFSETS, TrilinearGrid, trilinear_weights
 from . import _march as M
@@ -420,25 +420,35 @@ def _union_sizes(element_nodes, indptr, fidx, n_frames):  # pragma: no cover
     return out
 
 
-@njit
+@njit(parallel=True)
 def _interpolate(elem, local, element_nodes, indptr, fidx, wdata, Dw, hess, index, w, dw, ddw):  # pragma: no cover
     """Trilinear interpolation of corner weights at points (element, local coords): fills index/w/dw
     (and ddw when ``hess``); ``Dw`` (3, 3) maps local derivatives to world ones (``direction / spacing``).
-    Local derivatives are summed per parent, then mapped once (the trilinear Hessian has only the
-    three mixed terms)."""
+    Points in chunks of 4096 over the threads (:func:`_interpolate_range`)."""
     m = elem.shape[0]
-    n_frames = 0
+    n_frames = 1
     for k in range(fidx.shape[0]):
         if fidx[k] + 1 > n_frames:
             n_frames = fidx[k] + 1
-    slot_of = np.full(max(n_frames, 1), -1, dtype=np.int64)
+    step = 4096
+    for c in prange((m + step - 1) // step):
+        _interpolate_range(elem, local, element_nodes, indptr, fidx, wdata, Dw, hess, index, w, dw, ddw,
+                           c * step, min(m, (c + 1) * step), n_frames)
+
+
+@njit
+def _interpolate_range(elem, local, element_nodes, indptr, fidx, wdata, Dw, hess, index, w, dw, ddw, lo, hi,
+                       n_frames):  # pragma: no cover
+    """:func:`_interpolate` for the points ``lo..hi``.  Local derivatives are summed per parent, then
+    mapped once (the trilinear Hessian has only the three mixed terms)."""
+    slot_of = np.full(n_frames, -1, dtype=np.int64)
     P = index.shape[1]
     N = np.empty(8)
     dN = np.empty((8, 3))
     hN = np.empty((8, 3))  # d2/dx0dx1, d2/dx0dx2, d2/dx1dx2
     gl = np.zeros((P, 3))
     hl = np.zeros((P, 3))
-    for s in range(m):
+    for s in range(lo, hi):
         e = elem[s]
         x0 = local[s, 0]
         x1 = local[s, 1]
@@ -692,15 +702,22 @@ class _Marcher:
                 "acc": np.zeros(nn), "cnt": np.zeros(nn, dtype=np.int64), "mark": np.zeros(nn, dtype=np.uint8),
                 "out": np.empty(nn, dtype=np.int64)}
 
-    def one(self, pts, rho, sc):
-        """(corner indices, kernel values) of one frame seeded at ``pts`` (padded index coords: the
-        frame, then the centres of the voxels it owns outright, seeded at distance 0)."""
+    def seeds(self, pts):
+        """March seeds of one frame at ``pts`` (padded index coords: the frame, with the exact ball around
+        it, then the centres of the voxels it owns outright, at distance 0).  Called on the main thread:
+        the ball kernel is parallel, and numba's default threading layer must not be entered from two
+        threads at once."""
         own = np.zeros(len(pts), dtype=np.int64)
-        sc["bound"].fill(rho + self.margin)
         si, sd, so = M._seed_arrays(self.mask, self.cost, self.pshape, self.spacing, pts[:1], own[:1], M.BALL)
         if len(pts) > 1:
             s2 = M._seed_arrays(self.mask, self.cost, self.pshape, self.spacing, pts[1:], own[1:], 0)
             si, sd, so = np.concatenate([si, s2[0]]), np.concatenate([sd, s2[1]]), np.concatenate([so, s2[2]])
+        return si, sd, so
+
+    def one(self, seeds, rho, sc):
+        """(corner indices, kernel values) of one frame from its seeds (:meth:`seeds`)."""
+        si, sd, so = seeds
+        sc["bound"].fill(rho + self.margin)
         nt = M._march(self.cost, self.pshape, self.spacing, sc["dist"], sc["owner"], sc["state"], sc["nxt"],
                       sc["prv"], sc["bound"], True, si, sd, so, 2, sc["touched"], 0, self.smin, self.smax)
         k = _frame_corners(sc["touched"], nt, sc["dist"], self.elem_of, self.grid.element_nodes, sc["acc"], sc["cnt"],
@@ -719,6 +736,7 @@ class _Marcher:
 
         import numba
 
+        jobs = [(self.seeds(p), r) for p, r in jobs]
         workers = max(1, min(int(numba.get_num_threads()), len(jobs)))
         while len(self._scratch) < workers:
             self._scratch.append(self._new_scratch())
