@@ -432,6 +432,16 @@ def march(mask, cost, shape, spacing, points, owners, *, fmm, dist=None, owner=N
     owners = np.ascontiguousarray(owners, dtype=np.int64)
     radius = BALL if fmm else 0
     si, sd, so = _seed_arrays(mask, cost, shape, spacing, points, owners, radius)
+    zero = sd == 0.0
+    if np.count_nonzero(zero) > 1:
+        # a region of voxels seeded at distance 0 (a fixed region a frame owns): the balls' entries on
+        # voxels of the region can never win against their own 0 (the march applies seeds in order of
+        # distance and keeps the smaller), so they are dropped; the result is the same, and the bunny's
+        # base (thousands of voxels) no longer feeds millions of seeds to the queue
+        seeded = np.zeros(N, dtype=bool)
+        seeded[si[zero]] = True
+        keep = zero | ~seeded[si]
+        si, sd, so = si[keep], sd[keep], so[keep]
     state = state_of(mask)
     touched = np.empty(N, dtype=np.int32)
     nxt = np.empty(N, dtype=np.int32)
