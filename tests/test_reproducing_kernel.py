@@ -208,9 +208,9 @@ def test_parents_are_never_truncated():
 
 @pytest.fixture(scope="module")
 def beam_model():
-    """A 32x8x8 beam (voxels 0.125 m), 20 frames, reproducing kernels, Gauss points."""
-    image = LabelImage(np.ones((32, 8, 8), np.uint8), spacing=(0.125,) * 3)
-    frames = place_frames(image, 20, seed=0)
+    """A 16x4x4 beam (voxels 0.25 m), 12 frames, reproducing kernels, Gauss points."""
+    image = LabelImage(np.ones((16, 4, 4), np.uint8), spacing=(0.25,) * 3)
+    frames = place_frames(image, 12, seed=0)
     sf = shape_function(image, frames, kind="reproducing-kernel")
     mats = {1: material("hooke", young=1e3, poisson=0.3, strain="linear")}
     return FrameModel.from_image(image, frames, sf, mats, quadrature="gauss-legendre")
