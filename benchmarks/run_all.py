@@ -50,6 +50,8 @@ QUICK = {
     "resources": ["--quick"],
     "contact": ["--quick"],
     "robust_newton": ["--contrasts", "1e2,1e3", "--repeat", "1"],
+    "weights_convergence": ["--part", "bending", "--counts", "10,20", "--repeat", "1"],
+    "precompute": ["--repeat", "1", "--kinds", "natural-neighbour"],
 }
 
 

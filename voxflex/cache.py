@@ -48,7 +48,8 @@ def code_fingerprint() -> str:
     global _FINGERPRINT
     if _FINGERPRINT is None:
         root = Path(__file__).resolve().parent
-        files = sorted([*root.glob("voronoi/*.py"), *root.glob("sampling/*.py"), root / "build.py"])
+        files = sorted([*root.glob("voronoi/*.py"), *root.glob("sampling/*.py"), root / "build.py",
+                        root / "deform" / "models" / "frames" / "build.py"])
         h = hashlib.sha256()
         for f in files:
             h.update(f.name.encode())

@@ -291,8 +291,11 @@ class NodesSpec:
     (default 20, or the number of material voxels when the object has fewer),
     ``positions`` (frames given by the user, world, placed first),
     ``shape_function`` (default natural-neighbour), ``parents`` (at most this
-    many frames influence a material point), ``distance`` (``geodesic`` or
-    ``compliance``) and ``seed`` (placement is deterministic for a seed).
+    many frames influence a material point; not applied to
+    ``"reproducing-kernel"``, whose weights are never truncated), ``support``
+    (``"reproducing-kernel"`` only: kernel radius in local frame spacings,
+    default 2.5), ``distance`` (``geodesic`` or ``compliance``) and ``seed``
+    (placement is deterministic for a seed).
     Each kind takes the shape functions its :class:`~voxflex.deform.models.kinds.NodeKind` names
     (voxel nodes: ``"trilinear"`` only; membranes: none).
     """
@@ -304,6 +307,7 @@ class NodesSpec:
     parents: int = 6
     distance: str = "geodesic"
     seed: int = 0
+    support: float | None = None
 
     def __post_init__(self):
         t = "nodes"
@@ -326,6 +330,11 @@ class NodesSpec:
         object.__setattr__(self, "parents", _number(t, "parents", self.parents, integer=True, minimum=1))
         _string(t, "distance", self.distance, DISTANCES)
         object.__setattr__(self, "seed", _number(t, "seed", self.seed, integer=True, minimum=0))
+        if self.support is not None:
+            if self.shape_function != "reproducing-kernel":
+                raise InputError('[nodes] support is the kernel radius of shape_function = "reproducing-kernel"; '
+                                 'remove it or set that shape function')
+            object.__setattr__(self, "support", _number(t, "support", self.support, positive=True))
 
 
 @dataclass(frozen=True)

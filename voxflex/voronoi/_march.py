@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from .._jit import njit
+from .._jit import njit, prange
 
 PAD = 2
 #: radius (in voxels) of the ball around a seed whose distances are set exactly
@@ -323,6 +323,26 @@ def _ball(mask, cost, shape, spacing, p, radius, out_idx, out_d):
     s2 = shape[2]
     v0 = i0 * s1 + j0 * s2 + k0
     c0 = cost[v0]
+    # a box of material of one slowness needs no line-of-sight test (every segment stays in it): the
+    # usual case for a frame inside the object, 0.8 s of the bunny's placement at 2 mm with the tests
+    full = True
+    for a in range(-radius, radius + 1):
+        i = i0 + a
+        for b in range(-radius, radius + 1):
+            j = j0 + b
+            for c in range(-radius, radius + 1):
+                k = k0 + c
+                if i < 0 or i >= shape[0] or j < 0 or j >= shape[1] or k < 0 or k >= shape[2]:
+                    full = False
+                    break
+                v = i * s1 + j * s2 + k
+                if mask[v] == 0 or cost[v] != c0:
+                    full = False
+                    break
+            if not full:
+                break
+        if not full:
+            break
     cnt = 0
     for a in range(-radius, radius + 1):
         i = i0 + a
@@ -343,7 +363,7 @@ def _ball(mask, cost, shape, spacing, p, radius, out_idx, out_d):
                 dy = (j + 0.5 - p[1])
                 dz = (k + 0.5 - p[2])
                 ok = True
-                steps = int(4.0 * (abs(dx) + abs(dy) + abs(dz))) + 1
+                steps = 1 if full else int(4.0 * (abs(dx) + abs(dy) + abs(dz))) + 1
                 for q in range(1, steps):
                     f = q / steps
                     ii = int(math.floor(p[0] + f * dx))
@@ -362,18 +382,40 @@ def _ball(mask, cost, shape, spacing, p, radius, out_idx, out_d):
 
 @njit
 def _seed_arrays(mask, cost, shape, spacing, points, owners, radius):
-    """Seeds (flat index, distance, owner) for point sources ``points`` (s, 3) in padded index coords."""
+    """Seeds (flat index, distance, owner) for point sources ``points`` (s, 3) in padded index coords.
+
+    The balls are computed over the threads, each in its own slice, then packed in the points' order
+    (the same arrays as one thread: a fixed region's thousands of voxel seeds took 0.37 s of the
+    bunny's weights)."""
     per = (2 * radius + 1) ** 3
-    idx = np.empty(points.shape[0] * per, dtype=np.int64)
-    d = np.empty(points.shape[0] * per, dtype=np.float64)
-    own = np.empty(points.shape[0] * per, dtype=np.int64)
-    tot = 0
-    for s in range(points.shape[0]):
-        cnt = _ball(mask, cost, shape, spacing, points[s], radius, idx[tot:], d[tot:])
-        for q in range(cnt):
-            own[tot + q] = owners[s]
-        tot += cnt
-    return idx[:tot], d[:tot], own[:tot]
+    ns = points.shape[0]
+    idx = np.empty(ns * per, dtype=np.int64)
+    d = np.empty(ns * per, dtype=np.float64)
+    counts = _balls(mask, cost, shape, spacing, points, radius, idx, d)
+    tot = int(counts.sum())
+    oi = np.empty(tot, dtype=np.int64)
+    od = np.empty(tot, dtype=np.float64)
+    own = np.empty(tot, dtype=np.int64)
+    k = 0
+    for s in range(ns):
+        for q in range(counts[s]):
+            oi[k] = idx[s * per + q]
+            od[k] = d[s * per + q]
+            own[k] = owners[s]
+            k += 1
+    return oi, od, own
+
+
+@njit(parallel=True)
+def _balls(mask, cost, shape, spacing, points, radius, idx, d):
+    """:func:`_ball` of every point into its slice ``[s * per, (s + 1) * per)``; returns the counts."""
+    per = (2 * radius + 1) ** 3
+    ns = points.shape[0]
+    counts = np.zeros(ns, dtype=np.int64)
+    for s in prange(ns):
+        counts[s] = _ball(mask, cost, shape, spacing, points[s], radius, idx[s * per:(s + 1) * per],
+                          d[s * per:(s + 1) * per])
+    return counts
 
 
 def march(mask, cost, shape, spacing, points, owners, *, fmm, dist=None, owner=None):
@@ -390,6 +432,16 @@ def march(mask, cost, shape, spacing, points, owners, *, fmm, dist=None, owner=N
     owners = np.ascontiguousarray(owners, dtype=np.int64)
     radius = BALL if fmm else 0
     si, sd, so = _seed_arrays(mask, cost, shape, spacing, points, owners, radius)
+    zero = sd == 0.0
+    if np.count_nonzero(zero) > 1:
+        # a region of voxels seeded at distance 0 (a fixed region a frame owns): the balls' entries on
+        # voxels of the region can never win against their own 0 (the march applies seeds in order of
+        # distance and keeps the smaller), so they are dropped; the result is the same, and the bunny's
+        # base (thousands of voxels) no longer feeds millions of seeds to the queue
+        seeded = np.zeros(N, dtype=bool)
+        seeded[si[zero]] = True
+        keep = zero | ~seeded[si]
+        si, sd, so = si[keep], sd[keep], so[keep]
     state = state_of(mask)
     touched = np.empty(N, dtype=np.int32)
     nxt = np.empty(N, dtype=np.int32)

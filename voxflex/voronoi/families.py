@@ -9,8 +9,9 @@ from __future__ import annotations
 
 __all__ = ["FRAME_SHAPE_FUNCTIONS", "VOXEL_SHAPE_FUNCTIONS", "SHAPE_FUNCTIONS", "ALIASES"]
 
-FRAME_SHAPE_FUNCTIONS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard")
-"""Weights of frames over the image (:func:`voxflex.voronoi.weights`); natural-neighbour is Sibson's."""
+FRAME_SHAPE_FUNCTIONS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard", "reproducing-kernel")
+"""Weights of frames over the image (:func:`voxflex.voronoi.shape_function`); natural-neighbour is Sibson's;
+reproducing-kernel weights are linearly precise (:mod:`voxflex.voronoi.reproducing_kernel`)."""
 
 VOXEL_SHAPE_FUNCTIONS = ("trilinear",)
 """Weights of the voxel model's corner nodes (:mod:`voxflex.voronoi.trilinear`)."""

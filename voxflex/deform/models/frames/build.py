@@ -52,7 +52,9 @@ def build(scene, image, materials, *, cache: bool = True):
     quadrature = scene.elasticity.quadrature
     n_samples = scene.elasticity.samples if scene.elasticity.samples is not None else SAMPLES_PER_FRAME * count
     occupancy = bool(scene.object.occupancy)
+    rk = kind == "reproducing-kernel"  # never truncated to parents (conforming, linearly precise)
     settings = {"count": count, "positions": nodes.positions, "kind": kind, "parents": nodes.parents,
+                "support": nodes.support,
                 "distance": nodes.distance, "seed": nodes.seed, "compliance": compliance,
                 "fixed": [(lo.tolist(), hi.tolist(), f.components) for (lo, hi), f in zip(fixed, scene.fixed)],
                 "quadrature": quadrature, "samples": n_samples, "occupancy": occupancy}
@@ -70,8 +72,11 @@ def build(scene, image, materials, *, cache: bool = True):
     else:
         frames, sf, samples = _precompute(image, count, kind, fixed, nodes, compliance, quadrature,
                                           n_samples, occupancy)
-    info = {"shape_function": kind, "parents": int(nodes.parents), "distance": nodes.distance,
+    info = {"shape_function": kind, "parents": int(sf.parents if rk else nodes.parents), "distance": nodes.distance,
             "precompute_cached": stored is not None}
+    if rk:
+        info.update(support=float(sf.support), kernel_grown_frames=int(sf.grown_frames),
+                    kernel_fallback_corners=int(sf.fallback_corners))
     # [elasticity] volumetric: "reduced" asks for F-bar / B-bar over each frame's cell; "auto" stays "full"
     # for frames: measured (benchmarks/bench_locking.py) the reduced term removes the locking but makes
     # the cantilever 12-74 % softer than the beam trend, and at nu = 0.45 (the default scene) it is no closer
@@ -82,6 +87,12 @@ def build(scene, image, materials, *, cache: bool = True):
         import warnings
 
         from .modes import SpuriousModesWarning, check_modes, free_body_stiffness
+
+        if rk:
+            warnings.warn(f'reproducing-kernel weights with {quadrature} samples: their kinematics no longer stiffen '
+                          'the model, so the reduced quadrature\'s softness shows (the neo-Hooke cantilever with 20 '
+                          'frames and mid-point samples came out 49 % too soft, 0.8 % with Gauss points); use '
+                          '[elasticity] quadrature = "gauss-legendre" with them for now', UserWarning, stacklevel=2)
 
         K = free_body_stiffness(frames, samples)  # once: the rank check, the refusal and the softest mode
         with warnings.catch_warnings(record=True) as caught:
@@ -127,11 +138,25 @@ def _softest_mode(scene, image, model, frames, sf, samples, occupancy, K) -> flo
     from ....voronoi.shape_functions import keep_largest
     from .modes import softest_mode
 
-    reference = voxel_samples(image, sf, rule="midpoint", use_occupancy=occupancy)
-    reference = dataclasses.replace(reference, values=keep_largest(reference.values, scene.nodes.parents))
+    reference = voxel_samples(image, _centre_values_of(sf), rule="midpoint", use_occupancy=occupancy)
+    if getattr(sf, "kind", None) != "reproducing-kernel":
+        reference = dataclasses.replace(reference, values=keep_largest(reference.values, scene.nodes.parents))
     held = _held(scene, model)
     free = np.setdiff1d(np.arange(12 * len(frames)), held) if len(held) else None
     return softest_mode(frames, samples, reference, free, stiffness=K)
+
+
+def _centre_values_of(sf):
+    """``sf`` for :func:`voxel_samples` at the voxel centres, answering from ``sf.voxel_values()`` (already
+    computed for the samples: the same points in the same order) instead of evaluating them again
+    (2.2-2.6 s of the bunny's 40-frame precompute at 2 mm, 94k voxels)."""
+    def centres(points):
+        vv = sf.voxel_values() if hasattr(sf, "voxel_values") else None
+        if vv is not None and vv.rest.shape == np.shape(points) and np.array_equal(vv.rest, points):
+            return vv
+        return sf(points)
+
+    return centres
 
 
 def _judge_soft_modes(scene, samples, softest: float) -> None:
@@ -186,8 +211,10 @@ def _precompute(image, count, kind, fixed, nodes, compliance, quadrature, n_samp
     positions = None if nodes.positions is None else np.asarray(nodes.positions, dtype=float)
     frames = place_frames(image, count, positions=positions, fixed=fixed, seed=nodes.seed,
                           distance=nodes.distance, compliance=compliance)
-    sf = shape_function(image, frames, kind=kind, parents=nodes.parents, distance=nodes.distance,
-                        compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed))
+    rk = kind == "reproducing-kernel"
+    sf = shape_function(image, frames, kind=kind, parents=None if rk else nodes.parents, distance=nodes.distance,
+                        compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed),
+                        **({"support": nodes.support} if rk else {}))
     if quadrature == "gauss-legendre":
         samples = voxel_samples(image, sf, rule="gauss-legendre", use_occupancy=occupancy)
     else:
@@ -195,18 +222,24 @@ def _precompute(image, count, kind, fixed, nodes, compliance, quadrature, n_samp
 
         samples = sample(image, sf, kind=quadrature, count=n_samples, seed=nodes.seed)
     # at most `parents` frames per sample: the blended weights of a sample (and the union over a
-    # region) have more, and the stiffness costs ~432 P^2 flops per sample
-    samples = dataclasses.replace(samples, values=keep_largest(samples.values, nodes.parents))
+    # region) have more, and the stiffness costs ~432 P^2 flops per sample; reproducing-kernel
+    # weights keep every parent (truncating them breaks linear precision and conformity)
+    if not rk:
+        samples = dataclasses.replace(samples, values=keep_largest(samples.values, nodes.parents))
     return frames, sf, samples
 
 
 def _to_store(frames, sf, samples) -> dict:
-    W = sf._smoothed()._W
     v = samples.values
-    out = {"frames": frames, "W_indptr": W.indptr, "W_indices": W.indices, "W_data": W.data,
+    if getattr(sf, "kind", None) == "reproducing-kernel":
+        out = sf.to_store()
+    else:
+        W = sf._smoothed()._W
+        out = {"W_indptr": W.indptr, "W_indices": W.indices, "W_data": W.data}
+    out.update({"frames": frames,
            "kind": np.array(samples.kind), "points": samples.points, "volume": samples.volume,
            "label": samples.label, "index": v.index, "w": v.w, "dw": v.dw,
-           "ddw": v.ddw if v.ddw is not None else np.zeros((0,))}
+           "ddw": v.ddw if v.ddw is not None else np.zeros((0,))})
     if hasattr(samples, "moments"):
         out["moments"] = samples.moments
         out["region"] = samples.region
@@ -224,10 +257,15 @@ def _from_store(image, d, kind, parents):
 
     frames = d["frames"]
     n = len(frames)
-    W = sp.csr_matrix((d["W_data"], d["W_indices"], d["W_indptr"]), shape=(int((image.labels > 0).sum()), n))
-    smooth = SmoothWeights.from_csr(image, W)
-    sf = ShapeFunction(frames=frames, kind="sibson" if kind == "natural-neighbour" else kind, parents=parents,
-                       image=image, smooth=True, _cache={"smooth": smooth})
+    if "rk_indptr" in d:
+        from ....voronoi.reproducing_kernel import ReproducingKernel
+
+        sf = ReproducingKernel.from_store(image, frames, d)
+    else:
+        W = sp.csr_matrix((d["W_data"], d["W_indices"], d["W_indptr"]), shape=(int((image.labels > 0).sum()), n))
+        smooth = SmoothWeights.from_csr(image, W)
+        sf = ShapeFunction(frames=frames, kind="sibson" if kind == "natural-neighbour" else kind, parents=parents,
+                           image=image, smooth=True, _cache={"smooth": smooth})
     ddw = d["ddw"] if d["ddw"].size else None
     values = ShapeValues(index=d["index"], w=d["w"], dw=d["dw"], ddw=ddw, rest=d["points"], n_nodes=n)
     skind = str(d["kind"])
@@ -283,7 +321,12 @@ def estimate(scene, size, material_class: str):
     voxels = size[0]
     nodes = int(scene.nodes.count or kind.default_count) + len(scene.nodes.positions or ()) + len(scene.fixed)
     dofs = kind.dofs_per_node * nodes
-    model = (FRAME_BYTES_PER_VOXEL_PARENT * scene.nodes.parents + 64.0) * voxels + FRAME_DENSE_COPIES * 8.0 * dofs**2
+    parents = scene.nodes.parents
+    if scene.nodes.shape_function == "reproducing-kernel":  # never truncated: every kernel reaching a point;
+        # measured 29 / 50 parents with 40 / 80 frames at support 2.5 on the cantilever, 35 on the bunny
+        support = scene.nodes.support or 2.5
+        parents = min(nodes, int(np.ceil(2.5 * support ** 3)))
+    model = (FRAME_BYTES_PER_VOXEL_PARENT * parents + 64.0) * voxels + FRAME_DENSE_COPIES * 8.0 * dofs**2
     iterations = 1 if material_class == "constant" else 5
     seconds = int(scene.solver.steps) * iterations * (dofs**3 / 3 / 1e10 + 2e-6 * voxels)
     return NodeEstimate(nodes, dofs, model, seconds)

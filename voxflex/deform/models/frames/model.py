@@ -52,6 +52,17 @@ every voxel (dense 12x12 blocks between frames that share material);
 ``lumped`` gives every voxel centre's mass to its frames in proportion to
 their weights, each frame carrying its share as its own affine body
 (block-diagonal, symmetric positive definite, exact total mass and momentum).
+With weights that are negative somewhere (reproducing kernels) such blocks are
+indefinite (35 of 40 frames on the cantilever), and made positive (the positive
+part of the weights) they no longer move the material by g under its own weight
+where a held frame's weight is negative (1.8 g at the tip of a clamped beam in the
+first implicit-Euler step): ``lumped`` is then ``J^T diag(m) J`` over the voxel
+centres, the points gravity acts on (one per voxel instead of the consistent
+mass's eight), so free fall is exact and the matrix positive semi-definite.
+Linearly precise weights make 18 motions of the frames move nothing
+(:func:`~voxflex.deform.models.frames.modes.gauge_modes`): either mass is singular
+along them, so they get the frames' mean matrix-entry mass (no force excites them:
+every force is ``J^T f`` and ``J`` vanishes on them).
 
 Example
 -------
@@ -529,10 +540,15 @@ class FrameModel(OnePass):
             # across a frame's support): the 2x2x2 Gauss points of every voxel integrate it
             s = voxel_samples(self.image, self.shape_function, rule="gauss-legendre", use_occupancy=self.use_occupancy)
             m8 = np.repeat(mp / self._mass_points()[1], 8) * s.volume  # density of each voxel x Gauss volumes
-            J = PointMapping(self.nodes, s.values).jacobian(self.rest)
-            return (J.T @ sp.diags(np.repeat(m8, 3)) @ J).tocsr()
+            return self._point_mass(s.values, m8)
         _, _, pmap = self._mass_layer()
         v = pmap.shape
+        if np.any(v.w < 0):
+            # weights negative somewhere (reproducing kernels): per-frame blocks would be indefinite (35 of 40
+            # frames on the cantilever) and, made positive, would not accelerate the material by g under its
+            # own weight where a held frame's weight is negative (1.8 g at a beam's tip): the mass of the
+            # voxel centres, the points gravity acts on, through the weights themselves
+            return self._point_mass(v, mp)
         n = self.n_nodes
         X = v.rest
         ok = v.index >= 0
@@ -548,6 +564,45 @@ class FrameModel(OnePass):
             dofs = [3 * i, 3 * i + 1, 3 * i + 2, 9 + i]
             full[:, np.ix_(dofs, dofs)[0], np.ix_(dofs, dofs)[1]] = blocks
         return sp.block_diag(list(full), format="csr")
+
+    def _point_mass(self, values, masses, chunk: int = 4096) -> sp.csr_matrix:
+        """``J^T diag(m) J`` of point masses ``masses`` (k,) at the points of ``values``, with the gauge
+        motions of linearly precise weights (:func:`~voxflex.deform.models.frames.modes.gauge_modes`,
+        along which it is singular: they move no point) given the frames' mean matrix-entry mass, which
+        no force excites (every force is ``J^T f``, and ``J`` vanishes on them).
+
+        Each spatial component of a point moves by ``sum_a w_a [r_a; 1] . [A_a row; t_a]``: the (4n, 4n)
+        matrix ``sum_p m_p b_p b_p^T`` (``b_p`` the point's ``w_a [r_a; 1]`` in the frames' slots, dense
+        by chunks of points) is the same for the three components (the sparse J of the bunny's 94k
+        voxel centres with 35 parents would hold 10 million entries)."""
+        from .modes import gauge_modes
+
+        n = self.n_nodes
+        G4 = np.zeros((4 * n, 4 * n))
+        for a in range(0, values.m, chunk):
+            b = min(values.m, a + chunk)
+            idx = values.index[a:b]
+            ok = idx >= 0
+            ii = np.where(ok, idx, 0)
+            w = np.where(ok, values.w[a:b], 0.0)
+            Bp = np.concatenate([values.rest[a:b, None, :] - self.frames[ii], np.ones(ii.shape + (1,))], axis=2)
+            Bp = Bp * w[..., None]  # (c, P, 4)
+            S = np.zeros((b - a, 4 * n))
+            cols = (4 * ii[..., None] + np.arange(4)).reshape(b - a, -1)
+            np.add.at(S, (np.repeat(np.arange(b - a), cols.shape[1]), cols.ravel()), Bp.reshape(b - a, -1).ravel())
+            G4 += S.T @ (S * masses[a:b, None])
+        # DOF layout: A row i (3 entries) then t_i; component i of x moves with [A row i, t_i]
+        M = np.zeros((n, 12, n, 12))
+        G4 = G4.reshape(n, 4, n, 4)
+        for i in range(3):
+            d = np.array([3 * i, 3 * i + 1, 3 * i + 2, 9 + i])
+            M[:, d[:, None], :, d[None, :]] = G4.transpose(1, 3, 0, 2)
+        M = M.reshape(12 * n, 12 * n)
+        G = gauge_modes(self.frames, values)
+        if G.shape[1]:
+            a_ = (np.arange(12 * n) % 12) < 9
+            M += float(np.diagonal(M)[a_].mean()) * (G @ G.T)
+        return sp.csr_matrix(0.5 * (M + M.T))
 
     def gravity_force(self, densities: Mapping[int, float], g) -> np.ndarray:
         """Generalised gravity force (n, 12): ``J^T (m g)`` at the mass points."""

@@ -24,7 +24,50 @@ from ...chain.mappings import DeformationGradientWithGradientMapping
 from ...chain.nodes import AffineFrames
 
 __all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness", "softest_mode",
-           "SOFT_RATIO"]
+           "SOFT_RATIO", "gauge_modes"]
+
+GAUGE_TOL = 1e-8
+"""A gauge candidate (:meth:`AffineFrames.gauge_modes`) whose deformation gradient and motion at the
+samples are below this fraction of those of a unit dilation is exact (moves nothing)."""
+
+
+def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 1024) -> np.ndarray:
+    """(12n, g) orthonormal basis of the affine frames' motions that move no sample and deform none.
+
+    With weights that reproduce linear fields at every sample (reproducing kernels) ``g = 18``
+    (:meth:`~voxflex.deform.chain.nodes.AffineFrames.gauge_modes`): the 12n DOFs describe the
+    motion redundantly, and a free body's stiffness (and consistent mass) has 18 zero
+    eigenvalues besides the 6 rigid ones that are not spurious (nothing moves).  Where linear
+    precision is given up somewhere (a clamp's own voxels, natural-neighbour weights near the
+    surface) fewer or none are exact.  Exactness: the singular values of the map from the
+    candidates to (F, x / L) at the samples, below ``tol`` times the response to a unit dilation;
+    the map is reduced by a QR over chunks of ``chunk`` samples (memory bounded for any count).
+    """
+    import scipy.linalg as sla
+
+    X = np.asarray(frames, dtype=np.float64)
+    n = len(X)
+    Z = AffineFrames(X).gauge_modes()
+    A = Z.reshape(n, 12, 18)[:, :9, :].reshape(n, 3, 3, 18)  # the candidates move no translation
+    L = float(np.ptp(X, axis=0).max()) if n > 1 else 1.0
+    L = L if L > 0 else 1.0
+    R = np.zeros((0, 18))
+    for a in range(0, values.m, chunk):
+        b = min(values.m, a + chunk)
+        idx = values.index[a:b]
+        ok = idx >= 0
+        ii = np.where(ok, idx, 0)
+        w = np.where(ok, values.w[a:b], 0.0)
+        dw = np.where(ok[..., None], values.dw[a:b], 0.0)
+        Aa = A[ii]  # (c, P, 3, 3, 18)
+        u = np.einsum("cpijk,cpj->cpik", Aa, values.rest[a:b, None, :] - X[ii])  # dA_a (X - X_a)
+        x = np.einsum("cp,cpik->cik", w, u)
+        F = np.einsum("cp,cpijk->cijk", w, Aa) + np.einsum("cpik,cpj->cijk", u, dw)
+        rows = np.concatenate([F.reshape(-1, 18), x.reshape(-1, 18) / L])
+        R = sla.qr(np.concatenate([R, rows]), mode="r", check_finite=False)[0][:18]
+    _, sv, Vt = np.linalg.svd(R, full_matrices=False)
+    ref = np.sqrt(max(values.m, 1) / n)  # |F| over the samples of the unit dilation A_a = I / sqrt(3n)
+    return Z @ Vt[sv <= tol * ref].T
 
 
 class SpuriousModesWarning(UserWarning):
@@ -91,7 +134,8 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
 
 
 def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None) -> int:
-    """Number of zero eigenvalues of the free-body stiffness (six for a sound quadrature).
+    """Number of zero eigenvalues of the free-body stiffness (six for a sound quadrature), the exact
+    gauge modes of linearly precise weights (:func:`gauge_modes`, which move nothing) not counted.
 
     Parameters
     ----------
@@ -115,6 +159,9 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
     K = free_body_stiffness(frames, samples, gradient=gradient) if stiffness is None else stiffness
     from ...._blas import one_thread
 
+    G = gauge_modes(frames, samples.values)
+    if G.shape[1]:  # motions that move nothing are not zero-energy deformations: deflate them
+        K = K + (np.trace(K) / len(K)) * (G @ G.T)
     with one_thread():  # threaded BLAS stalls on small dense work here
         ev = np.linalg.eigvalsh(K)
     top = float(ev.max()) if ev.size else 0.0
@@ -155,7 +202,7 @@ def softest_mode(frames, samples, reference, free=None, *, stiffness=None) -> fl
     (one mid-point sample per voxel: :func:`voxflex.sampling.voxel.voxel_samples`).  Spurious
     (hourglass) modes that under-integration leaves nearly free have ``lambda`` near 0; a sound
     quadrature 0.1 - 1.  Without ``free`` the six rigid modes, zero in both, are deflated (given
-    unit ratio).  None when the reference itself leaves a zero-energy mode among those DOFs.
+    unit ratio), and so are the gauge modes (:func:`gauge_modes`) when both have them.  None when the reference itself leaves a zero-energy mode among those DOFs.
 
     Parameters
     ----------
@@ -179,6 +226,9 @@ def softest_mode(frames, samples, reference, free=None, *, stiffness=None) -> fl
     Kr = free_body_stiffness(frames, reference)
     if free is None:
         R = _rigid_modes(np.asarray(frames, dtype=np.float64))
+        G = gauge_modes(frames, reference.values)
+        if G.shape[1] and gauge_modes(frames, samples.values).shape[1] == G.shape[1]:
+            R = np.concatenate([R, G], axis=1)  # both move nothing along them: deflated like the rigid modes
         scale = np.trace(Kr) / len(Kr)
         Ks = Ks + scale * (R @ R.T)
         Kr = Kr + scale * (R @ R.T)
