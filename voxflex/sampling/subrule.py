@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import InputError
 from .quadrature import gauss_legendre_cube
-from .volume_moments import monomials
+from .volume_moments import EXPONENTS
 
 __all__ = ["gauss_points", "moment_fitted_rule", "SUBRULE_DEGREE"]
 
@@ -77,6 +77,16 @@ def gauss_points(image, *, use_occupancy: bool = True):
 
 def _n_moments(degree: int) -> int:
     return comb(degree + 3, 3)
+
+
+def _monomials(d, nm) -> np.ndarray:
+    """The first ``nm`` monomials of :data:`~voxflex.sampling.volume_moments.EXPONENTS` at offsets d (K, 3)."""
+    e = EXPONENTS[:nm]
+    top = int(e.max()) + 1
+    powers = np.ones((d.shape[0], top, 3))
+    for k in range(1, top):
+        powers[:, k] = powers[:, k - 1] * d
+    return powers[:, e[:, 0], 0] * powers[:, e[:, 1], 1] * powers[:, e[:, 2], 2]
 
 
 def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degree: int = SUBRULE_DEGREE):
@@ -135,7 +145,7 @@ def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degr
     vol_r = np.bincount(region, weights=volume, minlength=n_regions)
     centre = np.stack([np.bincount(region, weights=volume * points[:, a], minlength=n_regions)
                        for a in range(3)], axis=1) / vol_r[:, None]
-    mono = monomials((points - centre[region]) / h)[:, :nm]
+    mono = _monomials((points - centre[region]) / h, nm)
     selected, weights = [], []
     for r in range(n_regions):
         ids = order[bounds[r]:bounds[r + 1]]

@@ -11,7 +11,8 @@ cannot see, is given its linearised energy:
 
 with ``C0`` the material's tangent at rest (its deviatoric part ``P C0 P``
 where the volumetric term is projected) and ``G = I`` for materials with a
-constant tangent, ``G = F_r^-1`` otherwise.
+constant tangent or a small-strain (``linear``) strain measure (plastic ones
+included: the fluctuation stays elastic), ``G = F_r^-1`` otherwise.
 
 Why this form
 -------------
@@ -119,34 +120,84 @@ def region_tables(values, volume, region, n_regions, frames) -> RegionTables:
     slot = np.full((K, Pq), -1, dtype=np.int64)
     slot[ok] = slot_of_key[np.searchsorted(ukey, key[ok])]
     V = np.bincount(region, weights=volume, minlength=n_regions)
-    # mean tables and weights
-    Gbar = np.zeros((n_regions, P, 4, 3))
-    wbar = np.zeros((n_regions, P))
-    rr = np.broadcast_to(region[:, None], (K, Pq))[ok]
-    np.add.at(Gbar, (rr, slot[ok]), (volume[:, None, None, None] * Gq)[ok])
-    np.add.at(wbar, (rr, slot[ok]), (volume[:, None] * values.w)[ok])
-    Gbar /= V[:, None, None, None]
-    wbar /= V[:, None]
-    # fluctuation moments, region by region (grouped by parent count)
-    order = np.argsort(region, kind="stable")
-    bounds = np.concatenate([[0], np.cumsum(np.bincount(region, minlength=n_regions))])
+    # mean tables and weights (sums over (region, slot) by bincount)
+    flat = (region[:, None] * P + slot)[ok]  # (region, slot) of every valid parent entry
+    vG = (volume[:, None, None, None] * Gq)[ok].reshape(-1, 12)
+    Gbar = np.stack([np.bincount(flat, weights=vG[:, e], minlength=n_regions * P) for e in range(12)], axis=1)
+    Gbar = Gbar.reshape(n_regions, P, 4, 3) / V[:, None, None, None]
+    wbar = np.bincount(flat, weights=(volume[:, None] * values.w)[ok], minlength=n_regions * P)
+    wbar = wbar.reshape(n_regions, P) / V[:, None]
+    # fluctuation moments sum_q v (G_q - Gbar)(G_q - Gbar)^T = sum_q v G_q G_q^T - V Gbar Gbar^T: the first
+    # sum over each point's own parents only (compiled), in one ragged buffer of (12 P_r)^2 per region
+    size = (12 * counts) ** 2
+    offset = np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
+    buf = np.zeros(int(size.sum()))
+    _gauss_moments(region, np.ascontiguousarray(slot), np.ascontiguousarray(Gq), volume, offset,
+                   (12 * counts).astype(np.int64), buf)
     buckets = []
     for Pb in np.unique(counts):
         Pb = int(Pb)
         regs = np.flatnonzero(counts == Pb)
-        Gam = np.zeros((len(regs), 12 * Pb, 12 * Pb))
-        for t, r in enumerate(regs):
-            ids = order[bounds[r]:bounds[r + 1]]
-            dG = np.zeros((len(ids), Pb, 4, 3))
-            s = slot[ids]
-            okr = s >= 0
-            qi = np.broadcast_to(np.arange(len(ids))[:, None], s.shape)[okr]
-            dG[qi, s[okr]] = Gq[ids][okr]
-            dG -= Gbar[r, :Pb][None]
-            X = dG.reshape(len(ids), 12 * Pb)
-            Gam[t] = X.T @ (volume[ids, None] * X)
+        N = 12 * Pb
+        idx = offset[regs][:, None] + np.arange(N * N)[None, :]
+        Gam = buf[idx].reshape(len(regs), N, N)
+        g = Gbar[regs, :Pb].reshape(len(regs), N)
+        Gam -= V[regs, None, None] * g[:, :, None] * g[:, None, :]
+        Gam = 0.5 * (Gam + Gam.transpose(0, 2, 1))
         buckets.append((regs, Pb, Gam.reshape(len(regs), Pb, 4, 3, Pb, 4, 3)))
     return RegionTables(index, Gbar, wbar, V, buckets)
+
+
+def _small_strain(material) -> bool:
+    """Whether the fluctuation of ``material`` takes ``G = I``: a constant tangent, or a small-strain
+    (``linear``) strain measure, e.g. under plasticity (the pull-back is for finite-strain measures)."""
+    if bool(getattr(material, "constant_tangent", False)):
+        return True
+    strain = getattr(material, "strain", None)
+    base = getattr(material, "base", None)
+    if base is not None:
+        strain = getattr(base, "strain", strain)
+    return bool(getattr(strain, "constant_jacobian", False))
+
+
+@njit
+def _gauss_moments(region, slot, Gq, volume, offset, size, buf):  # pragma: no cover - compiled
+    """``buf[offset[r] + a N + b] += v_q G_q[a] G_q[b]`` over each Gauss point's own parents (a, b the
+    entries (slot, c, j) of its region's table, N = size[r] = 12 P_r); numpy twin: :func:`_gauss_moments_numpy`."""
+    K, Pq = slot.shape
+    for q in range(K):
+        r = region[q]
+        off = offset[r]
+        N = size[r]
+        v = volume[q]
+        for a in range(Pq):
+            sa = slot[q, a]
+            if sa < 0:
+                continue
+            for c in range(4):
+                for j in range(3):
+                    ga = v * Gq[q, a, c, j]
+                    if ga == 0.0:
+                        continue
+                    row = off + ((sa * 4 + c) * 3 + j) * N
+                    for b in range(Pq):
+                        sb = slot[q, b]
+                        if sb < 0:
+                            continue
+                        base = row + sb * 12
+                        for e in range(12):
+                            buf[base + e] += ga * Gq[q, b, e // 3, e % 3]
+
+
+def _gauss_moments_numpy(region, slot, Gq, volume, offset, size, buf):
+    """The numpy twin of :func:`_gauss_moments`."""
+    K, Pq = slot.shape
+    for q in range(K):
+        N = size[region[q]]
+        ok = np.flatnonzero(slot[q] >= 0)
+        cols = (slot[q, ok][:, None] * 12 + np.arange(12)[None, :]).ravel()
+        g = Gq[q, ok].reshape(-1)
+        buf[offset[region[q]] + (cols[:, None] * N + cols[None, :]).ravel()] += volume[q] * np.outer(g, g).ravel()
 
 
 def _dofs(index):
@@ -189,7 +240,7 @@ class Fluctuation:
             if deviatoric.get(lab, False):
                 C = Pdev @ C @ Pdev
             C0[int(lab)] = C.reshape(3, 3, 3, 3)
-        const = {int(lab): bool(getattr(mat, "constant_tangent", False)) for lab, mat in materials.items()}
+        const = {int(lab): _small_strain(mat) for lab, mat in materials.items()}
         self.constant_matrix = np.zeros((12 * n, 12 * n))
         self.groups = []  # (regions, P, K (Rb, 3, 4P, 3, 4P), dofs (Rb, 12P)) of the nonlinear regions
         for regs, Pb, Gam in tables.buckets:
