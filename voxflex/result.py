@@ -892,10 +892,14 @@ def _model_text(r) -> str:
         text = f"membrane, {r.n_nodes} vertices, {r.n_dofs} DOF"
     else:
         text = f"{r.n_nodes} {r.node_kind} frames, {r.n_dofs} DOF"
-    extra = [f"{k.replace('_', ' ')} {m[k]}" for k in ("shape_function", "quadrature", "samples") if k in m]
+    extra = [f"{k.replace('_', ' ')} {m[k]}" for k in ("shape_function", "quadrature", "samples", "regions",
+                                                        "hourglass", "volumetric") if k in m]
     if "precompute_seconds" in m:
         extra.append(f"precompute {float(m['precompute_seconds']):.3g} s")
-    return text + (f" ({', '.join(extra)})" if extra else "")
+    text += f" ({', '.join(extra)})" if extra else ""
+    if "samples_chosen" in m:  # the frame builder's default count and why (frames/build.py)
+        text += f"; samples chosen: {m['samples_chosen']}"
+    return text
 
 
 def _fmt(v) -> str:
