@@ -49,7 +49,11 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
         Integration samples (their ``values`` are the shape functions on these frames).
     gradient : bool, optional
         Include the strain-gradient terms of elastons (``∇F`` with the moments
-        M1, M2); default: when ``samples.kind == "elaston"`` and the values have Hessians.
+        M1, M2: the Taylor elastons of :mod:`voxflex.deform.materials.elaston`); default: for
+        region samples of kind ``"elaston"`` with Hessians.  The frame model integrates elastons
+        by sub-rules of point samples: its own rest stiffness is
+        :meth:`~voxflex.deform.models.frames.model.FrameModel.rest_stiffness`, which the builder's
+        checks read (with the mid-point regions' fluctuation term).
 
     Returns
     -------
