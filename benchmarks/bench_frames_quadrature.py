@@ -100,7 +100,7 @@ def locking(nus):
         base = _scene(nu)
         vox = replace(base, nodes=NodesSpec(kind="voxel"), elasticity=ElasticitySpec(volumetric="reduced"))
         uv = _solve(vox, _build(vox)[0])[0].probe_displacements()["tip"][2]
-        fr = replace(base, nodes=NodesSpec(kind="affine"))
+        fr = replace(base, nodes=NodesSpec(kind="affine"), elasticity=ElasticitySpec())  # the defaults
         mf = _build(fr)[0]
         uf = _solve(fr, mf)[0].probe_displacements()["tip"][2]
         el = replace(fr, elasticity=ElasticitySpec(quadrature="elaston"))

@@ -38,8 +38,9 @@ Volumetric locking (``volumetric``)
 -----------------------------------
 A few frames bending a nearly incompressible body cannot keep every sample's
 volume (they cannot give the Poisson contraction's variation across a section),
-so full integration of the volumetric term locks: the 20-frame cantilever bends
-40x too little at nu = 0.4999.  ``volumetric="reduced"`` projects the volume
+so full integration of the volumetric term locks: the linear cantilever 32x8x8 with
+20 frames and Gauss points bends 45x too little at nu = 0.4999 (-0.0087 against
+-0.393 m projected, -0.376 m for the voxel model with B-bar).  ``volumetric="reduced"`` projects the volume
 ratio onto the span of the frames' weights: per label, the L2 projection
 
     Jbar(X) = sum_a w_a(X) pi_a,   M pi = b,   M_ab = sum_s v_s w_a w_b,   b_a = sum_s v_s w_a J_s
