@@ -43,13 +43,15 @@ def cache_dir() -> Path:
 
 
 def code_fingerprint() -> str:
-    """SHA-256 of the source of the stages a frame model's precompute runs (voronoi, sampling,
-    the builder): a changed algorithm never reads an entry of the old one, whatever the version."""
+    """SHA-256 of the source of the stages a frame model's precompute runs (voronoi, sampling, the
+    builders and the frames' region tables): a changed algorithm never reads an entry of the old one,
+    whatever the version."""
     global _FINGERPRINT
     if _FINGERPRINT is None:
         root = Path(__file__).resolve().parent
+        frames = root / "deform" / "models" / "frames"
         files = sorted([*root.glob("voronoi/*.py"), *root.glob("sampling/*.py"), root / "build.py",
-                        root / "deform" / "models" / "frames" / "build.py"])
+                        *(frames / f for f in ("build.py", "quadrature.py", "stabilise.py"))])
         h = hashlib.sha256()
         for f in files:
             h.update(f.name.encode())

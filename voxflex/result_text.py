@@ -84,13 +84,18 @@ def _steps_list(steps) -> str:
 
 
 def _model_text(r) -> str:
-    """One phrase naming the model: node count (as its kind says them), DOFs, shape functions and quadrature."""
+    """One phrase naming the model: node count (as its kind says them), DOFs, shape functions, quadrature,
+    the frame builder's sample count and why (``samples_chosen``) when known."""
     m = r.model
     text = f"{r.n_nodes} {m.get('nodes', r.node_kind + ' nodes')}, {r.n_dofs} DOF"
-    extra = [f"{k.replace('_', ' ')} {m[k]}" for k in ("shape_function", "quadrature", "samples") if k in m]
+    extra = [f"{k.replace('_', ' ')} {m[k]}" for k in ("shape_function", "quadrature", "samples", "regions",
+                                                        "hourglass", "volumetric") if k in m]
     if "precompute_seconds" in m:
         extra.append(f"precompute {float(m['precompute_seconds']):.3g} s")
-    return text + (f" ({', '.join(extra)})" if extra else "")
+    text += f" ({', '.join(extra)})" if extra else ""
+    if "samples_chosen" in m:
+        text += f"; samples chosen: {m['samples_chosen']}"
+    return text
 
 
 def _fmt(v) -> str:

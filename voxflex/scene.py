@@ -18,9 +18,8 @@ Example
 True
 
 Defaults: ``[nodes] kind = "affine"`` (frames); ``[elasticity] quadrature`` is the
-node kind's own (``"midpoint"`` for frames — not elastons, whose exact
-Hessian needs a strain with a constant second derivative, which the default
-neo-Hookean material's invariants are not — and ``"gauss-legendre"`` for voxels);
+node kind's own (``"midpoint"`` for frames: regions with their mean F and the
+fluctuation energy, ``hourglass = "stiffness"``; ``"gauss-legendre"`` for voxels);
 ``[nodes] parents = 6`` (not 4: measured, 4 parents were 9 % off on a
 cantilever where 6 were within 1 %).  Extensions: a top-level ``title``; ``[object]
 axis`` for cylinders; ``[[material]]`` model constants and a per-material
@@ -45,13 +44,7 @@ from .deform.layers.cable import Cable
 from .deform.layers.obstacles import OBSTACLE_KEYS as _OBSTACLE_KEYS
 from .deform.layers.obstacles import OBSTACLE_KINDS
 from .deform.layers.obstacles import POINT_RULES as CONTACT_POINT_RULES
-from .deform.materials.catalogue import (
-    MATERIAL_NAMES,
-    MODEL_CONSTANTS,
-    POISSON_RANGE,
-    STRAIN_NAMES,
-    check_constants,
-)
+from .deform.materials.catalogue import MATERIAL_NAMES, MODEL_CONSTANTS, POISSON_RANGE, STRAIN_NAMES, check_constants
 from .deform.materials.fbar import VOLUMETRIC
 from .deform.models.fields import check_field_names
 from .deform.models.kinds import default_kind, node_kind, node_kinds
@@ -340,12 +333,13 @@ class NodesSpec:
 @dataclass(frozen=True)
 class ElasticitySpec:
     """``[elasticity]``: quadrature, samples, strain, volumetric (``"auto"``: F-bar where nu >= 0.4)
-    and hourglass (mid-point stabilisation of voxels).
+    and hourglass (mid-point stabilisation of voxels and of frames' regions).
 
     ``quadrature`` defaults to the node kind's own (resolved by :class:`Scene`):
     ``"gauss-legendre"`` (2x2x2 per voxel) for voxel nodes, ``"midpoint"``
-    (``samples`` regions) for frames.  ``samples`` defaults to 20
-    per frame (``voxflex.deform.models.frames.build.SAMPLES_PER_FRAME``, resolved where the frame count is known)."""
+    (``samples`` regions) for frames.  ``samples`` (frames' regions) defaults to a count
+    the frame builder chooses from the frames and checks for soft modes
+    (``voxflex.deform.models.frames.build.REGIONS_PER_FRAME``, resolved where the frame count is known)."""
 
     quadrature: str | None = None
     samples: int | None = None

@@ -144,8 +144,8 @@ class TradeoffTable:
         The error the ranking uses: ``probe_error`` when the scene has probes,
         else ``surface_error``.
     skipped : list of (str, str)
-        Configurations that could not run and why (e.g. elastons with a
-        strain they cannot integrate, a solver that did not converge).
+        Configurations that could not run and why (e.g. samples that leave
+        a soft mode, a solver that did not converge).
     choice : dict or None
         With ``max_error``: the cheapest row (least ``total_seconds``) whose
         ranked error is within the budget, or None.
@@ -331,10 +331,7 @@ def tradeoff(scene, *, frames=(5, 10, 20, 40), samples=(100, 400), shape_functio
         Shape-function kinds (``natural-neighbour``, ``sibson``, ``laplace``,
         ``distance-ratio``, ``shepard``).
     quadratures : sequence of str
-        ``"midpoint"``, ``"elaston"``, ``"gauss-legendre"``.  Elastons need a
-        strain with a constant second derivative (linear, green,
-        corotational-small): with other strains those configurations are
-        skipped with a note.
+        ``"midpoint"``, ``"elaston"``, ``"gauss-legendre"`` (every material with each).
     reference : {"scene", "finer"}
         The voxel model on the scene's image, or on the image with every voxel
         split into 2x2x2 (about 8x the cost of the scene's own voxel model).

@@ -24,7 +24,7 @@ from ...chain.mappings import DeformationGradientWithGradientMapping
 from ...chain.nodes import AffineFrames
 
 __all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness", "softest_mode",
-           "SOFT_RATIO", "gauge_modes"]
+           "SOFT_RATIO", "gauge_modes", "dimensionless"]
 
 GAUGE_TOL = 1e-8
 """A gauge candidate (:meth:`AffineFrames.gauge_modes`) whose deformation gradient and motion at the
@@ -92,7 +92,11 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
         Integration samples (their ``values`` are the shape functions on these frames).
     gradient : bool, optional
         Include the strain-gradient terms of elastons (``∇F`` with the moments
-        M1, M2); default: when ``samples.kind == "elaston"`` and the values have Hessians.
+        M1, M2: the Taylor elastons of :mod:`voxflex.deform.materials.elaston`); default: for
+        region samples of kind ``"elaston"`` with Hessians.  The frame model integrates elastons
+        by sub-rules of point samples: its own rest stiffness is
+        :meth:`~voxflex.deform.models.frames.model.FrameModel.rest_stiffness`, which the builder's
+        checks read (with the mid-point regions' fluctuation term).
 
     Returns
     -------
@@ -106,7 +110,7 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
             raise InputError(f"samples must be a voxflex Samples (missing '{attr}'); build them with vf.sample")
     values = samples.values
     if gradient is None:
-        gradient = getattr(samples, "kind", None) == "elaston" and values.ddw is not None
+        gradient = getattr(samples, "kind", None) == "elaston" and values.ddw is not None and hasattr(samples, "M1")
     if gradient and not (hasattr(samples, "M1") and hasattr(samples, "M2")):
         raise InputError("gradient terms need the samples' moments M1 and M2 (elastons from vf.sample)")
     C = _unit_hooke_F()
@@ -163,11 +167,30 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
     if G.shape[1]:  # motions that move nothing are not zero-energy deformations: deflate them
         K = K + (np.trace(K) / len(K)) * (G @ G.T)
     with one_thread():  # threaded BLAS stalls on small dense work here
-        ev = np.linalg.eigvalsh(K)
+        ev = np.linalg.eigvalsh(dimensionless(K, samples))
     top = float(ev.max()) if ev.size else 0.0
     if top <= 0:
         return int(ev.size)
     return int((ev < tol * top).sum())
+
+
+def dimensionless(K, samples) -> np.ndarray:
+    """``S K S`` with the translation DOFs scaled by the samples' spread L (S = 1 on the matrix entries,
+    L on the translations): the eigenvalues of K mix the units of its blocks (Pa m^3 for the matrix
+    entries, Pa m for the translations), so a relative threshold on them would judge the same scene
+    differently at 1 um and 1 km; those of ``S K S`` scale uniformly with the scene.
+
+    L is the root-mean-square distance of the samples from their volume-weighted centroid [m].
+    """
+    pts = np.asarray(samples.points, dtype=np.float64)
+    vol = np.asarray(samples.volume, dtype=np.float64)
+    c = (vol @ pts) / vol.sum()
+    L = float(np.sqrt((vol @ ((pts - c) ** 2).sum(axis=1)) / vol.sum()))
+    if not L > 0:  # one sample: any length of the body will do
+        L = float(np.cbrt(vol.sum()))
+    s = np.ones(K.shape[0])
+    s.reshape(-1, 12)[:, 9:] = L
+    return K * s[:, None] * s[None, :]
 
 
 def _point_stiffness(frames, values, volume, C) -> np.ndarray:
@@ -263,7 +286,8 @@ def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = N
     int : the number of zero-energy modes.
     """
     if gradient is None:
-        gradient = getattr(samples, "kind", None) == "elaston" and samples.values.ddw is not None
+        gradient = getattr(samples, "kind", None) == "elaston" and samples.values.ddw is not None \
+            and hasattr(samples, "M1")
     zero = zero_energy_modes(frames, samples, tol=tol, gradient=gradient, stiffness=stiffness)
     if zero > 6:
         per = 24 if gradient else 6
