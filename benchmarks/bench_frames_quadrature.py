@@ -2,7 +2,7 @@
 
 The documented large-deflection cantilever (beam [0,4]x[0,1]x[0,1], E = 1e3, nu = 0.3, rho g = 9.81,
 clamp x = 0, 5 load steps) on the 32x8x8 image: voxel model tip u_z -2.687096 on this image, converged
--2.7087.  For 10, 20, 40, 80 frames (natural-neighbour weights) and each rule at its default count:
+-2.7087.  For 10, 20, 40, 80 frames (the default weights, or --shape-function) and each rule at its default count:
 tip, error against the converged value and the voxel model, difference from Gauss-Legendre of the same
 frames, Newton iterations, solve time (vf.simulate on the built model: min and median of --repeat runs,
 alternated between the rules) and precompute time (one run, no disk cache); then the same rule with
@@ -57,7 +57,7 @@ def _solve(scene, model):
     return result, time.perf_counter() - t
 
 
-def quadratures(counts, repeat):
+def quadratures(counts, repeat, shape_function=None):
     base = _scene()
     print("| frames | rule | regions | points | u_z (m) | vs converged | vs voxel | vs Gauss-Legendre | Newton it. "
           "| solve s (min / median) | precompute s | 2x regions: u_z | change |")
@@ -65,7 +65,8 @@ def quadratures(counts, repeat):
     for n in counts:
         runs = {}
         for rule in RULES:
-            scene = replace(base, nodes=NodesSpec(kind="affine", count=n), elasticity=ElasticitySpec(quadrature=rule))
+            scene = replace(base, nodes=NodesSpec(kind="affine", count=n, shape_function=shape_function),
+                            elasticity=ElasticitySpec(quadrature=rule))
             model, tp = _build(scene)
             runs[rule] = [scene, model, tp, []]
         for _ in range(repeat):  # alternated, so that a busy moment is shared
@@ -93,14 +94,15 @@ def quadratures(counts, repeat):
                   f"| {min(times):.2f} / {np.median(times):.2f} | {tp:.2f} | {doubled} | {change} |", flush=True)
 
 
-def locking(nus):
+def locking(nus, shape_function=None):
     print("\n| nu | voxel F-bar u_z | frames default u_z | vs voxel | frames elastons u_z | vs voxel | volumetric |")
     print("|---|---|---|---|---|---|---|")
     for nu in nus:
         base = _scene(nu)
         vox = replace(base, nodes=NodesSpec(kind="voxel"), elasticity=ElasticitySpec(volumetric="reduced"))
         uv = _solve(vox, _build(vox)[0])[0].probe_displacements()["tip"][2]
-        fr = replace(base, nodes=NodesSpec(kind="affine"), elasticity=ElasticitySpec())  # the defaults
+        fr = replace(base, nodes=NodesSpec(kind="affine", shape_function=shape_function),
+                     elasticity=ElasticitySpec())  # the defaults (and the family asked for)
         mf = _build(fr)[0]
         uf = _solve(fr, mf)[0].probe_displacements()["tip"][2]
         el = replace(fr, elasticity=ElasticitySpec(quadrature="elaston"))
@@ -115,14 +117,15 @@ def main():
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--locking", action="store_true")
     ap.add_argument("--nus", default="0.3,0.45,0.49,0.499,0.4999")
+    ap.add_argument("--shape-function", default=None, help="the frames' weight family (default: the scene's default)")
     args = ap.parse_args()
     load = os.getloadavg()
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load {load[0]:.2f}, python "
           f"{platform.python_version()}, voxflex {vf.__version__}\n")
     if args.locking:
-        locking([float(x) for x in args.nus.split(",")])
+        locking([float(x) for x in args.nus.split(",")], args.shape_function)
     else:
-        quadratures([int(c) for c in args.counts.split(",")], args.repeat)
+        quadratures([int(c) for c in args.counts.split(",")], args.repeat, args.shape_function)
 
 
 if __name__ == "__main__":

@@ -233,14 +233,26 @@ def _refuse_static_mechanism(scene, model, K, samples, spurious: int) -> None:
 def _free_zero_modes(scene, model, K) -> int:
     """Zero eigenvalues of the stiffness over the DOFs ``scene`` does not hold (translations scaled by the
     samples' spread, so the verdict does not depend on the unit: :func:`~voxflex.deform.models.frames.modes.
-    dimensionless`)."""
-    from ...._blas import one_thread
-    from .modes import dimensionless
+    dimensionless`), the gauge motions of linearly precise weights that the held DOFs leave free not counted:
+    they move nothing (:func:`~voxflex.deform.models.frames.modes.gauge_modes`; a clamp holding one or two
+    frames leaves up to 9 of the 18), so they are no mechanism."""
+    import scipy.linalg as sla
 
-    free = np.setdiff1d(np.arange(K.shape[0]), _held(scene, model))
-    Ks = dimensionless(K, model.samples)
+    from ...._blas import one_thread
+    from .modes import dimensionless, stiffness_gauge
+
+    held = _held(scene, model)
+    free = np.setdiff1d(np.arange(K.shape[0]), held)
+    Kd = dimensionless(K, model.samples)
+    Ks = Kd[np.ix_(free, free)]
+    G = stiffness_gauge(model.frames, Kd)  # (12n, g); no translation: the scaling leaves it alone
+    if G.shape[1]:
+        N = sla.null_space(G[held]) if len(held) else np.eye(G.shape[1])
+        Gf = (G @ N)[free]
+        if Gf.shape[1]:
+            Ks = Ks + (np.trace(Ks) / len(Ks)) * (Gf @ Gf.T)
     with one_thread():
-        ev = np.linalg.eigvalsh(Ks[np.ix_(free, free)])
+        ev = np.linalg.eigvalsh(Ks)
     return int(np.count_nonzero(ev <= 1e-8 * max(float(ev.max(initial=0.0)), 1e-300)))
 
 

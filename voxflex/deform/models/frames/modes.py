@@ -24,7 +24,7 @@ from ...chain.mappings import DeformationGradientWithGradientMapping
 from ...chain.nodes import AffineFrames
 
 __all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness", "softest_mode",
-           "SOFT_RATIO", "gauge_modes", "dimensionless"]
+           "SOFT_RATIO", "gauge_modes", "stiffness_gauge", "dimensionless"]
 
 GAUGE_TOL = 1e-8
 """A gauge candidate (:meth:`AffineFrames.gauge_modes`) whose deformation gradient and motion at the
@@ -163,15 +163,34 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
     K = free_body_stiffness(frames, samples, gradient=gradient) if stiffness is None else stiffness
     from ...._blas import one_thread
 
-    G = gauge_modes(frames, samples.values)
+    Ks = dimensionless(K, samples)
+    G = stiffness_gauge(frames, Ks, tol=tol)
     if G.shape[1]:  # motions that move nothing are not zero-energy deformations: deflate them
-        K = K + (np.trace(K) / len(K)) * (G @ G.T)
+        Ks = Ks + (np.trace(Ks) / len(Ks)) * (G @ G.T)
     with one_thread():  # threaded BLAS stalls on small dense work here
-        ev = np.linalg.eigvalsh(dimensionless(K, samples))
+        ev = np.linalg.eigvalsh(Ks)
     top = float(ev.max()) if ev.size else 0.0
     if top <= 0:
         return int(ev.size)
     return int((ev < tol * top).sum())
+
+
+def stiffness_gauge(frames, K, *, tol: float = 1e-8) -> np.ndarray:
+    """(12n, g) orthonormal: the gauge candidates (:meth:`~voxflex.deform.chain.nodes.AffineFrames.gauge_modes`,
+    motions of the frames' matrices alone that move nothing where the weights reproduce linear fields) on
+    which the stiffness ``K`` has no energy (eigenvalues of ``Z^T K Z`` below ``tol`` times K's largest).
+
+    Read off the stiffness, so it counts the samples the energy is integrated with (a stabilised
+    region's Gauss points as much as its centre): a candidate without energy deforms no sample, so
+    moves nothing the energy sees.  The candidates carry no translation, so ``K`` may be the
+    dimensionless one (:func:`dimensionless`).  ``g`` is 18 for a free body with linearly precise
+    weights everywhere, fewer where a clamp's corners carry a held frame alone, 0 for the other families.
+    """
+    Z = AffineFrames(np.asarray(frames, dtype=np.float64)).gauge_modes()
+    A = Z.T @ K @ Z
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    top = float(np.linalg.eigvalsh(K).max()) if K.size else 0.0
+    return Z @ V[:, w <= tol * top] if top > 0 else Z[:, :0]
 
 
 def dimensionless(K, samples) -> np.ndarray:
