@@ -92,7 +92,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     try:
         result = simulate(scene, progress=not args.quiet, output=output, verbose=args.verbose,
-                          cache=not args.no_cache, keep=args.keep, every=args.every)
+                          cache=not args.no_cache, keep=args.keep, every=args.every, force=args.force)
     except NotImplementedError as exc:
         from ..errors import VoxflexError
 
