@@ -120,6 +120,10 @@ def load_mesh(path) -> SurfaceMesh:
         triangles, NaN/inf coordinates.
     """
     path = Path(path)
+    if path.is_dir():  # named as a folder, not as a bad extension
+        from ..errors import missing_file
+
+        raise missing_file(path, "mesh file")
     ext = path.suffix.lower()
     if ext not in MESH_EXTENSIONS:
         raise InputError(

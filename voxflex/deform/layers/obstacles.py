@@ -318,7 +318,9 @@ class DistanceField(Obstacle):
         label image (see :meth:`from_labels`)."""
         path = Path(path)
         if not path.is_file():
-            raise InputError(f"obstacle file '{path}' not found; check the path")
+            from ...errors import missing_file
+
+            raise missing_file(path, "obstacle file")
         if path.suffix.lower() == ".npz":
             with np.load(path) as z:
                 if "distance" in z:
