@@ -33,6 +33,9 @@ def describe_result(path) -> str:
     lines += [f"  {line}" for line in field_lines(r)]
     if not r.complete:
         lines.append(f"  INCOMPLETE: the run failed after step {r.n_steps}: {r.error}")
+    bad = [s for s in range(T) if not np.all(np.isfinite(r.surface_positions[s]))]
+    if bad:
+        lines.append(f"  DAMAGED: the surface positions of {len(bad)} state(s) are not finite (first: state {bad[0]})")
     return "\n".join(lines)
 
 
