@@ -65,9 +65,13 @@ def build(scene, image, materials, *, cache: bool = True):
     stored = disk.load("frames", key) if use_cache else None
     softest = None
     if stored is not None:
-        frames, sf, samples = _from_store(image, stored, kind, nodes.parents)
-        softest = float(stored["softest"]) if "softest" in stored else None
-    else:
+        try:
+            frames, sf, samples = _from_store(image, stored, kind, nodes.parents)
+            softest = float(stored["softest"]) if "softest" in stored else None
+        except disk.CacheMismatch as exc:  # never trusted, never blamed on the scene: recomputed
+            disk.discard("frames", key, f"does not fit this image ({exc})")
+            stored = None
+    if stored is None:
         frames, sf, samples = _precompute(image, count, kind, fixed, nodes, compliance, quadrature,
                                           n_samples, occupancy)
     info = {"shape_function": kind, "parents": int(nodes.parents), "distance": nodes.distance,
@@ -214,7 +218,52 @@ def _to_store(frames, sf, samples) -> dict:
 
 
 def _from_store(image, d, kind, parents):
-    """Rebuild (frames, shape function, samples) from a cache entry."""
+    """Rebuild (frames, shape function, samples) from a cache entry; :class:`voxflex.cache.CacheMismatch`
+    when the entry does not fit ``image`` (missing arrays, shapes, non-finite values, labels, indices)."""
+    from .... import cache as disk
+
+    try:
+        _check_store(image, d)
+        return _rebuild(image, d, kind, parents)
+    except disk.CacheMismatch:
+        raise
+    except (InputError, ValueError, KeyError, IndexError, TypeError) as exc:
+        raise disk.CacheMismatch(" ".join(str(exc).split())[:200] or type(exc).__name__) from None
+
+
+def _check_store(image, d) -> None:
+    """What a cache entry must satisfy to describe a precompute of ``image`` (CacheMismatch otherwise)."""
+    from .... import cache as disk
+
+    need = ("frames", "W_indptr", "W_indices", "W_data", "kind", "points", "volume", "label", "index", "w", "dw",
+            "ddw")
+    missing = [k for k in need if k not in d]
+    if missing:
+        raise disk.CacheMismatch(f"it lacks {missing[0]}")
+    frames, points = np.asarray(d["frames"]), np.asarray(d["points"])
+    n, m = len(frames), len(points)
+    voxels = int((image.labels > 0).sum())
+    index = np.asarray(d["index"])
+    checks = [
+        (frames.ndim == 2 and frames.shape[1:] == (3,) and n > 0, "frames"),
+        (points.ndim == 2 and points.shape[1:] == (3,) and m > 0, "sample points"),
+        (np.asarray(d["W_indptr"]).shape == (voxels + 1,), "weights of the voxels"),
+        (np.asarray(d["volume"]).shape == (m,) and np.all(np.asarray(d["volume"]) > 0), "sample volumes"),
+        (np.asarray(d["label"]).shape == (m,) and np.all(np.isin(d["label"], np.unique(image.labels[image.labels > 0]))),
+         "sample labels"),
+        (index.ndim == 2 and len(index) == m and np.all((index >= -1) & (index < n)), "parent indices"),
+        (np.asarray(d["W_indices"]).size == 0 or (int(np.min(d["W_indices"])) >= 0 and int(np.max(d["W_indices"])) < n),
+         "weight indices"),
+    ]
+    for ok, what in checks:
+        if not ok:
+            raise disk.CacheMismatch(f"its {what} do not fit")
+    for name in ("frames", "points", "volume", "W_data", "w", "dw", "ddw"):
+        if not np.all(np.isfinite(np.asarray(d[name], dtype=float))):
+            raise disk.CacheMismatch(f"its {name} are not finite")
+
+
+def _rebuild(image, d, kind, parents):
     import scipy.sparse as sp
 
     from ....sampling.voxel import VoxelSamples
