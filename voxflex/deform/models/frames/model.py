@@ -98,6 +98,13 @@ ELASTON_CHUNK = 1 << 22
 """Entries of the elastons' dense Hessian blocks ``J_e^T D_e J_e`` formed at a time (32 MB)."""
 
 
+
+def elastons_take(material) -> bool:
+    """Whether elaston quadrature takes ``material``: its strain's second derivative must be constant (an exact
+    Hessian of the strain's gradient term).  The one definition the model's check and every piece of advice
+    that suggests elastons read."""
+    return bool(getattr(getattr(material, "strain", None), "constant_hessian", False))
+
 class FrameModel(OnePass):
     """Affine frames over a label image (see the module docstring).
 
@@ -132,7 +139,7 @@ class FrameModel(OnePass):
         if self.elaston:
             self._fmap = DeformationGradientWithGradientMapping(self.nodes, samples.values)
             for label, mat in self.materials.items():
-                if not getattr(mat.strain, "constant_hessian", False):
+                if not elastons_take(mat):
                     raise InputError(
                         f"elaston quadrature integrates the strain's gradient and needs a strain whose second "
                         f"derivative is constant for an exact Hessian (linear, green, corotational-small); label "
@@ -688,8 +695,10 @@ class FrameModel(OnePass):
 
     def advice(self) -> str:
         if self.samples.kind == "midpoint":
-            return ("mid-point samples may leave spurious zero-energy modes between frames; "
-                    "add samples or use quadrature = \"elaston\" or \"gauss-legendre\"")
+            # elastons only where they take every material of the model (a neo-Hookean run was told to use them)
+            other = ('quadrature = "elaston" or "gauss-legendre"' if all(elastons_take(m) for m in self.materials.values())
+                     else 'quadrature = "gauss-legendre"')
+            return f"mid-point samples may leave spurious zero-energy modes between frames; add samples or use {other}"
         return ""
 
     def describe(self) -> dict:
