@@ -117,6 +117,23 @@ def voxels_touching_box(image, lo, hi) -> np.ndarray:
     return meets.reshape(image.shape)
 
 
+TIE = 1e-9
+"""Relative tolerance under which distances tie in placement: the lowest voxel index among values within
+it wins, so that a scene and the same scene in other units (every length times s, which rounds each
+distance differently) place the same frames (a 1 cm beam put its clamp frame on the other of two voxels
+equidistant from the clamp's centre, and its tip moved 1.5 % from the 1 m beam's)."""
+
+
+def _first_extreme(values, which: str) -> int:
+    """Index of the first value within :data:`TIE` (relative) of the largest (``"max"``) or smallest (``"min"``)."""
+    values = np.asarray(values, dtype=float)
+    if which == "max":
+        top = float(values.max())
+        return int(np.flatnonzero(values >= top - TIE * abs(top))[0])
+    low = float(values.min())
+    return int(np.flatnonzero(values <= low + TIE * abs(low))[0])
+
+
 def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="geodesic", compliance=None,
                  iterations=10):
     """Frame positions spread evenly over the material in the geodesic metric.
@@ -207,7 +224,7 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
             continue
         sel = np.flatnonzero(inside)
         c = centres[sel].mean(axis=0)
-        v = int(sel[np.argmin(((centres[sel] - c) ** 2).sum(1))])
+        v = int(sel[_first_extreme(((centres[sel] - c) ** 2).sum(1), "min")])
         frames.append(centres[v])
         frame_vox.append(v)
     n_pinned = len(frames)
@@ -250,7 +267,7 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     while len(frames) < count:
         dm = dist[mflat]
         dm = np.where(np.isfinite(dm), dm, -1.0)
-        v = int(np.argmax(dm))
+        v = int(_first_extreme(dm, "max"))
         frames.append(centres[v])
         frame_vox.append(v)
         M.march(mask, cost, pshape, spacing, seeds_of(centres[v]), [len(frames) - 1], fmm=0, dist=dist, owner=owner)

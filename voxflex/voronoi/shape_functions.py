@@ -200,7 +200,9 @@ def keep_largest(values: ShapeValues, parents: int) -> ShapeValues:
         raise InputError(f"parents must be >= 1, got {parents}")
     if values.n_parents <= parents:
         return values
-    order = np.argsort(-np.where(values.index >= 0, values.w, -np.inf), axis=1, kind="stable")[:, :parents]
+    # weights equal to 1e-12 tie (the first column wins): the same scene in other units rounds its weights
+    # differently, and must keep the same parents (a 1 cm beam kept others than the 1 m beam: 0.05 % off)
+    order = np.argsort(-np.where(values.index >= 0, np.round(values.w, 12), -np.inf), axis=1, kind="stable")[:, :parents]
     r = np.arange(values.m)[:, None]
     idx = values.index[r, order]
     keep = idx >= 0
