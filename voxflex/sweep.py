@@ -426,6 +426,7 @@ def _tradeoff_impl(scene, frames, samples, shape_functions, quadratures, referen
 
     base = build_image(scene)
     ref_level = 1 if reference == "finer" else 0
+    _check_levels(base, voxel_levels - ref_level, voxel_levels)
     ref_kind, swept = reference_kind(), default_kind()
     voxel_q = scene.elasticity.quadrature if scene.nodes.kind == ref_kind.name else ref_kind.default_quadrature
     configs = [Configuration(ref_kind.name, role="reference", level=ref_level, quadrature=voxel_q)]
@@ -495,6 +496,29 @@ def _tradeoff_impl(scene, frames, samples, shape_functions, quadratures, referen
 
 def _warm_key(c: Configuration):
     return (c.kind, c.quadrature, c.shape_function)
+
+
+def _check_levels(image, merges: int, voxel_levels: int) -> None:
+    """InputError when merging 2x2x2 blocks ``merges`` times leaves no material (or less than a voxel along
+    an axis) in the image; the message names the largest ``voxel_levels`` that works."""
+    out, done = image, 0
+    while done < merges:
+        labels = np.asarray(out.labels)
+        if min(labels.shape) < 2:
+            break
+        merged = _merge(out)
+        if not np.any(np.asarray(merged.labels) > 0):
+            break
+        out, done = merged, done + 1
+    if done == merges:
+        return
+    shape = " x ".join(map(str, np.asarray(image.labels).shape))
+    last = " x ".join(map(str, np.asarray(out.labels).shape))
+    allowed = voxel_levels - (merges - done)
+    fix = f"use voxel_levels <= {allowed}" if allowed >= 1 else "use a finer voxel size or --reference finer"
+    raise InputError(f"voxel_levels = {voxel_levels} asks for grids down to 2^{merges} times coarser than the image "
+                     f"({shape} voxels), but {done} halving(s) leave {last} voxels and another leaves no material; "
+                     f"{fix}")
 
 
 def _level_size(image, level) -> float:

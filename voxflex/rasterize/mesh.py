@@ -79,7 +79,8 @@ class SurfaceMesh:
             raise InputError(f"{name}: every triangle is degenerate (repeated vertices); the mesh encloses nothing")
         lo, hi = self._span(vertices, faces)
         if np.any(hi - lo <= 0):
-            raise InputError(f"{name}: the mesh is flat (zero extent along an axis); it encloses no volume")
+            raise InputError(f"{name}: the mesh is flat (zero extent along an axis), so it encloses no volume to fill "
+                             'with voxels; a flat sheet is a membrane: [nodes] kind = "membrane" with a [membrane] table')
         for arr in (vertices, faces):
             arr.setflags(write=False)
         object.__setattr__(self, "vertices", vertices)

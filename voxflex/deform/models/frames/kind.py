@@ -17,9 +17,13 @@ PLASTIC_SURFACE_FIELDS = ("stress", "von-mises", "energy-density")
 
 
 def check_scene(scene) -> None:
-    """Refuse result fields the frames cannot give with plasticity (their surface layer has no plastic state)."""
+    """Refuse what frames cannot do with plasticity: elastons (internal variables live on point samples)
+    and result fields of the surface layer (it has no plastic state)."""
     if not any(m.yield_strain is not None for m in scene.materials):
         return
+    if scene.elasticity.quadrature == "elaston":
+        raise InputError('plasticity ([material] yield_strain) with frames needs point samples, and elastons are '
+                         'regions: use [elasticity] quadrature = "midpoint" or "gauss-legendre"')
     bad = [f for f in scene.output.fields if f in PLASTIC_SURFACE_FIELDS]
     if bad:
         raise InputError(f'[output] fields "{bad[0]}" with plasticity needs [nodes] kind = "voxel" (the frames\' '

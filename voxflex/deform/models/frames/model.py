@@ -143,7 +143,7 @@ class FrameModel(OnePass):
                     raise InputError(
                         f"elaston quadrature integrates the strain's gradient and needs a strain whose second "
                         f"derivative is constant for an exact Hessian (linear, green, corotational-small); label "
-                        f"{label} uses '{mat.strain.name}': use quadrature = \"midpoint\" or \"gauss-legendre\", "
+                        f"{label} uses '{getattr(getattr(mat, 'strain', None), 'name', type(mat).__name__)}': use quadrature = \"midpoint\" or \"gauss-legendre\", "
                         f"or one of those strains"
                     )
         else:
