@@ -68,17 +68,26 @@ def code_fingerprint() -> str:
     for the package's ~1.5 MB of source, once per process."""
     global _FINGERPRINT
     if _FINGERPRINT is None:
-        from ._version import __version__
-
-        root = Path(__file__).resolve().parent
-        files = sorted(p for p in root.rglob("*.py") if "__pycache__" not in p.parts)
-        h = hashlib.sha256(__version__.encode())
-        for f in files:
-            h.update(f.relative_to(root).as_posix().encode() + b"\x00")
-            h.update(f.read_bytes())
-            h.update(b"\x00")
-        _FINGERPRINT = h.hexdigest()
+        _FINGERPRINT = source_fingerprint(Path(__file__).resolve().parent)
     return _FINGERPRINT
+
+
+def source_files(root) -> list:
+    """Every module of the package at ``root`` (``*.py`` below it, caches left out), sorted."""
+    return sorted(p for p in Path(root).rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def source_fingerprint(root) -> str:
+    """SHA-256 of the version and of each module's path (relative to ``root``) and bytes."""
+    from ._version import __version__
+
+    root = Path(root)
+    h = hashlib.sha256(__version__.encode())
+    for f in source_files(root):
+        h.update(f.relative_to(root).as_posix().encode() + b"\x00")
+        h.update(f.read_bytes())
+        h.update(b"\x00")
+    return h.hexdigest()
 
 
 _FINGERPRINT = None
@@ -127,7 +136,7 @@ def load(kind: str, key: str) -> dict | None:
     if not path.is_file():
         return None
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:  # fh: closed even when np.load fails
             arrays = {k: data[k] for k in data.files}
     except Exception as exc:  # a damaged entry must never stop a run: recompute it
         reason = " ".join(str(exc).split())[:200] or type(exc).__name__

@@ -35,6 +35,7 @@ import numpy as np
 from .errors import ConvergenceError, InputError
 
 __all__ = ["check_magnitudes", "check_thin_body", "check_unreached_components", "check_held", "warn_locking",
+           "warn_resolution", "ResolutionWarning",
            "StateCheck", "ImplausibleStateWarning", "LockingWarning", "LOCKING_POISSON",
            "REPRESENTABLE", "MAX_LOAD_STRAIN", "GROWTH_WARN", "GROWTH_REFUSE", "RESIDUAL_REFUSE", "THIN_FRACTION"]
 
@@ -83,7 +84,7 @@ def _representable(where: str, value: float, *, zero_ok: bool = True) -> None:
         return
     if not math.isfinite(a) or not lo <= a <= hi:
         raise InputError(
-            f"{where} = {value!r} is outside {lo:g} .. {hi:g} in magnitude, beyond what double precision can "
+            f"{where} = {float(value)!r} is outside {lo:g} .. {hi:g} in magnitude, beyond what double precision can "
             "multiply and square in an energy; check the units (m, Pa, kg/m^3, s)")
 
 
@@ -292,6 +293,36 @@ def check_unreached_components(scene, image) -> None:
         'drop islands with [object] keep = "largest" or min_component_voxels, or simulate dynamics (implicit-euler)')
 
 
+class ResolutionWarning(UserWarning):
+    """A time step moves the body by less than its coordinates resolve in double precision."""
+
+
+RESOLUTION = 1e-10
+"""A dynamic step whose gravity move ``|g| dt^2`` is below this fraction of the body's largest coordinate warns:
+the states store positions, which keep fewer than 6 of the move's 16 digits (a free fall at dt = 1e-9 s of a
+body 1.5 m from the origin did not move at all)."""
+
+
+def warn_resolution(scene, image) -> None:
+    """:class:`ResolutionWarning` when gravity moves the body per step by less than :data:`RESOLUTION` times its
+    largest coordinate (module docstring of :data:`RESOLUTION`)."""
+    if scene.solver.kind != "implicit-euler" or scene.gravity is None:
+        return
+    g = _norm(scene.gravity)
+    mask = np.asarray(image.labels) > 0
+    if g == 0 or not np.any(mask):
+        return
+    ijk = np.argwhere(mask)
+    corners = np.array([ijk.min(axis=0), ijk.max(axis=0) + 1], dtype=float)
+    reach = float(np.abs(np.asarray(image.index_to_world(corners))).max())
+    move = g * float(scene.solver.dt) ** 2
+    if reach > 0 and move < RESOLUTION * reach:
+        warnings.warn(
+            f"dt = {scene.solver.dt:g} s moves the body by |g| dt^2 = {move:.3g} m per step, {move / reach:.1e} of its "
+            f"coordinates (up to {reach:.3g} m): positions in double precision keep few of those digits; use a "
+            "larger dt, or place the object near the origin", ResolutionWarning, stacklevel=3)
+
+
 class LockingWarning(UserWarning):
     """A frame model integrates a nearly incompressible material's volumetric term in full: it locks."""
 
@@ -371,12 +402,18 @@ class StateCheck:
 
     def __init__(self, surface_rest):
         rest = np.asarray(surface_rest, dtype=float)
-        self.size = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if len(rest) else 0.0
+        self.rest_size = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if len(rest) else 0.0
         self.worst_growth = (1.0, 0)
         self.warned = False
 
     def __call__(self, step: int, q, surface, residual: float) -> None:
-        if not np.all(np.isfinite(q)) or not np.all(np.isfinite(surface)):
+        """Both checks: :meth:`state` then :meth:`size`."""
+        self.state(step, q, residual)
+        self.size(step, surface)
+
+    def state(self, step: int, q, residual: float) -> None:
+        """ConvergenceError for a node state that is not finite, or accepted out of balance."""
+        if not np.all(np.isfinite(q)):
             raise ConvergenceError(
                 f"step {step} was accepted with a state that is not finite (NaN or inf): the loads or the material "
                 "constants are beyond what double precision solves; check the units")
@@ -386,16 +423,22 @@ class StateCheck:
                 f"fraction; the limit is {RESIDUAL_REFUSE:g}), which is not an equilibrium: a layer far stiffer "
                 "than the body (friction, contact stiffness) or a load far beyond the model; soften it or use more "
                 "steps")
-        if self.size <= 0 or len(surface) == 0:
+
+    def size(self, step: int, surface) -> None:
+        """ConvergenceError for a drawn surface that is not finite or grown beyond :data:`GROWTH_REFUSE`."""
+        surface = np.asarray(surface, dtype=float)
+        if not np.all(np.isfinite(surface)):
+            raise ConvergenceError(f"step {step}: the drawn surface is not finite (NaN or inf); check the units")
+        if self.rest_size <= 0 or len(surface) == 0:
             return
         size = float(np.linalg.norm(surface.max(axis=0) - surface.min(axis=0)))
-        growth = size / self.size
+        growth = size / self.rest_size
         if growth > self.worst_growth[0]:
             self.worst_growth = (growth, step)
         if growth > GROWTH_REFUSE:
             raise ConvergenceError(
                 f"step {step}: the deformed body is {growth:.3g} times its rest size ({size:.3g} m against "
-                f"{self.size:.3g} m; the limit is {GROWTH_REFUSE:g}): not an elastic answer; check the units and "
+                f"{self.rest_size:.3g} m; the limit is {GROWTH_REFUSE:g}): not an elastic answer; check the units and "
                 "the loads")
 
     def warn(self) -> None:

@@ -826,6 +826,7 @@ def render(
         What was written (the file or the folder).
     """
     result = _as_result(result)
+    _check_drawable(result)
     path = Path(path)
     suffix = path.suffix.lower()
     if isinstance(fps, bool) or not isinstance(fps, (int, np.integer)) or fps < 1:

@@ -11,7 +11,11 @@ __all__ = ["describe_result", "field_lines"]
 
 def describe_result(path) -> str:
     """A short human-readable summary of a result file (used by ``voxflex info``)."""
-    r = Result.load(path)
+    with np.errstate(over="ignore", invalid="ignore"):  # a damaged file's 1e300 positions: described, not warned
+        return _describe(Result.load(path), path)
+
+
+def _describe(r, path) -> str:
     T = r.n_states
     totals = r.run_totals()
     labels, counts = np.unique(r.image_labels[r.image_labels > 0], return_counts=True)

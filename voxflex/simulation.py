@@ -183,6 +183,8 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     problem = problem_of(scene, model)
     guards.check_held(problem)
     guards.warn_locking(model, scene)
+    if image is not None:
+        guards.warn_resolution(scene, image)
     probe_map = None
     if problem.probes:
         probe_map = model.point_mapping(np.array([point for _, point in problem.probes], dtype=float))
@@ -394,9 +396,10 @@ class _Recorder:
 
         k = self.count
         q = np.asarray(rec.q, dtype=float)
+        self.check.state(k, q, float(rec.residual) if k > 0 else 0.0)
         surface = self.surf_map.apply(q)
         self._surface = (rec.q, surface)
-        self.check(k, q, surface, float(rec.residual) if k > 0 else 0.0)
+        self.check.size(k, surface)
         self.count += 1
         inversion, location = self._inversion(rec.q)
         self.location = location

@@ -323,7 +323,7 @@ class DistanceField(Obstacle):
             raise missing_file(path, "obstacle file")
         if path.suffix.lower() == ".npz":
             try:
-                with np.load(path, allow_pickle=False) as z:
+                with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # fh closed if np.load fails
                     if "distance" in z:
                         missing = [k for k in ("spacing", "origin") if k not in z]
                         if missing:
