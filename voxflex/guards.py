@@ -35,7 +35,6 @@ import numpy as np
 from .errors import ConvergenceError, InputError
 
 __all__ = ["check_magnitudes", "check_thin_body", "check_unreached_components", "check_held", "warn_locking",
-           "warn_resolution", "ResolutionWarning",
            "StateCheck", "ImplausibleStateWarning", "LockingWarning", "LOCKING_POISSON",
            "REPRESENTABLE", "MAX_LOAD_STRAIN", "GROWTH_WARN", "GROWTH_REFUSE", "RESIDUAL_REFUSE", "THIN_FRACTION"]
 
@@ -275,6 +274,8 @@ def check_unreached_components(scene, image) -> None:
     reached = np.zeros(n + 1, dtype=bool)
     for f in scene.fixed:
         touch = voxels_touching_box(image, np.asarray(f.min, dtype=float), np.asarray(f.max, dtype=float))
+        if not np.any(touch & material):
+            return  # a region that holds nothing: the boundary check names that region, the real mistake
         reached[np.unique(comps[touch & material])] = True
     missing = [c for c in range(1, n + 1) if not reached[c]]
     if not missing:
@@ -291,36 +292,6 @@ def check_unreached_components(scene, image) -> None:
         f"[{', '.join(f'{v:.4g}' for v in lo)}] .. [{', '.join(f'{v:.4g}' for v in hi)}] m) is not held: no "
         f"[[fixed]] region reaches it, 6 free rigid motion(s){more}; fix it with a [[fixed]] region covering it, "
         'drop islands with [object] keep = "largest" or min_component_voxels, or simulate dynamics (implicit-euler)')
-
-
-class ResolutionWarning(UserWarning):
-    """A time step moves the body by less than its coordinates resolve in double precision."""
-
-
-RESOLUTION = 1e-10
-"""A dynamic step whose gravity move ``|g| dt^2`` is below this fraction of the body's largest coordinate warns:
-the states store positions, which keep fewer than 6 of the move's 16 digits (a free fall at dt = 1e-9 s of a
-body 1.5 m from the origin did not move at all)."""
-
-
-def warn_resolution(scene, image) -> None:
-    """:class:`ResolutionWarning` when gravity moves the body per step by less than :data:`RESOLUTION` times its
-    largest coordinate (module docstring of :data:`RESOLUTION`)."""
-    if scene.solver.kind != "implicit-euler" or scene.gravity is None:
-        return
-    g = _norm(scene.gravity)
-    mask = np.asarray(image.labels) > 0
-    if g == 0 or not np.any(mask):
-        return
-    ijk = np.argwhere(mask)
-    corners = np.array([ijk.min(axis=0), ijk.max(axis=0) + 1], dtype=float)
-    reach = float(np.abs(np.asarray(image.index_to_world(corners))).max())
-    move = g * float(scene.solver.dt) ** 2
-    if reach > 0 and move < RESOLUTION * reach:
-        warnings.warn(
-            f"dt = {scene.solver.dt:g} s moves the body by |g| dt^2 = {move:.3g} m per step, {move / reach:.1e} of its "
-            f"coordinates (up to {reach:.3g} m): positions in double precision keep few of those digits; use a "
-            "larger dt, or place the object near the origin", ResolutionWarning, stacklevel=3)
 
 
 class LockingWarning(UserWarning):

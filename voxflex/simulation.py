@@ -183,8 +183,6 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     problem = problem_of(scene, model)
     guards.check_held(problem)
     guards.warn_locking(model, scene)
-    if image is not None:
-        guards.warn_resolution(scene, image)
     probe_map = None
     if problem.probes:
         probe_map = model.point_mapping(np.array([point for _, point in problem.probes], dtype=float))
