@@ -510,7 +510,9 @@ def _place_camera(plotter, cam: _Camera, pts: np.ndarray, size):
     w, h = size
     x, y, z = pts @ cam.right, pts @ cam.up, pts @ cam.toward
     xmid, ymid = 0.5 * (x.min() + x.max()), 0.5 * (y.min() + y.max())
-    span = max(float(x.max() - x.min()), float(y.max() - y.min()), float(z.max() - z.min()), 1e-12)
+    span = max(float(x.max() - x.min()), float(y.max() - y.min()), float(z.max() - z.min()))
+    if not span > 0:  # every point in one place: any scale draws it (an absolute 1e-12 m floor was not unit-free)
+        span = max(float(np.abs(pts).max()), 1.0)
     per_pixel = max((x.max() - x.min()) / (w * (1 - 2 * _MARGIN)), (y.max() - y.min()) / (h * (1 - 2 * _MARGIN)))
     per_pixel = max(float(per_pixel), span * 1e-6)
     centre = xmid * cam.right + ymid * cam.up + float(z.mean()) * cam.toward
