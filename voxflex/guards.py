@@ -337,17 +337,20 @@ def check_held(problem) -> None:
     model = problem.model
     dofs, _ = fixed_dofs(model, problem.fixed)
     N = int(np.asarray(model.rest).size)
-    free = np.setdiff1d(np.arange(N), dofs)
+    d = model.dofs_per_node
+    free = np.ones(N, dtype=bool)
+    free[dofs] = False  # (a mask: np.setdiff1d took 1.2 s for 810k DOFs)
+    free = np.flatnonzero(free)
+    if 2 * len(free) > N:
+        return  # most DOFs free: every kind's nodes move material (voxel corners, frames' cells, mesh vertices)
     if len(free):
-        points, _ = model.volume_points()
-        points = np.asarray(points, dtype=float)
-        # J^T f for generic point forces f: a DOF whose column of J is zero (moves no material) gets 0
-        f = np.random.default_rng(0).standard_normal(points.shape) + 1.0
-        g = model.point_mapping(points).vjp(np.asarray(model.rest, dtype=float), f)
-        moves = np.asarray(g, dtype=float).ravel() != 0
+        # the nodes that move material are those of the model's parts (about 0.7 s for 270k voxel nodes,
+        # so only when the held set is most of the model; the volume points' mapping took 17 s and 1.4 GB)
+        moving = np.unique(np.concatenate([np.asarray(p.nodes, dtype=np.int64) for p in model.parts()] or [[]]))
+        moves = np.zeros(N, dtype=bool)
+        moves[(d * moving[:, None] + np.arange(d)).ravel()] = True
         if np.any(moves[free]):
             return
-    d = model.dofs_per_node
     nodes = N // d
     held_nodes = len(np.unique(dofs // d))
     kind = model.kind
