@@ -23,7 +23,6 @@ import time
 import warnings
 from dataclasses import replace
 
-import numpy as np
 
 import voxflex as vf
 from voxflex.scene import ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene, SolverSpec

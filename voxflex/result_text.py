@@ -11,7 +11,11 @@ __all__ = ["describe_result", "field_lines"]
 
 def describe_result(path) -> str:
     """A short human-readable summary of a result file (used by ``voxflex info``)."""
-    r = Result.load(path)
+    with np.errstate(over="ignore", invalid="ignore"):  # a damaged file's 1e300 positions: described, not warned
+        return _describe(Result.load(path), path)
+
+
+def _describe(r, path) -> str:
     T = r.n_states
     totals = r.run_totals()
     labels, counts = np.unique(r.image_labels[r.image_labels > 0], return_counts=True)
@@ -33,6 +37,9 @@ def describe_result(path) -> str:
     lines += [f"  {line}" for line in field_lines(r)]
     if not r.complete:
         lines.append(f"  INCOMPLETE: the run failed after step {r.n_steps}: {r.error}")
+    bad = [s for s in range(T) if not np.all(np.isfinite(r.surface_positions[s]))]
+    if bad:
+        lines.append(f"  DAMAGED: the surface positions of {len(bad)} state(s) are not finite (first: state {bad[0]})")
     return "\n".join(lines)
 
 

@@ -42,7 +42,7 @@ from ..errors import InputError
 from .quadrature import gauss_legendre_cube
 from .volume_moments import EXPONENTS
 
-__all__ = ["gauss_points", "moment_fitted_rule", "SUBRULE_DEGREE"]
+__all__ = ["gauss_points", "gauss_points_in_voxels", "moment_fitted_rule", "SUBRULE_DEGREE"]
 
 SUBRULE_DEGREE = 2
 """Degree of the polynomials the elastons' sub-rules integrate exactly (10 moments, at most 10 points)."""
@@ -65,14 +65,22 @@ def gauss_points(image, *, use_occupancy: bool = True):
     volume : (8N,) float, each point's weight [m^3] (its voxel's volume / 8)
     voxel : (8N,) int64, the voxel's position in that order
     """
+    index, fraction, voxel = gauss_points_in_voxels(image, use_occupancy=use_occupancy)
+    return image.index_to_world(index), fraction * float(image.voxel_volume), voxel
+
+
+def gauss_points_in_voxels(image, *, use_occupancy: bool = True):
+    """:func:`gauss_points` in voxel units: ``(index, fraction, voxel)`` with the points' continuous index
+    coordinates and their weights as fractions of a voxel's volume.  The same bits at any unit and spacing,
+    so that a fit on them (:func:`moment_fitted_rule`) picks the same points for a scene in any unit."""
     local, weights = gauss_legendre_cube(2)
     ijk = np.argwhere(image.labels > 0)
-    points = image.index_to_world((ijk[:, None, :] + local[None, :, :]).reshape(-1, 3))
-    vol = np.full(len(ijk), float(image.voxel_volume))
+    index = (ijk[:, None, :] + local[None, :, :]).reshape(-1, 3)
+    frac = np.ones(len(ijk))
     if use_occupancy and image.occupancy is not None:
-        vol = vol * np.asarray(image.occupancy, dtype=float)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
-    volume = (vol[:, None] * weights[None, :]).reshape(-1)
-    return points, volume, np.repeat(np.arange(len(ijk), dtype=np.int64), len(weights))
+        frac = np.asarray(image.occupancy, dtype=float)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    fraction = (frac[:, None] * weights[None, :]).reshape(-1)
+    return index, fraction, np.repeat(np.arange(len(ijk), dtype=np.int64), len(weights))
 
 
 def _n_moments(degree: int) -> int:
@@ -155,7 +163,7 @@ def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degr
             weights.append(v)
             continue
         A = mono[ids].T  # (nm, k)
-        b = A @ v
+        b = A @ (v / h**3)  # weights in voxel volumes: NNLS's tolerances are absolute, the fit scale-free
         scale = 1.0 / np.maximum(np.abs(A).max(axis=1), 1e-300)
         x, _ = nnls(A * scale[:, None], b * scale, maxiter=50 * len(ids))
         keep = np.flatnonzero(x > 1e-12 * x.max())
@@ -170,5 +178,5 @@ def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degr
             weights.append(v)
             continue
         selected.append(ids[keep])
-        weights.append(x_keep)
+        weights.append(x_keep * h**3)
     return np.concatenate(selected).astype(np.int64), np.concatenate(weights)

@@ -96,8 +96,12 @@ def build(scene, image, materials, *, cache: bool = True):
                           np.asarray(image.origin), np.asarray(image.direction), occ, settings)
     stored = disk.load("frames", key) if use_cache else None
     if stored is not None:
-        pre = _from_store(image, stored, kind, nodes.parents, occupancy)
-    else:
+        try:
+            pre = _from_store(image, stored, kind, nodes.parents, occupancy)
+        except disk.CacheMismatch as exc:  # never trusted, never blamed on the scene: recomputed
+            disk.discard("frames", key, f"does not fit this image ({exc})")
+            stored = None
+    if stored is None:
         pre = _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass)
     sf = pre["sf"]
     info = {"shape_function": kind, "parents": int(sf.parents if rk else nodes.parents), "distance": nodes.distance,
@@ -122,7 +126,7 @@ def build(scene, image, materials, *, cache: bool = True):
             K = _unit_stiffness(model)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SpuriousModesWarning)
-            zero = check_modes(pre["frames"], model.samples, stiffness=K)  # warns, naming how many samples to add
+            zero = check_modes(pre["frames"], model.samples, stiffness=K, gauge=_gauge(model))  # warns, naming how many
         if zero > 6:
             _refuse_static_mechanism(scene, model, K, model.samples, zero - 6)
         softest = pre.get("softest")
@@ -230,6 +234,22 @@ def _refuse_static_mechanism(scene, model, K, samples, spurious: int) -> None:
             '[elasticity] samples, use fewer frames, or quadrature = "gauss-legendre"')
 
 
+def _gauge(model) -> np.ndarray:
+    """(12n, g) the gauge motions of the model's weights: those of the 18 candidates that move no voxel
+    centre and deform none (:func:`~voxflex.deform.models.frames.modes.gauge_modes`); empty unless the weights
+    are linearly precise (reproducing kernels).  Read at every voxel centre, not at the samples: a stabilised
+    mid-point region integrates Gauss points its centre does not show."""
+    from .modes import gauge_modes
+
+    sf = model.shape_function
+    if getattr(sf, "kind", None) != "reproducing-kernel":
+        return np.zeros((12 * model.n_nodes, 0))
+    vv = sf.voxel_values() if hasattr(sf, "voxel_values") else None
+    if vv is None:
+        vv = sf(model.image.index_to_world(np.argwhere(model.image.labels > 0) + 0.5))
+    return gauge_modes(model.frames, vv)
+
+
 def _free_zero_modes(scene, model, K) -> int:
     """Zero eigenvalues of the stiffness over the DOFs ``scene`` does not hold (translations scaled by the
     samples' spread, so the verdict does not depend on the unit: :func:`~voxflex.deform.models.frames.modes.
@@ -239,13 +259,12 @@ def _free_zero_modes(scene, model, K) -> int:
     import scipy.linalg as sla
 
     from ...._blas import one_thread
-    from .modes import dimensionless, stiffness_gauge
+    from .modes import dimensionless
 
     held = _held(scene, model)
     free = np.setdiff1d(np.arange(K.shape[0]), held)
-    Kd = dimensionless(K, model.samples)
-    Ks = Kd[np.ix_(free, free)]
-    G = stiffness_gauge(model.frames, Kd)  # (12n, g); no translation: the scaling leaves it alone
+    Ks = dimensionless(K, model.samples)[np.ix_(free, free)]
+    G = _gauge(model)  # (12n, g); no translation: the scaling leaves it alone
     if G.shape[1]:
         N = sla.null_space(G[held]) if len(held) else np.eye(G.shape[1])
         Gf = (G @ N)[free]
@@ -337,7 +356,7 @@ def _check(scene, image, pre, occupancy, hourglass):
     model = FrameModel(image, pre["frames"], pre["sf"], pre["samples"], {int(lab): unit for lab in labels},
                        use_occupancy=occupancy, hourglass=hourglass, region_tables=pre["tables"])
     K = model.rest_stiffness()
-    zero = zero_energy_modes(pre["frames"], model.samples, stiffness=K)
+    zero = zero_energy_modes(pre["frames"], model.samples, stiffness=K, gauge=_gauge(model))
     if zero > 6:  # judged on the free body whatever the solver (the cache entry serves every solver kind)
         return f"{zero - 6} zero-energy mode(s) in the free body", K, None
     softest = _softest(scene, image, model, pre["sf"], occupancy, K)
@@ -378,7 +397,58 @@ def _to_store(pre) -> dict:
 
 
 def _from_store(image, d, kind, parents, occupancy) -> dict:
-    """Rebuild the precompute (frames, shape function, samples, regions, tables) from a cache entry."""
+    """Rebuild the precompute (frames, shape function, samples, regions, tables) from a cache entry;
+    :class:`voxflex.cache.CacheMismatch` when the entry does not fit ``image`` (missing arrays, shapes,
+    non-finite values, labels, indices)."""
+    from .... import cache as disk
+
+    try:
+        _check_store(image, d)
+        return _rebuild(image, d, kind, parents, occupancy)
+    except disk.CacheMismatch:
+        raise
+    except (InputError, ValueError, KeyError, IndexError, TypeError) as exc:
+        raise disk.CacheMismatch(" ".join(str(exc).split())[:200] or type(exc).__name__) from None
+
+
+def _check_store(image, d) -> None:
+    """What a cache entry must satisfy to describe a precompute of ``image`` (CacheMismatch otherwise)."""
+    from .... import cache as disk
+
+    if "frames" not in d or "samples_kind" not in d or not ("rk_indptr" in d or "W_indptr" in d):
+        raise disk.CacheMismatch("it lacks the frames, the weights or the samples")
+    frames = np.asarray(d["frames"])
+    n = len(frames)
+    if not (frames.ndim == 2 and frames.shape[1:] == (3,) and n > 0):
+        raise disk.CacheMismatch("its frames do not fit")
+    voxels = int((image.labels > 0).sum())
+    if "W_indptr" in d and np.asarray(d["W_indptr"]).shape != (voxels + 1,):
+        raise disk.CacheMismatch("its weights of the voxels do not fit")
+    present = np.unique(image.labels[image.labels > 0])
+    for name in ("samples", "regions"):
+        if f"{name}_kind" not in d:
+            continue
+        points, index = np.asarray(d[f"{name}_points"]), np.asarray(d[f"{name}_index"])
+        m = len(points)
+        checks = [
+            (points.ndim == 2 and points.shape[1:] == (3,) and m > 0, "sample points"),
+            (np.asarray(d[f"{name}_volume"]).shape == (m,) and np.all(np.asarray(d[f"{name}_volume"]) > 0),
+             "sample volumes"),
+            (np.asarray(d[f"{name}_label"]).shape == (m,) and np.all(np.isin(d[f"{name}_label"], present)),
+             "sample labels"),
+            (index.ndim == 2 and len(index) == m and np.all((index >= -1) & (index < n)), "parent indices"),
+        ]
+        for ok, what in checks:
+            if not ok:
+                raise disk.CacheMismatch(f"its {what} do not fit")
+    for key, value in d.items():
+        a = np.asarray(value)
+        if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+            raise disk.CacheMismatch(f"its {key} are not finite")
+
+
+def _rebuild(image, d, kind, parents, occupancy) -> dict:
+    """The precompute of a checked cache entry (:func:`_check_store`)."""
     import scipy.sparse as sp
 
     from ....sampling.samples import Samples

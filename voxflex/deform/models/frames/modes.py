@@ -24,7 +24,7 @@ from ...chain.mappings import DeformationGradientWithGradientMapping
 from ...chain.nodes import AffineFrames
 
 __all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness", "softest_mode",
-           "SOFT_RATIO", "gauge_modes", "stiffness_gauge", "dimensionless"]
+           "SOFT_RATIO", "gauge_modes", "dimensionless"]
 
 GAUGE_TOL = 1e-8
 """A gauge candidate (:meth:`AffineFrames.gauge_modes`) whose deformation gradient and motion at the
@@ -137,7 +137,8 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
     return 0.5 * (K + K.T)
 
 
-def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None) -> int:
+def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None,
+                      gauge=None) -> int:
     """Number of zero eigenvalues of the free-body stiffness (six for a sound quadrature), the exact
     gauge modes of linearly precise weights (:func:`gauge_modes`, which move nothing) not counted.
 
@@ -152,6 +153,9 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
         See :func:`free_body_stiffness`.
     stiffness : (12n, 12n) float, optional
         ``free_body_stiffness(frames, samples, gradient=gradient)`` when the caller has it.
+    gauge : (12n, g) float, optional
+        The gauge motions (default: :func:`gauge_modes` at the samples; a model's builder passes those at
+        every voxel centre, which see what a stabilised region's Gauss points see).
 
     Returns
     -------
@@ -164,7 +168,7 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
     from ...._blas import one_thread
 
     Ks = dimensionless(K, samples)
-    G = stiffness_gauge(frames, Ks, tol=tol)
+    G = gauge_modes(frames, samples.values) if gauge is None else gauge  # no translation: scaling leaves it
     if G.shape[1]:  # motions that move nothing are not zero-energy deformations: deflate them
         Ks = Ks + (np.trace(Ks) / len(Ks)) * (G @ G.T)
     with one_thread():  # threaded BLAS stalls on small dense work here
@@ -173,24 +177,6 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
     if top <= 0:
         return int(ev.size)
     return int((ev < tol * top).sum())
-
-
-def stiffness_gauge(frames, K, *, tol: float = 1e-8) -> np.ndarray:
-    """(12n, g) orthonormal: the gauge candidates (:meth:`~voxflex.deform.chain.nodes.AffineFrames.gauge_modes`,
-    motions of the frames' matrices alone that move nothing where the weights reproduce linear fields) on
-    which the stiffness ``K`` has no energy (eigenvalues of ``Z^T K Z`` below ``tol`` times K's largest).
-
-    Read off the stiffness, so it counts the samples the energy is integrated with (a stabilised
-    region's Gauss points as much as its centre): a candidate without energy deforms no sample, so
-    moves nothing the energy sees.  The candidates carry no translation, so ``K`` may be the
-    dimensionless one (:func:`dimensionless`).  ``g`` is 18 for a free body with linearly precise
-    weights everywhere, fewer where a clamp's corners carry a held frame alone, 0 for the other families.
-    """
-    Z = AffineFrames(np.asarray(frames, dtype=np.float64)).gauge_modes()
-    A = Z.T @ K @ Z
-    w, V = np.linalg.eigh(0.5 * (A + A.T))
-    top = float(np.linalg.eigvalsh(K).max()) if K.size else 0.0
-    return Z @ V[:, w <= tol * top] if top > 0 else Z[:, :0]
 
 
 def dimensionless(K, samples) -> np.ndarray:
@@ -293,12 +279,14 @@ def _rigid_modes(frames) -> np.ndarray:
     return Q
 
 
-def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None) -> int:
+def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None,
+                gauge=None) -> int:
     """Count zero-energy modes and warn (:class:`SpuriousModesWarning`) when there are more than six.
 
     The warning names how many samples to add at least (each mid-point sample
     removes at most 6 modes, an elaston with gradient terms at most 24).
-    ``stiffness``: the free-body stiffness when the caller has it (see :func:`zero_energy_modes`).
+    ``stiffness``: the free-body stiffness when the caller has it, ``gauge`` the gauge motions (see
+    :func:`zero_energy_modes`).
 
     Returns
     -------
@@ -307,7 +295,7 @@ def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = N
     if gradient is None:
         gradient = getattr(samples, "kind", None) == "elaston" and samples.values.ddw is not None \
             and hasattr(samples, "M1")
-    zero = zero_energy_modes(frames, samples, tol=tol, gradient=gradient, stiffness=stiffness)
+    zero = zero_energy_modes(frames, samples, tol=tol, gradient=gradient, stiffness=stiffness, gauge=gauge)
     if zero > 6:
         per = 24 if gradient else 6
         add = -(-(zero - 6) // per)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ....errors import InputError
-from ....sampling.subrule import SUBRULE_DEGREE, gauss_points, moment_fitted_rule
+from ....sampling.subrule import SUBRULE_DEGREE, gauss_points, gauss_points_in_voxels, moment_fitted_rule
 from ....sampling.voxel import VoxelSamples
 from ....voronoi.shape_functions import keep_largest
 
@@ -69,13 +69,14 @@ def elaston_samples(image, sf, regions, *, parents=None, use_occupancy=True, deg
     -------
     VoxelSamples of kind ``"elaston"``; ``region`` gives each point's region.
     """
-    points, volume, voxel = gauss_points(image, use_occupancy=use_occupancy)
+    index, fraction, voxel = gauss_points_in_voxels(image, use_occupancy=use_occupancy)
     reg = region_of_gauss_points(image, regions, voxel)
     m = len(regions.volume)
-    h = float(np.min(image.spacing))
-    sel, wts = moment_fitted_rule(points, volume, reg, m, h=h, degree=degree)
+    # fitted in voxel units (an affine map of the world: the same polynomial space, the same bits at any unit)
+    sel, frac = moment_fitted_rule(index, fraction, reg, m, h=1.0, degree=degree)
+    points, wts = image.index_to_world(index[sel]), frac * float(image.voxel_volume)
     label = np.asarray(regions.label, dtype=np.int64)[reg[sel]]
-    return VoxelSamples("elaston", points[sel], wts, label, _values(sf, points[sel], parents), region=reg[sel])
+    return VoxelSamples("elaston", points, wts, label, _values(sf, points, parents), region=reg[sel])
 
 
 def midpoint_tables(image, sf, regions, frames, *, parents=None, use_occupancy=True, values=None):
