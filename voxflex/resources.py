@@ -54,6 +54,12 @@ SECONDS_PER_DOF_ITERATION = {"constant": 3.1e-5, "nonlinear": 2.5e-5, "reduced":
 """Seconds per Newton iteration per DOF (voxel model, 2-core machine, sparse solve included)."""
 ITERATIONS_PER_STEP = {"constant": 1, "nonlinear": 5, "reduced": 5}
 """Newton iterations a step typically takes (a constant tangent converges in one)."""
+LU_ENTRIES_PER_DOF_15 = 9.0
+"""Entries of a voxel tangent's sparse LU factor (MMD ordering) per DOF^1.5, measured by
+``benchmarks/bench_direct_limit.py`` (cubes 8.5-8.9, beams 5.6-7.4, from 6k to 106k DOF); 12 bytes
+each (value and index).  A solve factorises directly up to
+:data:`~voxflex.deform.solve.linear.DIRECT_FALLBACK_MAX` DOF (the small systems, and the fallback of a
+stalled multigrid solve) and never beyond: the estimate adds that factor only there."""
 FRAME_BYTES_PER_VOXEL_PARENT = 112.0
 """Affine frames: shape-function values, gradients and Hessians (1 + 3 + 9 doubles) and an index per voxel and parent."""
 FRAME_DENSE_COPIES = 3
@@ -327,7 +333,7 @@ def _estimate(scene, size=None, *, output=None, keep="all", every=1) -> Estimate
         nodes = corner_nodes
         dofs = 3 * nodes
         chunk = CHUNK_BYTES * min(1.0, voxels / 16384.0)
-        model = BYTES_PER_DOF[cls] * dofs + chunk
+        model = BYTES_PER_DOF[cls] * dofs + chunk + _factor_bytes(dofs)
         seconds = steps * ITERATIONS_PER_STEP[cls] * SECONDS_PER_DOF_ITERATION[cls] * dofs
     else:
         nodes = int(scene.nodes.count or 20) + len(scene.nodes.positions or ()) + len(scene.fixed)
@@ -355,6 +361,13 @@ def _estimate(scene, size=None, *, output=None, keep="all", every=1) -> Estimate
     return Estimate(node_kind=kind, voxels=int(voxels), nodes=int(nodes), dofs=int(dofs), model_bytes=int(model),
                     state_bytes=int(state), states=int(recorded), seconds=float(seconds), voxel_size=h,
                     kept_states=int(kept), file_bytes=int(file_bytes), row_bytes=int(row), streamed=streamed)
+
+
+def _factor_bytes(dofs: int) -> float:
+    """Memory of the sparse LU a voxel solve of ``dofs`` may make (bytes): none above the direct limit."""
+    from .deform.solve.linear import DIRECT_FALLBACK_MAX
+
+    return 12.0 * LU_ENTRIES_PER_DOF_15 * dofs**1.5 if dofs <= DIRECT_FALLBACK_MAX else 0.0
 
 
 def _auto_keep_bytes() -> int:

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 
 from ..._linalg import vdot, vnorm
 from ...errors import ConvergenceError
-from .linear import cg_on_free_dofs, choose_method, solve_linear
+from .linear import DIRECT_FALLBACK_MAX, INDEFINITE_REASONS, cg_on_free_dofs, choose_method, solve_linear
 
 ARMIJO = 1e-4
 
@@ -345,7 +345,7 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=
         nn = near_null if method == "amg" else None
         mg = method == "multigrid"
         d, info = solve_linear(block, rhs, method=method, rtol=eta, near_null=nn, grid=grid if mg else None,
-                               free=free if mg else None, elements=elements if mg else None)
+                               free=free if mg else None, elements=elements if mg else None, partial=True)
         return d, info, block
     if isinstance(H, np.ndarray):
         # a dense Hessian (frame models): dense Cholesky unless a sparse method was asked for
@@ -361,20 +361,63 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=
         dense = nf <= DENSE_AUTO_MAX and H.nnz >= DENSE_FILL * H.shape[0] ** 2  # H is sparse here
         method = "cholesky" if dense else choose_method(nf, grid=grid)
     if method == "cg":
-        d, info = cg_on_free_dofs(H, rhs, free, rtol=eta, fixed=reduce.fixed)
-        if d is not None:
+        d, info = cg_on_free_dofs(H, rhs, free, rtol=eta, fixed=reduce.fixed, partial=True)
+        # an indefinite tangent, or one too large to factorise: CG's last iterate goes to Newton's remedies
+        if info.converged or info.reason in INDEFINITE_REASONS or len(free) > DIRECT_FALLBACK_MAX:
             return d, info, None
         Hff = reduce(H)
         d, direct = solve_linear(Hff, rhs, method="direct")
         direct.note = f"cg stopped after {info.iterations} iterations above rtol {eta:.1e}; fell back to direct"
+        direct.reason = info.reason
         direct.fell_back = True
         direct.iterations = info.iterations
         return d, direct, Hff
     Hff = reduce(H)
     nn = near_null if method == "amg" else None
     d, info = solve_linear(Hff, rhs, method=method, rtol=eta, near_null=nn,
-                           grid=grid if method == "multigrid" else None, free=free if method == "multigrid" else None)
+                           grid=grid if method == "multigrid" else None, free=free if method == "multigrid" else None,
+                           partial=True)
     return d, info, Hff
+
+
+SHIFT_START = 1e-4
+
+
+"""First shift of an indefinite tangent, relative to the mean of its diagonal (see :func:`_shifted_direction`)."""
+
+
+SHIFT_TRIES = 12
+
+
+def _shifted_direction(Hff, rhs, r, grid, free, eta, label, it):
+    """A descent direction from the shifted tangent ``(Hff + mu I) d = rhs``, mu raised tenfold until ``r . d < 0``.
+
+    mu starts at :data:`SHIFT_START` times the mean of ``|diag(Hff)|`` (dimensionless: the same
+    verdict at any scale).  Dense tangents get a dense Cholesky, sparse ones the direct solver up to
+    :data:`~voxflex.deform.solve.linear.DIRECT_FALLBACK_MAX` unknowns and multigrid-CG (Jacobi-CG
+    without a voxel grid) beyond, whose last iterate serves when it descends (CG on a positive
+    definite matrix from zero descends at every iterate): never a factorisation of a large tangent.
+    Returns the direction and the solver's description; raises ConvergenceError when no shift gives one.
+    """
+    dense = isinstance(Hff, np.ndarray)
+    n = Hff.shape[0]
+    diag = np.abs(Hff.diagonal())
+    mu = SHIFT_START * float(np.mean(diag)) if n else 1.0
+    if dense:
+        method = "cholesky"
+    elif n <= DIRECT_FALLBACK_MAX:
+        method = "direct"
+    else:
+        method = "multigrid" if grid is not None else "cg"
+    mg = method == "multigrid"
+    for _ in range(SHIFT_TRIES):
+        shift = mu * np.eye(n) if dense else mu * sp.identity(n, format="csr")
+        d, info = solve_linear(Hff + shift, rhs, method=method, rtol=eta, grid=grid if mg else None,
+                               free=free if mg else None, partial=True)
+        if vdot(r, d) < 0:
+            return d, f"{method} (shifted: tangent indefinite)"
+        mu *= 10.0
+    raise ConvergenceError(f"{label}: no descent direction found at iteration {it} (tangent indefinite)")
 
 
 def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=None, scale0: float = 0.0):
@@ -512,24 +555,20 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             dfull[free] = d
             curvature = vdot(d, (H @ dfull)[free])
         indefinite = False
+        if not info.converged and info.reason in INDEFINITE_REASONS:
+            # CG met a direction of negative curvature, or a V-cycle made indefinite by the tangent's coarse
+            # levels (no direct fallback for these): d is its last iterate, built from steps of positive
+            # curvature, so a descent direction of Newton's quadratic model (truncated Newton-CG), or zero
+            problem.negative_curvature = True
+            indefinite = True
         if curvature < 0:
             problem.negative_curvature = True
             indefinite = True
-        if slope >= 0:
-            # not a descent direction (indefinite tangent): regularise with a scaled identity, direct solve
+        if not slope < 0:
+            # not a descent direction (indefinite tangent, or CG stopped before its first step): regularise
             Hff = reduce(H) if Hff is None else Hff
-            diag = np.abs(Hff.diagonal())
-            mu = 1e-4 * float(np.mean(diag)) if len(diag) else 1.0
-            for _ in range(12):
-                shift = mu * np.eye(Hff.shape[0]) if isinstance(Hff, np.ndarray) else mu * sp.identity(Hff.shape[0], format="csr")
-                d, info = solve_linear(Hff + shift, rhs, method="cholesky" if isinstance(Hff, np.ndarray) else "direct")
-                slope = vdot(r, d)
-                if slope < 0:
-                    break
-                mu *= 10.0
-            else:
-                raise ConvergenceError(f"{label}: no descent direction found at iteration {it} (tangent indefinite)")
-            solver_used = "direct (shifted: tangent indefinite)"
+            d, solver_used = _shifted_direction(Hff, rhs, r, problem.model.dof_grid, free, eta, label, it)
+            slope = vdot(r, d)
             indefinite = True
         if not options.line_search:
             x = x.copy()

@@ -57,6 +57,7 @@ from .boundary import (
     region_forces,
 )
 from .newton import _FreeBlock, _newton, _PatternAdd, _Problem
+from .linear import DIRECT_FALLBACK_MAX
 from .options import SolverOptions, StepRecord
 from .supports import check_supports
 
@@ -136,12 +137,55 @@ def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, option
     return x, its_total, rel, lin_total, solver_used, halv_total, cuts
 
 
-INERTIA_MAX = 60000
+INERTIA_MAX = DIRECT_FALLBACK_MAX
 
 
 """Free unknowns up to which the stability check counts negative eigenvalues by a symmetric sparse
-factorisation (Sylvester's inertia) instead of Lanczos: Lanczos for the smallest eigenvalue of a
-tangent with a 1e5 stiffness contrast ran for minutes (a two-bone limb, 4557 unknowns)."""
+factorisation (Sylvester's inertia) instead of an iterative eigensolver: Lanczos for the smallest
+eigenvalue of a tangent with a 1e5 stiffness contrast ran for minutes (a two-bone limb, 4557
+unknowns).  No larger tangent is factorised (see
+:data:`~voxflex.deform.solve.linear.DIRECT_FALLBACK_MAX`): beyond, :func:`_smallest_rayleigh`."""
+
+
+EIGEN_MAXITER = 60
+
+
+"""LOBPCG iterations of the stability check above :data:`INERTIA_MAX` unknowns."""
+
+
+def _smallest_rayleigh(Hff, grid, free):
+    """An upper bound of the smallest eigenvalue of the large sparse symmetric ``Hff``: the smallest
+    Ritz value of :data:`EIGEN_MAXITER` LOBPCG iterations (2 vectors, seeded), preconditioned by the
+    voxel multigrid V-cycle of Hff when there is a grid and Hff's diagonal is positive.
+
+    A Ritz value is never below the smallest eigenvalue, so a negative one proves the tangent
+    indefinite whether or not LOBPCG converged; a non-negative one proves nothing.  Cost: the
+    iterations' products and cycles, bounded (no factorisation).  None when LOBPCG fails."""
+    import warnings
+
+    import scipy.sparse.linalg as spla
+
+    n = Hff.shape[0]
+    M, release = None, None
+    if grid is not None and np.all(Hff.diagonal() > 0):
+        from ..._blas import one_thread
+        from .multigrid.hierarchy import hierarchy, multigrid_preconditioner
+
+        with one_thread():
+            apply, _ = multigrid_preconditioner(Hff, grid, free)
+        M = spla.LinearOperator((n, n), matvec=apply, dtype=float)
+        release = hierarchy(grid, free).release
+    X = np.random.default_rng(20240601).standard_normal((n, 2))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # LOBPCG warns when it stops at maxiter: the Ritz value still bounds
+            lam = spla.lobpcg(Hff, X, M=M, largest=False, maxiter=EIGEN_MAXITER, tol=1e-8)[0]
+        return float(np.min(lam))
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    finally:
+        if release is not None:
+            release()
 
 
 def _below(A, shift):
@@ -182,13 +226,12 @@ def _check_stable(problem, delta, free, reduce, label):
     """Raise when the converged state is a saddle: the smallest eigenvalue of the free tangent < 0.
 
     Up to 400 free unknowns a dense eigensolver; up to :data:`INERTIA_MAX` the
-    inertia of a symmetric sparse factorisation (:func:`_below`); beyond,
-    Lanczos (ARPACK, smallest algebraic, relative tolerance 1e-6).  An
+    inertia of a symmetric sparse factorisation (:func:`_below`); beyond, the
+    smallest Ritz value of a bounded LOBPCG run (:func:`_smallest_rayleigh`: an
+    upper bound, so a saddle it reports is one; one it misses goes unreported).  An
     eigenvalue below ``-1e-8`` times the largest diagonal entry is an unstable
     equilibrium (the structure buckles or the material softens there).
     """
-    import scipy.sparse.linalg as spla
-
     if problem.block is not None:
         Hff = problem.block  # the lean path: the constant free block
     else:
@@ -206,10 +249,8 @@ def _check_stable(problem, delta, free, reduce, label):
             return  # no eigenvalue below the threshold (or the count is unknown: never report a guess)
         lam = found[1]
     else:
-        try:
-            lam = float(spla.eigsh(Hff, k=1, which="SA", tol=1e-6, maxiter=20 * n,
-                                   v0=np.ones(n) / np.sqrt(n), return_eigenvectors=False)[0])
-        except spla.ArpackNoConvergence:
+        lam = _smallest_rayleigh(sp.csr_matrix(Hff), problem.model.dof_grid, free)
+        if lam is None:
             return  # could not tell: never report a guess
     if lam < -1e-8 * top:
         raise ConvergenceError(
