@@ -164,7 +164,11 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
 
     Parameters
     ----------
-    A : (N, N) sparse or dense symmetric matrix
+    A : (N, N) sparse or dense symmetric matrix, or FreeStiffness
+        A matrix-free block (:class:`~voxflex.deform.models.voxel.elements.FreeStiffness`)
+        is solved by ``"multigrid"`` (``"auto"`` with a grid; its finest level
+        through the voxel stencil, the answer checked against its voxel-by-voxel
+        product) or ``"cg"``, never factorised.
     b : (N,) float
     method : {"auto", "cholesky", "direct", "cg", "amg", "multigrid"}
     rtol : float
@@ -234,8 +238,13 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
         raise InputError("linear solver 'multigrid' needs the voxel grid: pass grid=model.grid (and free=...)")
     if N == 0:
         return np.zeros(0), LinearSolveInfo(method, 0, 0.0, 0.0)
+    matrix_free = _matrix_free(A)
     if method == "auto":
         method = choose_method(N, grid=grid)
+        if matrix_free:
+            method = "multigrid" if grid is not None else "cg"
+    if matrix_free and method not in ("multigrid", "cg"):
+        raise InputError(f"a matrix-free block (FreeStiffness) is solved by multigrid or cg, not {method!r}")
     t0 = time.perf_counter()
     bnorm = vnorm(b)
     if bnorm == 0.0:
@@ -267,7 +276,7 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
             why = f"{method} stopped after {its} iterations above rtol {rtol:.1e} ({reason})"
             # with partial=True the caller has its own remedies for an indefinite matrix (Newton: the
             # truncated step, projected or shifted tangents): only a stalled solve is factorised
-            own_remedy = partial and reason in INDEFINITE_REASONS
+            own_remedy = (partial and reason in INDEFINITE_REASONS) or matrix_free  # nothing to factorise
             if not own_remedy and (fallback == "direct" or (fallback == "auto" and N <= DIRECT_FALLBACK_MAX)):
                 note = f"{why}; fell back to direct"
                 x = _direct(A, b)
@@ -507,11 +516,18 @@ def cg_on_free_dofs(A, b, free, *, rtol: float = 1e-10, maxiter: int | None = No
 
 
 def _cg_jacobi(A, b, rtol, maxiter, x0):
-    A = sp.csr_matrix(A)
+    A = A if _matrix_free(A) else sp.csr_matrix(A)
     d = A.diagonal()
     if np.any(d <= 0):
         return np.zeros_like(b), 0, False, "negative curvature"
     return _pcg(A, b, 1.0 / d, rtol, maxiter, x0)
+
+
+def _matrix_free(A) -> bool:
+    """Whether A is a matrix-free block (:class:`~voxflex.deform.models.voxel.elements.FreeStiffness`)."""
+    from ..models.voxel.elements import FreeStiffness
+
+    return isinstance(A, FreeStiffness)
 
 
 _AMG_SEED = 20240601
@@ -526,7 +542,7 @@ def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements=None, status=Non
 
     status = {} if status is None else status
     status["reason"] = ""
-    A = sp.csr_matrix(A)
+    A = A if _matrix_free(A) else sp.csr_matrix(A)
     if np.any(A.diagonal() <= 0):
         status["reason"] = "negative curvature"  # e_i . A e_i <= 0
         return np.zeros_like(b), 0, False, None

@@ -340,7 +340,7 @@ def _solve_free(H, rhs, free, reduce, options, eta, near_null, grid=None, block=
     if block is not None:
         if method == "auto":
             nf = len(free)
-            dense = nf <= DENSE_AUTO_MAX and block.nnz >= DENSE_FILL * nf**2
+            dense = sp.issparse(block) and nf <= DENSE_AUTO_MAX and block.nnz >= DENSE_FILL * nf**2
             method = "cholesky" if dense else choose_method(nf, grid=grid)
         nn = near_null if method == "amg" else None
         mg = method == "multigrid"
@@ -400,6 +400,8 @@ def _shifted_direction(Hff, rhs, r, grid, free, eta, label, it):
     Returns the direction and the solver's description; raises ConvergenceError when no shift gives one.
     """
     dense = isinstance(Hff, np.ndarray)
+    if not dense and not sp.issparse(Hff):
+        raise ConvergenceError(f"{label}: no descent direction from the matrix-free stiffness at iteration {it}")
     n = Hff.shape[0]
     diag = np.abs(Hff.diagonal())
     mu = SHIFT_START * float(np.mean(diag)) if n else 1.0

@@ -179,7 +179,8 @@ def _smallest_rayleigh(Hff, grid, free):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # LOBPCG warns when it stops at maxiter: the Ritz value still bounds
-            lam = spla.lobpcg(Hff, X, M=M, largest=False, maxiter=EIGEN_MAXITER, tol=1e-8)[0]
+            op = Hff if sp.issparse(Hff) else spla.LinearOperator((n, n), matvec=Hff.matvec, dtype=float)
+            lam = spla.lobpcg(op, X, M=M, largest=False, maxiter=EIGEN_MAXITER, tol=1e-8)[0]
         return float(np.min(lam))
     except (np.linalg.LinAlgError, ValueError):
         return None
@@ -249,7 +250,7 @@ def _check_stable(problem, delta, free, reduce, label):
             return  # no eigenvalue below the threshold (or the count is unknown: never report a guess)
         lam = found[1]
     else:
-        lam = _smallest_rayleigh(sp.csr_matrix(Hff), problem.model.dof_grid, free)
+        lam = _smallest_rayleigh(Hff if not sp.issparse(Hff) else sp.csr_matrix(Hff), problem.model.dof_grid, free)
         if lam is None:
             return  # could not tell: never report a guess
     if lam < -1e-8 * top:
@@ -265,6 +266,15 @@ def _lean(model, options) -> bool:
     and which assembles its free-DOF block on its own (``constant_stiffness_block``: voxel models)."""
     return (options.kind == "static" and bool(model.constant_tangent)
             and callable(getattr(model, "constant_stiffness_block", None)))
+
+
+def _matrix_free_lean(model, options, n_free: int) -> bool:
+    """Whether the lean path solves with the model's matrix-free block (``constant_stiffness_operator``)
+    instead of an assembled one: above :data:`~voxflex.deform.solve.linear.DIRECT_FALLBACK_MAX` free
+    unknowns (no factorisation could read a stored matrix) with multigrid (``auto`` or ``multigrid``)."""
+    return (n_free > DIRECT_FALLBACK_MAX and options.linear_solver in ("auto", "multigrid")
+            and getattr(model, "dof_grid", None) is not None
+            and callable(getattr(model, "constant_stiffness_operator", None)))
 
 
 def solve(
@@ -353,8 +363,13 @@ def solve(
     block = None
     if _lean(model, options):
         # a constant-tangent static problem: the free-DOF block is all Newton solves with; assembled once
-        # on its own and compacted in place, the full stiffness is never built nor cached (peak memory)
-        block = model.constant_stiffness_block(free)
+        # on its own and compacted in place, the full stiffness is never built nor cached (peak memory);
+        # above the direct limit, where only multigrid-CG solves it, not even that: the voxel stencil and
+        # the element matrices serve the solves (the model's FreeStiffness)
+        if _matrix_free_lean(model, options, len(free)):
+            block = model.constant_stiffness_operator(free)
+        else:
+            block = model.constant_stiffness_block(free)
 
     M = None
     if dynamic:

@@ -693,6 +693,36 @@ class VoxelModel:
         H = sp.csr_matrix((data, indices, indptr), shape=(N, N))
         return free_block(H, free, overwrite=True)
 
+    def constant_stiffness_operator(self, free):
+        """The free-DOF block ``K[free][:, free]`` of a constant-tangent model as a matrix-free operator.
+
+        :class:`~voxflex.deform.models.voxel.elements.FreeStiffness`: its
+        element matrices (:meth:`stiffness_elements`) applied voxel by voxel;
+        multigrid-CG solves with it through the voxel stencil without a stored
+        finest matrix (the lean static path above the direct-solve limit).
+
+        Parameters
+        ----------
+        free : (F,) int
+            Sorted unique DOFs ``3 * node + component``.
+
+        Raises
+        ------
+        InputError
+            A material without a constant tangent, or ``free`` not sorted unique DOFs.
+        """
+        from .elements import FreeStiffness
+
+        if not self.constant_tangent:
+            raise InputError("constant_stiffness_operator needs constant-tangent materials (linear Hooke); "
+                             "use hessian(q) for nonlinear ones")
+        N = 3 * self.n_nodes
+        free = np.asarray(free)
+        if free.ndim != 1 or free.dtype.kind not in "iu" or (len(free) and (free[0] < 0 or free[-1] >= N)) or \
+                np.any(np.diff(free) <= 0):
+            raise InputError(f"free must be sorted unique DOF indices in [0, {N}) (3 * node + component)")
+        return FreeStiffness(self.stiffness_elements(), self.grid.element_nodes, self.n_nodes, free)
+
     # -- points, mass, loads ---------------------------------------------------
     def point_mapping(self, points) -> PointMapping:
         """Trilinear mapping of material points (m, 3) given at rest (world, m).
