@@ -258,10 +258,12 @@ class _FreeBlock:
     def __init__(self, free, size):
         self.free = np.asarray(free, dtype=np.int64)
         if np.any(np.diff(self.free) <= 0):
-            raise ValueError("free DOFs must be sorted and unique")  # internal: solve() passes setdiff1d
+            raise ValueError("free DOFs must be sorted and unique")  # internal: solve() passes a sorted complement
         self.size = int(size)
         self.direct_only = False  # set once an "auto" iterative solve fell back to direct in this run
-        self.fixed = np.setdiff1d(np.arange(self.size), self.free)  # once, not per Jacobi-CG solve
+        keep = np.ones(self.size, dtype=bool)
+        keep[self.free] = False
+        self.fixed = np.flatnonzero(keep)  # once, not per Jacobi-CG solve (np.setdiff1d: 0.7 s at 421k DOF)
         # runs of consecutive free DOFs (start in the block, start in H, length): a dense block is
         # gathered by runs x runs slice copies (held frames leave a few runs of 12 DOFs)
         cut = np.flatnonzero(np.diff(self.free) != 1) + 1
@@ -491,6 +493,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
                                   "seconds": now - t_last})
             t_last = now
         if not moving and (scale == 0.0 or rn <= max(tol * scale, floor)):
+            problem.solution_energy = E  # the model's energy at the answer (the caller's record need not redo it)
             return x, it, rel, lin_its, solver_used, halvings_total
         if it == options.max_iterations:
             break
@@ -584,8 +587,13 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             x_try = x.copy()
             x_try[free] += alpha * d
             # trials by their energy alone: a rejected full step costs no gradient nor Hessian (the
-            # accepted iterate gets its gradient and Hessian at the top of the next iteration)
-            pot_try = problem(x_try, hessian=False, gradient=False)[0]
+            # accepted iterate gets its gradient and Hessian at the top of the next iteration); a constant
+            # tangent's potential is quadratic, so its value along d is known exactly without a model pass
+            # (53 ms of a 1.3 s linear solve at 421k DOF)
+            if problem.constant:
+                pot_try = pot + alpha * slope + 0.5 * alpha**2 * curvature
+            else:
+                pot_try = problem(x_try, hessian=False, gradient=False)[0]
             trial = None
             if np.isfinite(pot_try) and pot_try <= pot + ARMIJO * alpha * slope + ROUNDOFF * mag:
                 accepted = True
