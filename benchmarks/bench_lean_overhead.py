@@ -14,9 +14,11 @@ each from a fresh multigrid cache (the kernels warmed on a small beam first):
 * ``ratio``: solve() / lean.
 
 Then the exponent of a least-squares fit ``time ~ DOF^p`` of each column over the sizes from 50k
-DOF.  Min and median of ``--repeat`` runs; the load average is printed.
+DOF.  Min and median of ``--repeat`` runs; the load average is printed.  ``--operator``: the lean
+solve runs on the matrix-free block (``FreeStiffness``) instead of the assembled one (what fits
+at 6.4 million DOF: ``--shapes 256x90x90 --operator --repeat 1``, about 4.5 GB).
 
-    python benchmarks/bench_lean_overhead.py [--sizes 16,24,32,40] [--repeat 3]
+    python benchmarks/bench_lean_overhead.py [--sizes 16,24,32,40 | --shapes 256x90x90] [--repeat 3] [--operator]
 """
 
 from __future__ import annotations
@@ -29,27 +31,28 @@ import time
 import numpy as np
 
 
-def _beam(n):
+def _beam(shape):
     from voxflex.deform.materials.material import material
     from voxflex.deform.models.voxel.model import VoxelModel
     from voxflex.image.label_image import LabelImage
 
-    image = LabelImage(np.ones((4 * n, n, n), dtype=np.uint8), spacing=(1.0 / n,) * 3)
+    nx, ny, nz = shape
+    image = LabelImage(np.ones(shape, dtype=np.uint8), spacing=(4.0 / nx, 1.0 / ny, 1.0 / nz))
     return VoxelModel.from_image(image, {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
 
 
-def _runs(n):
+def _runs(shape, operator=False):
     from voxflex.deform.solve.boundary import FixedRegion, fixed_dofs
     from voxflex.deform.solve.linear import solve_linear
     from voxflex.deform.solve.multigrid.hierarchy import clear_cache
     from voxflex.deform.solve.options import SolverOptions
     from voxflex.deform.solve.stepping import solve
 
-    model = _beam(n)
+    model = _beam(shape)
     clamp = FixedRegion([-1, -1, -1], [1e-9, 9, 9])
     dofs, _ = fixed_dofs(model, [clamp])
     free = np.setdiff1d(np.arange(3 * model.n_nodes), dofs)
-    A = model.constant_stiffness_block(free)
+    A = model.constant_stiffness_operator(free) if operator else model.constant_stiffness_block(free)
     b = model.gravity_force({1: 1.0}, [0, 0, -9.81]).ravel()[free]
     elements = model.stiffness_elements()
 
@@ -61,7 +64,7 @@ def _runs(n):
 
     def full():
         clear_cache()
-        m = _beam(n)
+        m = _beam(shape)
         t = time.perf_counter()
         rec = solve(m, fixed=[clamp], gravity=[0, 0, -9.81], densities={1: 1.0}, options=SolverOptions())
         return time.perf_counter() - t, rec[-1].linear_iterations
@@ -72,16 +75,22 @@ def _runs(n):
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--sizes", default="16,24,32,40")
+    p.add_argument("--shapes", default=None, help="voxel shapes NXxNYxNZ instead of --sizes")
     p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--operator", action="store_true", help="the lean solve on the matrix-free block")
     a = p.parse_args()
-    _, lean, full = _runs(4)
+    if a.shapes:
+        shapes = [tuple(int(v) for v in s.lower().split("x")) for s in a.shapes.split(",")]
+    else:
+        shapes = [(4 * n, n, n) for n in map(int, a.sizes.split(","))]
+    _, lean, full = _runs((16, 4, 4), a.operator)
     lean(), full()  # compile the kernels
     print(f"load average before: {os.getloadavg()[0]:.2f}")
     print("| beam | DOF | lean s (min / median) | CG its | solve() s (min / median) | CG its | ratio (min) |")
     print("|---|---|---|---|---|---|---|")
     pts = []
-    for n in map(int, a.sizes.split(",")):
-        dof, lean, full = _runs(n)
+    for shape in shapes:
+        dof, lean, full = _runs(shape, a.operator)
         tl, tf = [], []
         for _ in range(a.repeat):
             t, il = lean()
@@ -89,7 +98,7 @@ def main():
             t, jf = full()
             tf.append(t)
         pts.append((dof, min(tl), min(tf)))
-        print(f"| {4 * n}x{n}x{n} | {dof} | {min(tl):.2f} / {statistics.median(tl):.2f} | {il} | "
+        print(f"| {shape[0]}x{shape[1]}x{shape[2]} | {dof} | {min(tl):.2f} / {statistics.median(tl):.2f} | {il} | "
               f"{min(tf):.2f} / {statistics.median(tf):.2f} | {jf} | {min(tf) / min(tl):.2f} |", flush=True)
     d, tl, tf = np.array(pts).T
     big = d >= 50000
