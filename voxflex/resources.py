@@ -48,6 +48,10 @@ MEMORY_FRACTION = 0.8
 # measured by benchmarks/bench_resources.py: slope of peak RSS over DOF, 28k -> 92k DOF (Hooke), 4k -> 29k (neo-Hooke)
 BYTES_PER_DOF = {"constant": 4.3e3, "nonlinear": 7.1e3, "reduced": 8.5e3}
 """Voxel model, peak bytes per DOF of a static solve: constant tangent (linear Hooke), nonlinear, nonlinear F-bar."""
+MATRIX_FREE_BYTES_PER_DOF = 1.3e3
+"""Voxel model with a constant tangent above the direct limit (the lean path's matrix-free block, no stored
+stiffness): peak bytes per DOF of a static solve, measured by ``benchmarks/bench_resources.py`` (Hooke, 2 runs:
+1268-1301 at 28.6k DOF, 1000-1041 at 91.9k, 925-936 at 212k; 666 with the interpreter at 6.38M)."""
 CHUNK_BYTES = 2.5e8
 """Bounded per-batch work arrays of the voxel model (tangents of CHUNK_ELEMENTS voxels) once the model exceeds one batch."""
 SECONDS_PER_DOF_ITERATION = {"constant": 3.1e-5, "nonlinear": 2.5e-5, "reduced": 6.6e-5}
@@ -333,7 +337,8 @@ def _estimate(scene, size=None, *, output=None, keep="all", every=1) -> Estimate
         nodes = corner_nodes
         dofs = 3 * nodes
         chunk = CHUNK_BYTES * min(1.0, voxels / 16384.0)
-        model = BYTES_PER_DOF[cls] * dofs + chunk + _factor_bytes(dofs)
+        lean = not dynamic and scene.solver.linear_solver in ("auto", "multigrid")
+        model = _voxel_bytes_per_dof(cls, dofs, lean) * dofs + chunk + _factor_bytes(dofs)
         seconds = steps * ITERATIONS_PER_STEP[cls] * SECONDS_PER_DOF_ITERATION[cls] * dofs
     else:
         nodes = int(scene.nodes.count or 20) + len(scene.nodes.positions or ()) + len(scene.fixed)
@@ -361,6 +366,16 @@ def _estimate(scene, size=None, *, output=None, keep="all", every=1) -> Estimate
     return Estimate(node_kind=kind, voxels=int(voxels), nodes=int(nodes), dofs=int(dofs), model_bytes=int(model),
                     state_bytes=int(state), states=int(recorded), seconds=float(seconds), voxel_size=h,
                     kept_states=int(kept), file_bytes=int(file_bytes), row_bytes=int(row), streamed=streamed)
+
+
+def _voxel_bytes_per_dof(cls: str, dofs: int, lean: bool) -> float:
+    """Peak bytes per DOF of a voxel solve: :data:`MATRIX_FREE_BYTES_PER_DOF` for a static multigrid solve of a
+    constant tangent above the direct limit (``lean``: no stiffness is kept there), else :data:`BYTES_PER_DOF`."""
+    from .deform.solve.linear import DIRECT_FALLBACK_MAX
+
+    if lean and cls == "constant" and dofs > DIRECT_FALLBACK_MAX:
+        return MATRIX_FREE_BYTES_PER_DOF
+    return BYTES_PER_DOF[cls]
 
 
 def _factor_bytes(dofs: int) -> float:
