@@ -98,14 +98,18 @@ def run(scene: str, package: Path, timeout: float, cap_gb: float = 0.0) -> dict:
                 cap = int(cap_gb * 2**30)
                 resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
 
+        error = ""
         try:
-            subprocess.run([sys.executable, str(child), str(HERE / "scenes" / f"{scene}.toml"), str(dest)], env=env,
-                           timeout=timeout, check=False, capture_output=True, preexec_fn=limit)
+            proc = subprocess.run([sys.executable, str(child), str(HERE / "scenes" / f"{scene}.toml"), str(dest)],
+                                  env=env, timeout=timeout, check=False, capture_output=True, text=True,
+                                  preexec_fn=limit)
             timed_out = False
+            lines = [ln for ln in proc.stderr.strip().splitlines() if ln.strip()]
+            error = lines[-1][:160] if proc.returncode != 0 and lines else ""
         except subprocess.TimeoutExpired:
             timed_out = True
         out = json.loads(dest.read_text()) if dest.exists() else {"iterations": [], "solves": [], "done": False}
-        out["timed_out"] = timed_out
+        out["timed_out"], out["error"] = timed_out, error
         return out
 
 
@@ -120,8 +124,8 @@ def row(name, code, r, timeout):
         extra = f"max |u| {r['max_u']:.4g} m" + (f"; probe {r['probes'][0]}" if r.get("probes") else "")
     else:
         steps = f"unfinished: {len(r.get('iterations', []))} Newton iterates"
-        total = f"> {timeout:.0f} s (stopped)" if r.get("timed_out") else "failed (memory cap or error)"
-        extra = ""
+        total = f"> {timeout:.0f} s (stopped)" if r.get("timed_out") else "failed"
+        extra = r.get("error", "")
     dofs = r.get("dofs", "?")
     print(f"| {name} | {code} | {dofs} | {steps} | {lin} | {total} | {r.get('peak_mb', 0):.0f} | {extra} |", flush=True)
 

@@ -525,7 +525,7 @@ class VoxelHierarchy:
             A = sp.csr_matrix(A)
         single = len(self.prolongations) > 0 and (precision == "single" or
                                                    (precision == "auto" and (free_op or A.nnz <= SINGLE_MAX_ENTRIES)))
-        key = ((("matrix-free",) + A.shape, id(A)) if free_op else _fingerprint(A), smoother, sweeps, single)
+        key = (_operator_key(A) if free_op else _fingerprint(A), smoother, sweeps, single)
         if self._last is not None and (self._last[0] == key or (stale and self.may_reuse(key))):
             ml = self._last[1]
             if ml.fine is None or self._last[0] != key:  # a stencil is kept only for its own matrix
@@ -664,6 +664,23 @@ def _fingerprint(A):
         return zlib.crc32(np.ascontiguousarray(a[::step]))
 
     return (A.shape, A.nnz, A.data.dtype.str, sample(A.indptr), sample(A.indices)), sample(A.data)
+
+
+def _operator_key(A):
+    """The key of a matrix-free block, like :func:`_fingerprint`: its shape, its element matrices (CRC-32 of
+    the distinct ones, a few kB) and samples of the voxels' kinds and scales (the hierarchy it is cached in
+    fixes the grid and the free DOFs)."""
+    import zlib
+
+    e = A.elements
+
+    def sample(a):
+        a = np.asarray(a)
+        step = max(1, len(a) // FINGERPRINT_SAMPLES)
+        return zlib.crc32(np.ascontiguousarray(a[::step]))
+
+    units = zlib.crc32(np.ascontiguousarray(e.units, dtype=np.float64))
+    return ("matrix-free",) + tuple(A.shape), (units, sample(e.kind), sample(e.scale))
 
 
 GALERKIN_CHUNK = 1 << 16
