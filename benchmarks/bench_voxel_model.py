@@ -152,11 +152,22 @@ process, through ``voxflex.deform.solve.stepping.solve`` (``--solver``, default
 Jacobi-CG), which takes the lean path for this constant-tangent static
 problem: ``VoxelModel.constant_stiffness_block`` (the free-DOF block
 assembled and compacted in place, no full matrix kept) and gradients
-matrix-free; ``--big`` does the same with multigrid-CG for a 256x90x90 beam
+matrix-free (above ``DIRECT_FALLBACK_MAX`` unknowns with multigrid not even the
+block: ``VoxelModel.constant_stiffness_operator``, applied through the voxel
+stencil); ``--big`` does the same with multigrid-CG for a 256x90x90 beam
 (2.07 million voxels, 6.4 million DOF) and prints the peak bytes per DOF
-(~2.1 kB/DOF measured at 128x32x32, i.e. ~13 GB; refused when /proc/meminfo
-shows under 1.3x that available); the run ends with a check that the
-reactions carry the load (matrix-free gradient).  Peak resident memory of
+(refused when /proc/meminfo shows under 1.3x :data:`BIG_BYTES_PER_DOF` times
+the DOF available); the run ends with a check that the reactions carry the
+load (matrix-free gradient).  ``--cli`` runs ``--big`` or ``--memory`` as a
+scene through ``voxflex simulate`` in a fresh process instead (the wall time,
+the Newton iterations' share from ``--verbose``, the child's peak RSS).
+Measured on 2026-12-03 after the matrix-free block (load average 2.1-2.9, 2
+shared cores): ``--big``: 16 iterations, solve() 48.7 s, total 60.9 s, peak
+4.06 GB = 666 bytes/DOF, tip u_z -0.392704 m, reactions equal to the load to 7
+digits; ``--big --cli``: 6,384,651 DOF, 13 iterations (the scene's box clamps
+its x = 0 face the same way; Newton's tolerance differs), command 70.4 s wall
+(model 6.9 s, the Newton iteration 36.9 s), peak 5.87 GB = 964 bytes/DOF (the
+recorder's per-sample F of the final state, 1.7 GB, is the difference).  Peak resident memory of
 ``solve`` at 128x32x32 (/proc/self/status VmHWM, fresh process): ``auto``
 (multigrid-CG) 3443 bytes/DOF before it took the lean path, 2122 after;
 Jacobi-CG 1686 before.  Measured with --big on this 2-core machine
@@ -623,8 +634,70 @@ def memory_run(shape, linear_solver="cg"):
     print(f"| total | {total:.2f} | {rows[-1][2]:.0f} ({rows[-1][2] * 2**20 / ndof:.0f} bytes/DOF at peak) |")
 
 
-BIG_BYTES_PER_DOF = 2100
-"""Peak bytes per DOF of the lean multigrid path, measured at 128x32x32 (421k DOF): the --big estimate."""
+BIG_BYTES_PER_DOF = 1000
+"""Peak bytes per DOF of the lean multigrid path through ``voxflex simulate``, measured at 256x90x90
+(964; 666 through ``solve()``): the --big estimate."""
+
+
+CLI_SCENE = """title = "linear beam {nx}x{ny}x{nz} (bench_voxel_model.py --cli)"
+[object]
+shape = "box"
+size = [{sx!r}, {sy!r}, {sz!r}]
+voxel_size = {h!r}
+[[material]]
+model = "hooke"
+young = 1.0e4
+poisson = 0.3
+density = 1.0
+strain = "linear"
+[nodes]
+kind = "voxel"
+[[fixed]]
+max = [1e-9, 1e9, 1e9]
+[[load]]
+kind = "gravity"
+vector = [0.0, 0.0, -9.81]
+[solver]
+linear_solver = "{solver}"
+"""
+
+
+def cli_run(shape, linear_solver="multigrid"):
+    """The linear beam of ``shape`` voxels (cubes of edge 1 / ny... along x: 4 / nx) as a scene through
+    ``voxflex simulate`` in a fresh process: its wall time, the solve's share (--verbose) and peak RSS."""
+    import re
+    import resource
+    import subprocess
+    import sys
+    import tempfile
+
+    nx, ny, nz = shape
+    h = 4.0 / nx
+    text = CLI_SCENE.format(nx=nx, ny=ny, nz=nz, sx=nx * h, sy=ny * h, sz=nz * h, h=h, solver=linear_solver)
+    with tempfile.TemporaryDirectory() as tmp:
+        scene = os.path.join(tmp, "beam.toml")
+        with open(scene, "w") as fh:
+            fh.write(text)
+        t = time.perf_counter()
+        r = subprocess.run([sys.executable, "-m", "voxflex", "simulate", scene, "-o", os.path.join(tmp, "beam.h5"),
+                            "--verbose"], capture_output=True, text=True)
+        wall = time.perf_counter() - t
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+    dofs = re.search(r"model: \d+ voxel nodes, (\d+) DOF", r.stderr)
+    newton = re.findall(r"Newton (\d+): .*?, ([0-9.]+) s$", r.stderr, flags=re.M)
+    built = re.search(r"model built in ([0-9.]+) s", r.stderr)
+    if r.returncode != 0 or dofs is None:
+        print(r.stdout[-2000:], r.stderr[-2000:])
+        return
+    ndof = int(dofs.group(1))
+    solve_s = sum(float(sec) for _, sec in newton)
+    print(f"\n| linear beam {nx}x{ny}x{nz} through voxflex simulate ({ndof} DOF) | value |")
+    print("|---|---|")
+    print(f"| wall time of the command | {wall:.1f} s |")
+    print(f"| model built | {float(built.group(1)):.1f} s |" if built else "| model built | ? |")
+    print(f"| Newton iterations (solve, gradients, line search) | {solve_s:.1f} s |")
+    print(f"| peak RSS | {peak / 2**20:.0f} MB = {peak / ndof:.0f} bytes/DOF |")
+    print(r.stdout.strip().replace("\n", " / "))
 
 
 def _load():
@@ -739,6 +812,8 @@ def main():
     parser.add_argument("--colamd", action="store_true")
     parser.add_argument("--memory", default="", metavar="NXxNYxNZ")
     parser.add_argument("--big", action="store_true")
+    parser.add_argument("--cli", action="store_true",
+                        help="run --big / --memory as a scene through voxflex simulate (a fresh process)")
     parser.add_argument("--solver", default="cg", choices=("cg", "multigrid", "direct"),
                         help="linear solver of --memory (--big always uses multigrid)")
     parser.add_argument("--no-series", action="store_true")
@@ -763,7 +838,8 @@ def main():
         plate_run([m.strip() for m in args.plate.split(",") if m.strip()], args.repeat)
         return
     if args.memory:
-        memory_run(tuple(int(v) for v in args.memory.lower().split("x")), args.solver)
+        shape = tuple(int(v) for v in args.memory.lower().split("x"))
+        cli_run(shape, args.solver) if args.cli else memory_run(shape, args.solver)
         return
     if args.big:
         need = BIG_BYTES_PER_DOF * 3 * 257 * 91 * 91
@@ -771,7 +847,7 @@ def main():
         if avail is not None and avail < 1.3 * need:
             print(f"--big refused: {avail / 2**30:.1f} GiB available, under 1.3 x the {need / 2**30:.1f} GiB estimate")
             return
-        memory_run((256, 90, 90), "multigrid")
+        cli_run((256, 90, 90), "multigrid") if args.cli else memory_run((256, 90, 90), "multigrid")
         return
     from voxflex.deform.materials.constitutive import material
 

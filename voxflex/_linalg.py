@@ -13,6 +13,18 @@ import scipy.sparse as sp
 
 from .errors import InputError
 
+DIRECT_FALLBACK_MAX = 20000
+"""Unknowns up to which an iterative solve that stops short falls back to the sparse LU (``fallback="auto"``).
+
+Beyond it the factorisation costs far more than the multigrid solves it replaces, and its fill
+grows faster than the unknowns (``benchmarks/bench_direct_limit.py``: on clamped Hooke beams, 2
+loaded cores, LU / multigrid-CG at rtol 1e-8: 7776 unknowns 0.50 / 0.047 s, factor 52 MB;
+24336: 3.9 / 0.23 s, 288 MB; the 26k-DOF cow tangent took 25-47 s, the 315k-DOF bunny sat over
+30 minutes at 8.7 GB).  Up to this size an LU costs about as much as one failed multigrid-CG run of
+:data:`~voxflex.deform.solve.linear.MULTIGRID_MAXITER` iterations; there it is kept because it is immune to ill-conditioning and
+indefiniteness.  Above it a solve that stops short raises (or, with ``partial=True``, returns CG's
+last iterate for the Newton solver's own remedies, see :mod:`voxflex.deform.solve.newton`)."""
+
 
 def vdot(a, b) -> float:
     """Dot product of two float vectors without BLAS.

@@ -57,8 +57,12 @@
   the ill-conditioning of large-deformation tangents.
 
 Iterative methods stop at ``||A x - b|| <= rtol ||b||``; when they do not reach
-it they fall back to ``"direct"`` and say so in the returned info (never a
-silent failure).  :func:`cg_on_free_dofs` runs the same Jacobi-CG on a
+it they fall back to ``"direct"`` up to :data:`DIRECT_FALLBACK_MAX` unknowns and
+say so in the returned info; beyond, where a factorisation costs minutes and
+gigabytes, they raise :class:`~voxflex.errors.ConvergenceError` with the reason,
+or return their last iterate flagged unconverged (``partial=True``, what the
+Newton solver asks for, see :mod:`voxflex.deform.solve.newton`): never a silent
+failure.  :func:`cg_on_free_dofs` runs the same Jacobi-CG on a
 submatrix ``A[free][:, free]`` without building it (what the Newton solver
 uses for ``"cg"``).  The CG reductions avoid BLAS (:func:`vdot`): threaded
 OpenBLAS dot products stall on a busy 2-core machine.
@@ -75,9 +79,29 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..._linalg import vdot, vnorm
+from ..._linalg import DIRECT_FALLBACK_MAX, vdot, vnorm
 from ...errors import ConvergenceError, InputError, check_choice
 from .options import METHODS
+
+FALLBACKS = ("auto", "direct", "none")
+
+
+"""What :func:`solve_linear` does when an iterative method stops short of its tolerance: ``"auto"``
+factorises directly up to :data:`DIRECT_FALLBACK_MAX` unknowns and not beyond, ``"direct"`` always,
+``"none"`` never."""
+
+
+STOP_REASONS = ("iterations", "negative curvature", "preconditioner indefinite", "stencil does not match the matrix")
+
+
+"""Why an iterative solve stopped short (``LinearSolveInfo.reason``)."""
+
+
+INDEFINITE_REASONS = ("negative curvature", "preconditioner indefinite")
+
+
+"""The reasons that show the matrix is not positive definite (see :func:`_pcg`)."""
+
 
 DENSE_MAX = 64
 
@@ -90,6 +114,8 @@ MULTIGRID_MIN = 3000
 MULTIGRID_MAXITER = 300
 
 
+
+
 @dataclass
 class LinearSolveInfo:
     """What a linear solve did: method used, iterations (0 for direct), relative residual, seconds."""
@@ -100,6 +126,8 @@ class LinearSolveInfo:
     seconds: float
     note: str = ""
     fell_back: bool = False  # an iterative method missed rtol and the direct solver answered
+    converged: bool = True  # False: an iterative method stopped short and nothing answered (partial=True)
+    reason: str = ""  # why it stopped short (STOP_REASONS), also when the direct solver answered
 
 
 def choose_method(n: int, *, grid=None) -> str:
@@ -114,12 +142,17 @@ def choose_method(n: int, *, grid=None) -> str:
 
 
 def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: int | None = None,
-                 x0=None, near_null=None, grid=None, free=None, elements=None):
+                 x0=None, near_null=None, grid=None, free=None, elements=None, fallback: str = "auto",
+                 partial: bool = False):
     """Solve the symmetric system ``A x = b``.
 
     Parameters
     ----------
-    A : (N, N) sparse or dense symmetric matrix
+    A : (N, N) sparse or dense symmetric matrix, or FreeStiffness
+        A matrix-free block (:class:`~voxflex.deform.models.voxel.elements.FreeStiffness`)
+        is solved by ``"multigrid"`` (``"auto"`` with a grid; its finest level
+        through the voxel stencil, the answer checked against its voxel-by-voxel
+        product) or ``"cg"``, never factorised.
     b : (N,) float
     method : {"auto", "cholesky", "direct", "cg", "amg", "multigrid"}
     rtol : float
@@ -147,13 +180,32 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
         round-off; see :class:`voxflex.deform.solve.multigrid.stencil.VoxelStencil`).  The
         answer is checked against A itself: element matrices that do not
         describe A end in the direct solver's answer.
+    fallback : {"auto", "direct", "none"}
+        When an iterative method stops short of ``rtol``: factorise A directly
+        up to :data:`DIRECT_FALLBACK_MAX` unknowns (``"auto"``), always
+        (``"direct"``: minutes and gigabytes on large systems) or never.
+    partial : bool
+        When the iterative method stopped short and no fallback answers: return
+        its last iterate with ``info.converged`` False and ``info.reason``
+        instead of raising (a descent direction of ``x . A x / 2 - b . x``, or
+        zero, see :func:`_pcg`).  The caller then also handles an indefinite A
+        itself (:data:`INDEFINITE_REASONS`): such a solve returns its iterate at
+        any size and only a stalled one falls back to the direct solver.
 
     Returns
     -------
     x : (N,) float
     info : LinearSolveInfo
+
+    Raises
+    ------
+    ConvergenceError
+        An iterative method stopped short, no fallback was allowed and
+        ``partial`` is False (the message gives the reason), or the answer is
+        not finite.
     """
     check_choice("linear solver", method, METHODS)
+    check_choice("linear solver fallback", fallback, FALLBACKS)
     b = np.asarray(b, dtype=float)
     N = b.shape[0]
     if A.shape != (N, N):
@@ -170,13 +222,19 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
         raise InputError("linear solver 'multigrid' needs the voxel grid: pass grid=model.grid (and free=...)")
     if N == 0:
         return np.zeros(0), LinearSolveInfo(method, 0, 0.0, 0.0)
+    matrix_free = _matrix_free(A)
     if method == "auto":
         method = choose_method(N, grid=grid)
+        if matrix_free:
+            method = "multigrid" if grid is not None else "cg"
+    if matrix_free and method not in ("multigrid", "cg"):
+        raise InputError(f"a matrix-free block (FreeStiffness) is solved by multigrid or cg, not {method!r}")
     t0 = time.perf_counter()
     bnorm = vnorm(b)
     if bnorm == 0.0:
         return np.zeros(N), LinearSolveInfo(method, 0, 0.0, 0.0)
     fell_back = False
+    converged, reason = True, ""
     res = None
     if method == "cholesky":
         x, note, res = _dense(A, b, rtol)
@@ -189,23 +247,39 @@ def solve_linear(A, b, *, method: str = "auto", rtol: float = 1e-10, maxiter: in
         # near-incompressible plate: beyond MULTIGRID_MAXITER the direct fallback is cheaper
         maxiter = maxiter or (MULTIGRID_MAXITER if method == "multigrid" else max(1000, N // 4))
         if method == "cg":
-            x, its, ok = _cg_jacobi(A, b, rtol, maxiter, x0)
+            x, its, ok, reason = _cg_jacobi(A, b, rtol, maxiter, x0)
         elif method == "multigrid":
-            x, its, ok, rnorm = _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements)
+            status = {}
+            x, its, ok, rnorm = _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements, status)
+            reason = status["reason"]
             res = rnorm / bnorm if ok and rnorm is not None else None  # its true residual, if it has one
         else:
-            x, its, ok = _cg_amg(A, b, rtol, maxiter, x0, near_null)
+            x, its, ok, reason = _cg_amg(A, b, rtol, maxiter, x0, near_null)
         note = ""
         if not ok:
-            note = f"{method} stopped after {its} iterations above rtol {rtol:.1e}; fell back to direct"
-            x = _direct(A, b)
-            method = "direct"
-            fell_back = True
+            why = f"{method} stopped after {its} iterations above rtol {rtol:.1e} ({reason})"
+            # with partial=True the caller has its own remedies for an indefinite matrix (Newton: the
+            # truncated step, projected or shifted tangents): only a stalled solve is factorised
+            own_remedy = (partial and reason in INDEFINITE_REASONS) or matrix_free  # nothing to factorise
+            if not own_remedy and (fallback == "direct" or (fallback == "auto" and N <= DIRECT_FALLBACK_MAX)):
+                note = f"{why}; fell back to direct"
+                x = _direct(A, b)
+                method = "direct"
+                fell_back = True
+            elif partial:
+                note = why
+                converged = False
+            else:
+                limit = (f"above {DIRECT_FALLBACK_MAX} unknowns a direct factorisation is not attempted "
+                         "(minutes and gigabytes)" if fallback == "auto" else "no fallback was allowed")
+                raise ConvergenceError(f"linear solve of {N} unknowns: {why}; {limit}. The matrix is "
+                                       + ("not positive definite (an unstable or inverted state)"
+                                          if reason == "negative curvature" else "ill-conditioned or indefinite"))
     if res is None:
         res = vnorm(A @ x - b) / bnorm
     if not np.all(np.isfinite(x)):
         raise ConvergenceError(f"linear solve ({method}, {N} unknowns) produced non-finite values; the matrix is singular")
-    return x, LinearSolveInfo(method, int(its), res, time.perf_counter() - t0, note, fell_back)
+    return x, LinearSolveInfo(method, int(its), res, time.perf_counter() - t0, note, fell_back, converged, reason)
 
 
 MIXED_MIN = 500  # dense systems from this size factor in single precision and refine (see _mixed_cholesky)
@@ -313,9 +387,15 @@ def _pcg(A, b, inv_diag, rtol, maxiter, x0, precond=None):
     """Preconditioned conjugate gradients; stops at ``|r| <= rtol |b|`` (recursive residual).
 
     The preconditioner is ``z = inv_diag * r`` (Jacobi), or ``z = precond(r)``
-    when given (multigrid).  Returns x, iterations, converged (False also when
-    a direction of non-positive curvature shows that A is not positive definite,
-    or ``r . z <= 0`` that the preconditioner is not).
+    when given (multigrid).  Returns x, iterations, converged and the reason it
+    stopped short (:data:`STOP_REASONS`; "" when converged): ``"iterations"``
+    (``maxiter`` reached), ``"negative curvature"`` (a direction with
+    ``p . A p <= 0``: A is not positive definite) or ``"preconditioner
+    indefinite"`` (``r . z <= 0``: a V-cycle of an indefinite A, whose smooth
+    negative modes its coarse levels see, is indefinite too).  x is then the
+    last iterate, made of steps of positive curvature along directions with
+    ``r . p = r . z > 0``, so from ``x0 = None`` it lowers the quadratic
+    ``x . A x / 2 - b . x`` below 0 (a descent direction, or zero).
     """
     if x0 is None:
         x = np.zeros_like(b)
@@ -329,14 +409,14 @@ def _pcg(A, b, inv_diag, rtol, maxiter, x0, precond=None):
     rz = vdot(r, z)
     its = 0
     if not rz > 0.0 and vnorm(r) > target:
-        return x, its, False
+        return x, its, False, "preconditioner indefinite"
     while vnorm(r) > target:
         if its >= maxiter:
-            return x, its, False
+            return x, its, False, "iterations"
         Ap = A @ p
         pAp = vdot(p, Ap)
         if not pAp > 0.0:
-            return x, its, False
+            return x, its, False, "negative curvature"
         alpha = rz / pAp
         x += alpha * p
         r -= alpha * Ap
@@ -347,11 +427,11 @@ def _pcg(A, b, inv_diag, rtol, maxiter, x0, precond=None):
         rz_new = vdot(r, z)
         its += 1
         if not rz_new > 0.0 and vnorm(r) > target:  # the preconditioner is not positive definite
-            return x, its, False
+            return x, its, False, "preconditioner indefinite"
         p *= rz_new / rz
         p += z
         rz = rz_new
-    return x, its, True
+    return x, its, True, ""
 
 
 class _Masked:
@@ -368,7 +448,8 @@ class _Masked:
         return y
 
 
-def cg_on_free_dofs(A, b, free, *, rtol: float = 1e-10, maxiter: int | None = None, fixed=None):
+def cg_on_free_dofs(A, b, free, *, rtol: float = 1e-10, maxiter: int | None = None, fixed=None,
+                    partial: bool = False):
     """Jacobi-CG for ``A[free][:, free] x = b`` run on the whole matrix A.
 
     The iterates live in the full space with zeros on the other DOFs, so the
@@ -383,11 +464,15 @@ def cg_on_free_dofs(A, b, free, *, rtol: float = 1e-10, maxiter: int | None = No
     free : (F,) int, sorted unique DOF indices
     fixed : (N - F,) int, optional
         The other DOFs (sorted), when the caller has them (saves a set difference per call).
+    partial : bool
+        Return CG's last iterate (``info.converged`` False, ``info.reason`` why)
+        instead of None when it stops short of ``rtol``.
 
     Returns
     -------
     x : (F,) float, or None when CG did not reach ``rtol`` (or A is not
-        positive definite on the free DOFs): then solve the submatrix directly.
+        positive definite on the free DOFs) and ``partial`` is False: then solve
+        the submatrix directly.
     info : LinearSolveInfo (iterations also when x is None)
     """
     t0 = time.perf_counter()
@@ -402,35 +487,48 @@ def cg_on_free_dofs(A, b, free, *, rtol: float = 1e-10, maxiter: int | None = No
         return np.zeros(len(free)), LinearSolveInfo("cg", 0, 0.0, 0.0)
     d = A.diagonal()[free]
     if np.any(d <= 0):
-        return None, LinearSolveInfo("cg", 0, np.inf, time.perf_counter() - t0)
+        info = LinearSolveInfo("cg", 0, 1.0, time.perf_counter() - t0, converged=False, reason="negative curvature")
+        return (np.zeros(len(free)) if partial else None), info
     inv = np.zeros(N)
     inv[free] = 1.0 / d
     maxiter = maxiter or max(1000, len(free) // 4)
     Am = _Masked(A, fixed)
-    x, its, ok = _pcg(Am, bf, inv, rtol, maxiter, None)
+    x, its, ok, reason = _pcg(Am, bf, inv, rtol, maxiter, None)
     res = vnorm(Am @ x - bf) / bnorm
-    info = LinearSolveInfo("cg", int(its), res, time.perf_counter() - t0)
-    return (x[free] if ok else None), info
+    info = LinearSolveInfo("cg", int(its), res, time.perf_counter() - t0, converged=ok, reason=reason)
+    return (x[free] if ok or partial else None), info
 
 
 def _cg_jacobi(A, b, rtol, maxiter, x0):
-    A = sp.csr_matrix(A)
+    A = A if _matrix_free(A) else sp.csr_matrix(A)
     d = A.diagonal()
     if np.any(d <= 0):
-        return np.zeros_like(b), 0, False
+        return np.zeros_like(b), 0, False, "negative curvature"
     return _pcg(A, b, 1.0 / d, rtol, maxiter, x0)
+
+
+def _matrix_free(A) -> bool:
+    """Whether A is a matrix-free block (:class:`~voxflex.deform.models.voxel.elements.FreeStiffness`)."""
+    from ..models.voxel.elements import FreeStiffness
+
+    return isinstance(A, FreeStiffness)
 
 
 _AMG_SEED = 20240601
 
 
-def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements=None):
-    """Multigrid-CG: x, iterations, converged, and ``|A x - b|`` when it was computed (None otherwise)."""
+def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements=None, status=None):
+    """Multigrid-CG: x, iterations, converged, and ``|A x - b|`` when it was computed (None otherwise).
+
+    ``status`` (a dict), when given, receives ``"reason"``: why it stopped short (see :func:`_pcg`)."""
     from ..._blas import one_thread
     from .multigrid.hierarchy import STALE_GROWTH, hierarchy, multigrid_preconditioner
 
-    A = sp.csr_matrix(A)
+    status = {} if status is None else status
+    status["reason"] = ""
+    A = A if _matrix_free(A) else sp.csr_matrix(A)
     if np.any(A.diagonal() <= 0):
+        status["reason"] = "negative curvature"  # e_i . A e_i <= 0
         return np.zeros_like(b), 0, False, None
     # BLAS on one thread for the coarse factorisation and the small dense coarse solves of every cycle
     h = hierarchy(grid, free)
@@ -443,15 +541,17 @@ def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements=None):
             budget = min(maxiter, int(STALE_GROWTH * (h.fresh_iterations or 0)) + 10) if stale else maxiter
             # CG's products through the finest level's stencil when it has one (the same matrix)
             op = A if getattr(ml, "fine", None) is None else ml.fine
-            x, its, ok, rnorm = _cg_multigrid_impl(op, b, rtol, budget, x0, apply)
+            x, its, ok, rnorm = _cg_multigrid_impl(op, b, rtol, budget, x0, apply, status)
             if ok and op is not A:
                 rnorm = vnorm(A @ x - b)  # against A itself: the stencil must be this matrix
                 if rnorm > 1.01 * rtol * vnorm(b):
                     ok = False  # elements that do not describe A: fall back
+                    status["reason"] = "stencil does not match the matrix"
             h.report(its, ok, stale)
-            if stale and not ok:  # too slow on the old levels: rebuild them and go on from x
+            if stale and not ok and status["reason"] != "negative curvature":
+                # too slow on the old levels (or a cycle made indefinite by them): rebuild them, go on from x
                 apply, ml = multigrid_preconditioner(A, grid, free, elements=elements)
-                x, more, ok, rnorm = _cg_multigrid_impl(A, b, rtol, maxiter - its, x, apply)
+                x, more, ok, rnorm = _cg_multigrid_impl(A, b, rtol, maxiter - its, x, apply, status)
                 h.report(more, ok, False)
                 its += more
             return x, its, ok, rnorm
@@ -459,10 +559,10 @@ def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements=None):
             h.release()  # the cached levels must not keep this matrix alive
 
 
-def _cg_multigrid_impl(A, b, rtol, maxiter, x0, apply):
+def _cg_multigrid_impl(A, b, rtol, maxiter, x0, apply, status=None):
     """PCG with the V-cycle ``apply``; x, iterations, converged, and the true residual norm ``|A x - b|``
-    of the returned x when it was computed (None otherwise)."""
-    x, its, ok = _pcg(A, b, None, rtol, maxiter, x0, precond=apply)
+    of the returned x when it was computed (None otherwise); ``status["reason"]`` as in :func:`_cg_multigrid`."""
+    x, its, ok, reason = _pcg(A, b, None, rtol, maxiter, x0, precond=apply)
     target = rtol * vnorm(b)
     # the recursive residual drifts from the true one over a hundred iterations (2 % on a thin plate):
     # restart from x until the true residual meets rtol, so the reported residual is what was asked
@@ -473,9 +573,11 @@ def _cg_multigrid_impl(A, b, rtol, maxiter, x0, apply):
         rnorm = vnorm(A @ x - b)
         if rnorm <= target:
             break
-        x, more, ok = _pcg(A, b, None, rtol, maxiter - its, x, precond=apply)
+        x, more, ok, reason = _pcg(A, b, None, rtol, maxiter - its, x, precond=apply)
         its += more
         rnorm = None
+    if status is not None:
+        status["reason"] = reason
     return x, its, ok, rnorm
 
 
@@ -497,4 +599,4 @@ def _cg_amg(A, b, rtol, maxiter, x0, near_null):
     x = ml.solve(b, x0=x0, tol=rtol, maxiter=maxiter, accel="cg", residuals=residuals)
     its = max(len(residuals) - 1, 0)
     ok = bool(vnorm(A @ x - b) <= 1.01 * rtol * vnorm(b))
-    return x, its, ok
+    return x, its, ok, "" if ok else "iterations"

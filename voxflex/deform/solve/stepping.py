@@ -56,6 +56,7 @@ from .boundary import (
     prescribed_positions,
     region_forces,
 )
+from .linear import DIRECT_FALLBACK_MAX
 from .newton import _FreeBlock, _newton, _PatternAdd, _Problem
 from .options import SolverOptions, StepRecord
 from .supports import check_supports
@@ -128,13 +129,59 @@ def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, option
         halv_total += halvings
         x, s = x_new, s_next
         h = min(2.0 * h, s1 - s0)
-    return x, its_total, rel, lin_total, solver_used, halv_total, cuts
+    return x, its_total, rel, lin_total, solver_used, halv_total, cuts, getattr(problem, "solution_energy", None)
 
 
-INERTIA_MAX = 60000
+INERTIA_MAX = DIRECT_FALLBACK_MAX
+
+
 """Free unknowns up to which the stability check counts negative eigenvalues by a symmetric sparse
-factorisation (Sylvester's inertia) instead of Lanczos: Lanczos for the smallest eigenvalue of a
-tangent with a 1e5 stiffness contrast ran for minutes (a two-bone limb, 4557 unknowns)."""
+factorisation (Sylvester's inertia) instead of an iterative eigensolver: Lanczos for the smallest
+eigenvalue of a tangent with a 1e5 stiffness contrast ran for minutes (a two-bone limb, 4557
+unknowns).  No larger tangent is factorised (see
+:data:`~voxflex.deform.solve.linear.DIRECT_FALLBACK_MAX`): beyond, :func:`_smallest_rayleigh`."""
+
+
+EIGEN_MAXITER = 60
+
+
+"""LOBPCG iterations of the stability check above :data:`INERTIA_MAX` unknowns."""
+
+
+def _smallest_rayleigh(Hff, grid, free):
+    """An upper bound of the smallest eigenvalue of the large sparse symmetric ``Hff``: the smallest
+    Ritz value of :data:`EIGEN_MAXITER` LOBPCG iterations (2 vectors, seeded), preconditioned by the
+    voxel multigrid V-cycle of Hff when there is a grid and Hff's diagonal is positive.
+
+    A Ritz value is never below the smallest eigenvalue, so a negative one proves the tangent
+    indefinite whether or not LOBPCG converged; a non-negative one proves nothing.  Cost: the
+    iterations' products and cycles, bounded (no factorisation).  None when LOBPCG fails."""
+    import warnings
+
+    import scipy.sparse.linalg as spla
+
+    n = Hff.shape[0]
+    M, release = None, None
+    if grid is not None and np.all(Hff.diagonal() > 0):
+        from ..._blas import one_thread
+        from .multigrid.hierarchy import hierarchy, multigrid_preconditioner
+
+        with one_thread():
+            apply, _ = multigrid_preconditioner(Hff, grid, free)
+        M = spla.LinearOperator((n, n), matvec=apply, dtype=float)
+        release = hierarchy(grid, free).release
+    X = np.random.default_rng(20240601).standard_normal((n, 2))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # LOBPCG warns when it stops at maxiter: the Ritz value still bounds
+            op = Hff if sp.issparse(Hff) else spla.LinearOperator((n, n), matvec=Hff.matvec, dtype=float)
+            lam = spla.lobpcg(op, X, M=M, largest=False, maxiter=EIGEN_MAXITER, tol=1e-8)[0]
+        return float(np.min(lam))
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    finally:
+        if release is not None:
+            release()
 
 
 def _below(A, shift):
@@ -175,13 +222,12 @@ def _check_stable(problem, delta, free, reduce, label):
     """Raise when the converged state is a saddle: the smallest eigenvalue of the free tangent < 0.
 
     Up to 400 free unknowns a dense eigensolver; up to :data:`INERTIA_MAX` the
-    inertia of a symmetric sparse factorisation (:func:`_below`); beyond,
-    Lanczos (ARPACK, smallest algebraic, relative tolerance 1e-6).  An
+    inertia of a symmetric sparse factorisation (:func:`_below`); beyond, the
+    smallest Ritz value of a bounded LOBPCG run (:func:`_smallest_rayleigh`: an
+    upper bound, so a saddle it reports is one; one it misses goes unreported).  An
     eigenvalue below ``-1e-8`` times the largest diagonal entry is an unstable
     equilibrium (the structure buckles or the material softens there).
     """
-    import scipy.sparse.linalg as spla
-
     if problem.block is not None:
         Hff = problem.block  # the lean path: the constant free block
     else:
@@ -199,10 +245,8 @@ def _check_stable(problem, delta, free, reduce, label):
             return  # no eigenvalue below the threshold (or the count is unknown: never report a guess)
         lam = found[1]
     else:
-        try:
-            lam = float(spla.eigsh(Hff, k=1, which="SA", tol=1e-6, maxiter=20 * n,
-                                   v0=np.ones(n) / np.sqrt(n), return_eigenvectors=False)[0])
-        except spla.ArpackNoConvergence:
+        lam = _smallest_rayleigh(Hff if not sp.issparse(Hff) else sp.csr_matrix(Hff), problem.model.dof_grid, free)
+        if lam is None:
             return  # could not tell: never report a guess
     if lam < -1e-8 * top:
         raise ConvergenceError(
@@ -217,6 +261,23 @@ def _lean(model, options) -> bool:
     and which assembles its free-DOF block on its own (``constant_stiffness_block``: voxel models)."""
     return (options.kind == "static" and bool(model.constant_tangent)
             and isinstance(model, ConstantStiffness))
+
+
+def _complement(idx, n: int) -> np.ndarray:
+    """The sorted indices in [0, n) not in ``idx``: a mask, O(n) (np.setdiff1d's hashing unique took 0.44 s
+    at 421k DOF, a fifth of that linear solve)."""
+    keep = np.ones(n, dtype=bool)
+    keep[np.asarray(idx, dtype=np.int64)] = False
+    return np.flatnonzero(keep)
+
+
+def _matrix_free_lean(model, options, n_free: int) -> bool:
+    """Whether the lean path solves with the model's matrix-free block (``constant_stiffness_operator``)
+    instead of an assembled one: above :data:`~voxflex.deform.solve.linear.DIRECT_FALLBACK_MAX` free
+    unknowns (no factorisation could read a stored matrix) with multigrid (``auto`` or ``multigrid``)."""
+    return (n_free > DIRECT_FALLBACK_MAX and options.linear_solver in ("auto", "multigrid")
+            and getattr(model, "dof_grid", None) is not None
+            and callable(getattr(model, "constant_stiffness_operator", None)))
 
 
 def solve(
@@ -296,7 +357,7 @@ def solve(
     dofs, owner = fixed_dofs(model, fixed)
     if not dynamic and not model.supported_by_contact:
         check_supports(model, dofs)  # an unsupported part or a mechanism: refuse before solving
-    free = np.setdiff1d(np.arange(N), dofs)
+    free = _complement(dofs, N)
     f_full = region_forces(model, forces).ravel() if forces else np.zeros(N)
     if gravity is not None:
         f_full = f_full + model.gravity_force(densities, gravity).ravel()
@@ -305,8 +366,13 @@ def solve(
     block = None
     if _lean(model, options):
         # a constant-tangent static problem: the free-DOF block is all Newton solves with; assembled once
-        # on its own and compacted in place, the full stiffness is never built nor cached (peak memory)
-        block = model.constant_stiffness_block(free)
+        # on its own and compacted in place, the full stiffness is never built nor cached (peak memory);
+        # above the direct limit, where only multigrid-CG solves it, not even that: the voxel stencil and
+        # the element matrices serve the solves (the model's FreeStiffness)
+        if _matrix_free_lean(model, options, len(free)):
+            block = model.constant_stiffness_operator(free)
+        else:
+            block = model.constant_stiffness_block(free)
 
     M = None
     if dynamic:
@@ -360,7 +426,7 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
         else:
             t = k / options.steps
             label = f"static step {k}/{options.steps} (load factor {t:.4g})"
-            x_new, its, rel, lin_its, solver_used, halvings, cuts = _static_increment(
+            x_new, its, rel, lin_its, solver_used, halvings, cuts, E_new = _static_increment(
                 model, f_full, x, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
                 reduce, label, newton_callback, block)
         if dynamic:
@@ -375,7 +441,7 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
             delta, its, rel, lin_its, solver_used, halvings = _newton(
                 problem, np.zeros(N), free, dofs, x_fixed - x_start[dofs], options, near_null, label, reduce
             )
-            cuts = 0
+            cuts, E_new = 0, None
             x_new = x_start + delta
             if not np.all(np.isfinite(x_new)):
                 raise ConvergenceError(f"{label}: the state is not finite after {its} Newton iterations")
@@ -393,13 +459,16 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
                 x_new = x_start + delta
                 cuts_p = 0
             else:
-                x_new, its_p, rel, lin_p, solver_used, halv_p, cuts_p = _static_increment(
+                x_new, its_p, rel, lin_p, solver_used, halv_p, cuts_p, E_new = _static_increment(
                     model, f_full, x_new, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
                     reduce, label, newton_callback, block)
             if not np.all(np.isfinite(x_new)):
                 raise ConvergenceError(f"{label}: the state is not finite after re-solving the step")
             its, lin_its, halvings, cuts = its + its_p, lin_its + lin_p, halvings + halv_p, cuts + cuts_p
-        E = float(model.energy(x_new.reshape(shape)))
+        if dynamic or passes or E_new is None:
+            E = float(model.energy(x_new.reshape(shape)))
+        else:
+            E = float(E_new)  # Newton's own evaluation at the answer (a pass over the voxels saved)
         kin = 0.0
         if dynamic:
             # x_new - x = h v + delta on the free DOFs (x_start = x + h v there) and delta on the fixed

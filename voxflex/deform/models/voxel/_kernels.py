@@ -315,3 +315,64 @@ def _pattern_fill(conn, col, indptr_b, pa, po, blockmap, indices, indptr):
                         indices[w] = 3 * c + dd
                         w += 1
     indptr[3 * n] = w
+
+
+@njit
+def _element_matvec_kernel(units, kind, scale, conn, x, y):
+    for e in range(conn.shape[0]):
+        k = kind[e]
+        if k < 0:
+            continue
+        s = scale[e]
+        for a in range(8):
+            ra = 3 * conn[e, a]
+            for c in range(3):
+                row = 3 * a + c
+                acc = 0.0
+                for b in range(8):
+                    rb = 3 * conn[e, b]
+                    col = 3 * b
+                    acc += units[k, row, col] * x[rb] + units[k, row, col + 1] * x[rb + 1] + \
+                        units[k, row, col + 2] * x[rb + 2]
+                y[ra + c] += s * acc
+
+
+def element_matvec(units, kind, scale, conn, x, y=None):
+    """``y += K x`` with ``K = sum_e scale[e] * units[kind[e]]`` over the voxels, never assembled.
+
+    Parameters
+    ----------
+    units : (k, 24, 24) float
+        The distinct element matrices (DOF ``3 * corner + component``).
+    kind : (m,) int
+        Which one each voxel has (-1: none).
+    scale : (m,) float
+        Each voxel's factor.
+    conn : (m, 8) int
+        Voxel nodes.
+    x : (3 n,) float
+    y : (3 n,) float, optional
+        Added to in place (default zeros).
+
+    Returns
+    -------
+    y : (3 n,) float
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    if y is None:
+        y = np.zeros_like(x)
+    _element_matvec_kernel(np.ascontiguousarray(units, dtype=np.float64), np.ascontiguousarray(kind),
+                           np.ascontiguousarray(scale, dtype=np.float64), np.ascontiguousarray(conn), x, y)
+    return y
+
+
+def element_matvec_numpy(units, kind, scale, conn, x, y=None):
+    """Plain numpy twin of :func:`element_matvec` (reference for tests)."""
+    x = np.asarray(x, dtype=float)
+    y = np.zeros_like(x) if y is None else y
+    used = np.asarray(kind) >= 0
+    conn = np.asarray(conn)[used]
+    dof = ((3 * conn)[:, :, None] + np.arange(3)).reshape(len(conn), 24)
+    fe = np.einsum("eij,ej->ei", np.asarray(units)[np.asarray(kind)[used]], x[dof]) * np.asarray(scale)[used][:, None]
+    np.add.at(y, dof.ravel(), fe.ravel())
+    return y

@@ -24,3 +24,64 @@ class ElementMatrices:
     units: np.ndarray
     kind: np.ndarray
     scale: np.ndarray
+
+
+class FreeStiffness:
+    """``K[free][:, free]`` of a voxel stiffness given as :class:`ElementMatrices`, never assembled.
+
+    The operator the lean static path solves with above
+    :data:`~voxflex.deform.solve.linear.DIRECT_FALLBACK_MAX` unknowns, where
+    no direct factorisation would read a stored matrix: multigrid applies its
+    finest level through the voxel stencil (built from the same element
+    matrices, see :mod:`voxflex.deform.solve.multigrid.stencil`) and forms the
+    first coarse level from them, and ``A @ x`` here is the true operator,
+    voxel by voxel (576 multiply-adds per voxel), against which multigrid-CG's
+    answer is checked.  The stored free block it replaces took 930 bytes per
+    DOF (81 entries per row, value and index).
+
+    Parameters
+    ----------
+    elements : ElementMatrices
+    conn : (m, 8) int
+        The voxels' nodes (``grid.element_nodes``).
+    n_nodes : int
+    free : (F,) int
+        Sorted unique DOFs ``3 * node + component``.
+    """
+
+    def __init__(self, elements: ElementMatrices, conn, n_nodes: int, free):
+        self.elements = elements
+        self.conn = conn
+        self.n_nodes = int(n_nodes)
+        self.free = np.asarray(free)
+        F = len(self.free)
+        self.shape = (F, F)
+        self.dtype = np.dtype(np.float64)
+        self._diagonal = None
+
+    def __matmul__(self, x):
+        from ._kernels import element_matvec
+
+        full = np.zeros(3 * self.n_nodes)
+        full[self.free] = x
+        e = self.elements
+        return element_matvec(e.units, e.kind, e.scale, self.conn, full)[self.free]
+
+    def matvec(self, x):
+        """``A @ x`` (for scipy's LinearOperator protocol)."""
+        return self @ np.asarray(x, dtype=float).ravel()
+
+    def diagonal(self) -> np.ndarray:
+        """The diagonal (F,) of the block (cached)."""
+        if self._diagonal is None:
+            e = self.elements
+            diag = np.ascontiguousarray(np.diagonal(e.units, axis1=1, axis2=2))  # (k, 24)
+            full = np.zeros(3 * self.n_nodes)
+            for s in range(0, len(self.conn), 1 << 16):  # by blocks of voxels: (block, 24) temporaries
+                blk = slice(s, s + (1 << 16))
+                used = e.kind[blk] >= 0
+                d = diag[e.kind[blk][used]] * e.scale[blk][used][:, None]
+                dof = ((3 * self.conn[blk][used])[:, :, None] + np.arange(3)).reshape(-1)
+                full += np.bincount(dof, weights=d.ravel(), minlength=3 * self.n_nodes)
+            self._diagonal = full[self.free]
+        return self._diagonal

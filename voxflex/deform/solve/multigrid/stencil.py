@@ -31,14 +31,15 @@ class VoxelStencil:
     residuals and CG.  Built by :meth:`VoxelHierarchy.stencil`.
     """
 
-    def __init__(self, A, node_of_row, nbr, kind, scale, S, rows):
+    def __init__(self, A, node_of_row, nbr, kind, scale, S, rows, stored=None):
         self.shape = A.shape
         self.dtype = np.dtype(np.float64)
         self.node_of_row, self.nbr, self.kind, self.scale, self.S = node_of_row, nbr, kind, scale, S
         self.interior_rows = int((node_of_row >= 0).sum())
         self.b_row = np.full(A.shape[0], -1, dtype=node_of_row.dtype)
         self.b_row[rows] = np.arange(len(rows))
-        sub = A[rows]  # the stored rows (columns stay A's)
+        # the stored rows (columns stay A's): read from A, or given (assembled from the element matrices)
+        sub = A[rows] if stored is None else stored
         self.b_ptr, self.b_idx, self.b_val = sub.indptr.astype(np.int64), sub.indices, sub.data
 
     def _args(self):
