@@ -209,3 +209,18 @@ def test_benchmarks_and_examples_import_what_exists():
                     if alias.name.startswith("voxflex"):
                         importlib.import_module(alias.name)
     assert not bad, "missing: " + ", ".join(bad)
+
+
+def test_solvers_read_the_voxel_grid_only_through_the_capability():
+    """``dof_grid`` belongs to :class:`OnVoxelGrid` models: the solvers read it through ``newton._grid_of``
+    (an isinstance check), never off any model (a frame model's shifted Newton step raised AttributeError)."""
+    found = []
+    for path in sorted((PACKAGE / "deform" / "solve").rglob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        allowed = {id(n) for fn in ast.walk(tree) if isinstance(fn, ast.FunctionDef) and fn.name == "_grid_of"
+                   for n in ast.walk(fn)}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and node.attr == "dof_grid" and id(node) not in allowed \
+                    and not (isinstance(node.value, ast.Name) and node.value.id == "self"):
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not found, "dof_grid read off a model outside newton._grid_of: " + ", ".join(found)

@@ -118,7 +118,8 @@ def test_bare_midpoint_samples_on_a_one_voxel_thick_body_are_refused(folder, cap
     """Bare mid-point samples (no stabilisation) all on the mid-plane: 4.8x too soft, and independent of the
     thickness; the refusal names the three settings that see the bending."""
     status, err = _cli(folder, capfd, image_scene(plates[0], "affine", nodes=f"count = {count}",
-                                                  elasticity='strain = "linear"\nhourglass = "none"'))
+                                                  elasticity='strain = "linear"\nquadrature = "midpoint"\n'
+                                                                                  'hourglass = "none"'))
     assert_refused(status, err, "simulate", ["one voxel thick along z", 'hourglass = "stiffness"',
                                              'quadrature = "gauss-legendre" or "elaston"'])
 
@@ -154,8 +155,8 @@ def test_gauss_legendre_on_a_one_voxel_thick_anisotropic_body_is_integrated_corr
 def test_bare_midpoint_frames_are_advised_to_stabilise_whatever_the_material():
     """Elastons take every material (moment-fitted sub-rules), so the advice names them for neo-Hooke too."""
     for model in ("hooke", "neo-hookean"):
-        m = vf.model(Scene.from_toml_text(beam("affine", model=model, elasticity='hourglass = "none"',
-                                               nodes="count = 6")))
+        m = vf.model(Scene.from_toml_text(beam("affine", model=model, nodes="count = 6",
+                                               elasticity='quadrature = "midpoint"\nhourglass = "none"')))
         assert all(k in m.advice() for k in ('hourglass = "stiffness"', "elaston", "gauss-legendre"))
     assert vf.model(Scene.from_toml_text(beam("affine", nodes="count = 6"))).advice() == ""  # the default
 

@@ -310,8 +310,8 @@ def _fmt_err(e, below) -> str:
 # ---------------------------------------------------------------------------
 # the public function
 # ---------------------------------------------------------------------------
-def tradeoff(scene, *, frames=(5, 10, 20, 40), samples=(100, 400), shape_functions=("natural-neighbour",),
-             quadratures=("midpoint", "elaston"), reference: str = "scene", voxel_levels: int = 1,
+def tradeoff(scene, *, frames=(5, 10, 20, 40), samples=(100, 400), shape_functions=("reproducing-kernel",),
+             quadratures=("elaston", "gauss-legendre"), reference: str = "scene", voxel_levels: int = 1,
              max_error: float | None = None, workers: int | None = None, scheduler: str | None = None,
              progress: bool = True) -> TradeoffTable:
     """Measure error against time for a sweep of reduced models on ``scene``.
@@ -328,10 +328,12 @@ def tradeoff(scene, *, frames=(5, 10, 20, 40), samples=(100, 400), shape_functio
         Sample counts for the ``"midpoint"`` and ``"elaston"`` quadratures
         (``"gauss-legendre"`` uses 2x2x2 points in every voxel).
     shape_functions : sequence of str
-        Shape-function kinds (``natural-neighbour``, ``sibson``, ``laplace``,
-        ``distance-ratio``, ``shepard``).
+        Shape-function kinds (``reproducing-kernel``, the default, ``natural-neighbour``,
+        ``sibson``, ``laplace``, ``distance-ratio``, ``shepard``).
     quadratures : sequence of str
-        ``"midpoint"``, ``"elaston"``, ``"gauss-legendre"`` (every material with each).
+        ``"elaston"``, ``"gauss-legendre"`` (the default pair: the frames' default rule beside
+        the exact one, so that a figure is never a cancellation of integration against kinematics)
+        and ``"midpoint"`` (every material with each).
     reference : {"scene", "finer"}
         The voxel model on the scene's image, or on the image with every voxel
         split into 2x2x2 (about 8x the cost of the scene's own voxel model).

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 __all__ = ["FRAME_SHAPE_FUNCTIONS", "VOXEL_SHAPE_FUNCTIONS", "SHAPE_FUNCTIONS", "ALIASES"]
 
-FRAME_SHAPE_FUNCTIONS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard", "reproducing-kernel")
-"""Weights of frames over the image (:func:`voxflex.voronoi.shape_function`); natural-neighbour is Sibson's;
-reproducing-kernel weights are linearly precise (:mod:`voxflex.voronoi.reproducing_kernel`)."""
+FRAME_SHAPE_FUNCTIONS = ("reproducing-kernel", "natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard")
+"""Weights of frames over the image (:func:`voxflex.voronoi.shape_function`).  Reproducing-kernel weights,
+the default, are linearly precise (:mod:`voxflex.voronoi.reproducing_kernel`): blended affine frames then
+bend without parasitic strain and converge to the voxel model from the stiff side; natural-neighbour
+(Sibson's) weights are interpolating and lock in bending (see docs/frames.md)."""
 
 VOXEL_SHAPE_FUNCTIONS = ("trilinear",)
 """Weights of the voxel model's corner nodes (:mod:`voxflex.voronoi.trilinear`)."""

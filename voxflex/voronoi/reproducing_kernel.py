@@ -546,6 +546,9 @@ class ReproducingKernel:
     Hessians unless ``hessians=False``.
     """
 
+    linearly_precise = True
+    """Sums of w_a and of w_a X_a reproduce 1 and x at every point (frames' volumetric "auto" reads it)."""
+
     frames: np.ndarray
     image: object
     support: float

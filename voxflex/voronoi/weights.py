@@ -118,6 +118,9 @@ class ShapeFunction:
     ``parents`` parents per point, Hessians included.
     """
 
+    linearly_precise = False
+    """Natural-neighbour, distance-ratio and Shepard weights reproduce constants only (not x near the surface)."""
+
     frames: np.ndarray
     kind: str
     parents: int

@@ -592,7 +592,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         if not slope < 0:
             # not a descent direction (indefinite tangent, or CG stopped before its first step): regularise
             Hff = reduce(H) if Hff is None else Hff
-            d, solver_used = _shifted_direction(Hff, rhs, r, problem.model.dof_grid, free, eta, label, it)
+            d, solver_used = _shifted_direction(Hff, rhs, r, _grid_of(problem.model), free, eta, label, it)
             slope = vdot(r, d)
             indefinite = True
         if not options.line_search:

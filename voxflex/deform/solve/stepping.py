@@ -57,7 +57,7 @@ from .boundary import (
     region_forces,
 )
 from .linear import DIRECT_FALLBACK_MAX
-from .newton import _FreeBlock, _newton, _PatternAdd, _Problem
+from .newton import _FreeBlock, _grid_of, _newton, _PatternAdd, _Problem
 from .options import SolverOptions, StepRecord
 from .supports import check_supports
 
@@ -245,7 +245,7 @@ def _check_stable(problem, delta, free, reduce, label):
             return  # no eigenvalue below the threshold (or the count is unknown: never report a guess)
         lam = found[1]
     else:
-        lam = _smallest_rayleigh(Hff if not sp.issparse(Hff) else sp.csr_matrix(Hff), problem.model.dof_grid, free)
+        lam = _smallest_rayleigh(Hff if not sp.issparse(Hff) else sp.csr_matrix(Hff), _grid_of(problem.model), free)
         if lam is None:
             return  # could not tell: never report a guess
     if lam < -1e-8 * top:

@@ -242,12 +242,20 @@ def _gauge(model) -> np.ndarray:
     from .modes import gauge_modes
 
     sf = model.shape_function
-    if getattr(sf, "kind", None) != "reproducing-kernel":
+    if not getattr(sf, "linearly_precise", False):
         return np.zeros((12 * model.n_nodes, 0))
+    cached = getattr(sf, "_gauge_modes", None)  # the precompute and its check ask for the same weights
+    if cached is not None and cached.shape[0] == 12 * model.n_nodes:
+        return cached
     vv = sf.voxel_values() if hasattr(sf, "voxel_values") else None
     if vv is None:
         vv = sf(model.image.index_to_world(np.argwhere(model.image.labels > 0) + 0.5))
-    return gauge_modes(model.frames, vv)
+    modes = gauge_modes(model.frames, vv)
+    try:
+        sf._gauge_modes = modes
+    except AttributeError:  # a shape function with slots: compute again next time
+        pass
+    return modes
 
 
 def _free_zero_modes(scene, model, K) -> int:
