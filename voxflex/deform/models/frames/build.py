@@ -24,8 +24,15 @@ side of the reference or within a few per cent (20 frames, 400 samples: -0.350 m
 """
 
 
-def build(scene, image, materials, *, cache: bool = True):
+UNTRUNCATED = ("reproducing-kernel", "eigenmode")
+"""Weight families never truncated to ``parents`` (conforming; linearly precise or global)."""
+
+
+def build(scene, image, materials, *, cache: bool = True, placement_energy=None):
     """Affine frames: placement, shape functions and samples from the image, then the frame model.
+
+    ``placement_energy``: the strain-energy density image of a first solve (``[nodes] placement =
+    "strain"``, :func:`voxflex.build.strain_indicator`) whose metric places the frames.
 
     The precompute (frames, blended weights, samples) is loaded from the on-disk
     cache (:mod:`voxflex.cache`) when a run with the same image and settings made
@@ -52,9 +59,17 @@ def build(scene, image, materials, *, cache: bool = True):
     quadrature = scene.elasticity.quadrature
     n_samples = scene.elasticity.samples if scene.elasticity.samples is not None else SAMPLES_PER_FRAME * count
     occupancy = bool(scene.object.occupancy)
-    rk = kind == "reproducing-kernel"  # never truncated to parents (conforming, linearly precise)
+    rk = kind == "reproducing-kernel"
+    untruncated = kind in UNTRUNCATED  # never truncated to parents (conforming; linearly precise or global)
+    weight_space = _weight_space(scene, materials) if kind == "eigenmode" else None
+    density = None
+    if placement_energy is not None:
+        from ....voronoi.placement import strain_density
+
+        density = strain_density(placement_energy, image)
     settings = {"count": count, "positions": nodes.positions, "kind": kind, "parents": nodes.parents,
-                "support": nodes.support,
+                "support": nodes.support, "weight_space": weight_space,
+                "placement": None if density is None else disk.key_of(density),
                 "distance": nodes.distance, "seed": nodes.seed, "compliance": compliance,
                 "fixed": [(lo.tolist(), hi.tolist(), f.components) for (lo, hi), f in zip(fixed, scene.fixed)],
                 "quadrature": quadrature, "samples": n_samples, "occupancy": occupancy}
@@ -71,12 +86,16 @@ def build(scene, image, materials, *, cache: bool = True):
         softest = float(stored["softest"]) if "softest" in stored else None
     else:
         frames, sf, samples = _precompute(image, count, kind, fixed, nodes, compliance, quadrature,
-                                          n_samples, occupancy)
-    info = {"shape_function": kind, "parents": int(sf.parents if rk else nodes.parents), "distance": nodes.distance,
-            "precompute_cached": stored is not None}
+                                          n_samples, occupancy, weight_space=weight_space, density=density)
+    info = {"shape_function": kind, "parents": int(sf.parents if untruncated else nodes.parents),
+            "distance": nodes.distance, "precompute_cached": stored is not None,
+            "placement": nodes.placement or "volume"}
     if rk:
         info.update(support=float(sf.support), kernel_grown_frames=int(sf.grown_frames),
                     kernel_fallback_corners=int(sf.fallback_corners))
+    if kind == "eigenmode":
+        info.update(eigenmode_linear=bool(sf.linear), eigenmode_lifted=int(len(sf.lifted)),
+                    eigenmode_condition=float(sf.condition), eigenmode_lebesgue=float(sf.max_lebesgue))
     # [elasticity] volumetric: "reduced" asks for F-bar / B-bar over each frame's cell; "auto" stays "full"
     # for frames: measured (benchmarks/bench_locking.py) the reduced term removes the locking but makes
     # the cantilever 12-74 % softer than the beam trend, and at nu = 0.45 (the default scene) it is no closer
@@ -139,7 +158,7 @@ def _softest_mode(scene, image, model, frames, sf, samples, occupancy, K) -> flo
     from .modes import softest_mode
 
     reference = voxel_samples(image, _centre_values_of(sf), rule="midpoint", use_occupancy=occupancy)
-    if getattr(sf, "kind", None) != "reproducing-kernel":
+    if getattr(sf, "kind", None) not in UNTRUNCATED:
         reference = dataclasses.replace(reference, values=keep_largest(reference.values, scene.nodes.parents))
     held = _held(scene, model)
     free = np.setdiff1d(np.arange(12 * len(frames)), held) if len(held) else None
@@ -200,8 +219,11 @@ def _refuse_static_mechanism(scene, model, K, samples, spurious: int) -> None:
             '[elasticity] samples, use fewer frames, or quadrature = "gauss-legendre"')
 
 
-def _precompute(image, count, kind, fixed, nodes, compliance, quadrature, n_samples, occupancy):
-    """Frames, blended shape functions and samples (pruned to ``parents``) of an image."""
+def _precompute(image, count, kind, fixed, nodes, compliance, quadrature, n_samples, occupancy, *,
+                weight_space=None, density=None):
+    """Frames, blended shape functions and samples (pruned to ``parents``) of an image.  ``weight_space``:
+    the eigenmode weights' per-label stiffness and density (:func:`_weight_space`); ``density``: the relative
+    frame density of ``[nodes] placement = "strain"``."""
     import dataclasses
 
     from ....sampling.voxel import voxel_samples
@@ -209,14 +231,26 @@ def _precompute(image, count, kind, fixed, nodes, compliance, quadrature, n_samp
     from ....voronoi.shape_functions import keep_largest
 
     positions = None if nodes.positions is None else np.asarray(nodes.positions, dtype=float)
-    frames = place_frames(image, count, positions=positions, fixed=fixed, seed=nodes.seed,
-                          distance=nodes.distance, compliance=compliance)
     rk = kind == "reproducing-kernel"
-    sf = shape_function(image, frames, kind=kind, parents=None if rk else nodes.parents, distance=nodes.distance,
-                        compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed),
-                        **({"support": nodes.support} if rk else {}))
+    if kind == "eigenmode":  # the scene's positions and one frame per fixed region; the rest from the modes
+        from ....voronoi.placement import pinned_frames
+
+        given = pinned_frames(image, positions=positions, fixed=fixed)
+        sf = shape_function(image, given, kind=kind, count=count, seed_owner=_clamp_owners(image, given, fixed),
+                            **(weight_space or {}))
+        frames = sf.frames
+    else:
+        frames = place_frames(image, count, positions=positions, fixed=fixed, seed=nodes.seed,
+                              distance=nodes.distance, compliance=compliance, density=density)
+        sf = shape_function(image, frames, kind=kind, parents=None if rk else nodes.parents, distance=nodes.distance,
+                            compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed),
+                            **({"support": nodes.support} if rk else {}))
+    untruncated = kind in UNTRUNCATED
     if quadrature == "gauss-legendre":
-        samples = voxel_samples(image, sf, rule="gauss-legendre", use_occupancy=occupancy)
+        # values and gradients only (F needs no Hessian): global eigenmode weights on the bunny's 750k Gauss
+        # points would hold 2 GB of Hessians at 40 frames
+        samples = voxel_samples(image, (lambda p: sf(p, hessians=False)) if untruncated else sf,
+                                rule="gauss-legendre", use_occupancy=occupancy)
     else:
         from ....sampling import sample
 
@@ -224,14 +258,31 @@ def _precompute(image, count, kind, fixed, nodes, compliance, quadrature, n_samp
     # at most `parents` frames per sample: the blended weights of a sample (and the union over a
     # region) have more, and the stiffness costs ~432 P^2 flops per sample; reproducing-kernel
     # weights keep every parent (truncating them breaks linear precision and conformity)
-    if not rk:
+    if not untruncated:
         samples = dataclasses.replace(samples, values=keep_largest(samples.values, nodes.parents))
     return frames, sf, samples
 
 
+def _weight_space(scene, materials) -> dict:
+    """The eigenmode weights' operators per label: ``stiffness`` D = the trace over the displacement components
+    of the material's rest tangent (``D_jl = sum_d C_djdl``; ``(lambda + 4 mu) I`` for isotropic materials) and
+    ``density`` (the scene's, when every label has a positive one; else uniform)."""
+    stiff = {}
+    for label, m in materials.items():
+        base = getattr(m, "base", m)
+        C = np.asarray(base.tangent(np.eye(3)[None]))[0]
+        stiff[int(label)] = np.einsum("djdl->jl", C).round(12).tolist()
+    dens = {}
+    for label in materials:
+        d = scene.material_for(int(label)).density
+        dens[int(label)] = None if d is None else float(d)
+    ok = all(v is not None and v > 0 for v in dens.values())
+    return {"stiffness": stiff, "density": dens if ok else None}
+
+
 def _to_store(frames, sf, samples) -> dict:
     v = samples.values
-    if getattr(sf, "kind", None) == "reproducing-kernel":
+    if getattr(sf, "kind", None) in UNTRUNCATED:
         out = sf.to_store()
     else:
         W = sf._smoothed()._W
@@ -261,6 +312,10 @@ def _from_store(image, d, kind, parents):
         from ....voronoi.reproducing_kernel import ReproducingKernel
 
         sf = ReproducingKernel.from_store(image, frames, d)
+    elif "em_indptr" in d:
+        from ....voronoi.eigenmode import EigenmodeWeights
+
+        sf = EigenmodeWeights.from_store(image, frames, d)
     else:
         W = sp.csr_matrix((d["W_data"], d["W_indices"], d["W_indptr"]), shape=(int((image.labels > 0).sum()), n))
         smooth = SmoothWeights.from_csr(image, W)
@@ -326,6 +381,8 @@ def estimate(scene, size, material_class: str):
         # measured 29 / 50 parents with 40 / 80 frames at support 2.5 on the cantilever, 35 on the bunny
         support = scene.nodes.support or 2.5
         parents = min(nodes, int(np.ceil(2.5 * support ** 3)))
+    elif scene.nodes.shape_function == "eigenmode":  # global: every frame is a parent of every point
+        parents = nodes
     model = (FRAME_BYTES_PER_VOXEL_PARENT * parents + 64.0) * voxels + FRAME_DENSE_COPIES * 8.0 * dofs**2
     iterations = 1 if material_class == "constant" else 5
     seconds = int(scene.solver.steps) * iterations * (dofs**3 / 3 / 1e10 + 2e-6 * voxels)
