@@ -7,8 +7,8 @@
 2. The large-deflection neo-Hooke cantilever (beam [0,4]x[0,1]x[0,1], E = 1e3,
    nu = 0.3, rho g = 9.81, clamp x = 0, 5 load steps) on the 32x8x8 image
    (reference -2.687096, peers agree): tip u_z as the frames increase, time per
-   Newton iteration and total time, mid-point samples (elastons need a strain
-   with a constant second derivative: neo-Hooke's invariants do not qualify).
+   Newton iteration and total time, the default stabilised mid-point regions
+   (every quadrature at its default count: benchmarks/bench_frames_quadrature.py).
 
 Timings are one run each (end to end: model building and solve), machine noted.
 Usage: python benchmarks/bench_frames_accuracy.py [--part 1|2|all] [--counts 5,10,20,50,100]
@@ -23,7 +23,6 @@ import time
 import warnings
 from dataclasses import replace
 
-import numpy as np
 
 import voxflex as vf
 from voxflex.scene import ElasticitySpec, FixedSpec, LoadSpec, MaterialSpec, NodesSpec, ObjectSpec, ProbeSpec, Scene, SolverSpec
@@ -79,7 +78,7 @@ def cantilever(counts):
     print("|---|---|---|---|---|---|---|---|")
     for n in counts:
         s = replace(scene, nodes=NodesSpec(kind="affine", count=n),
-                    elasticity=ElasticitySpec(quadrature="midpoint", samples=max(200, 20 * n)))
+                    elasticity=ElasticitySpec(quadrature="midpoint"))
         r, m, tp, ts = _run(s)
         u = r.probe_displacements()["tip"][2]
         its = int(r.newton_iterations.sum())

@@ -6,11 +6,11 @@ u_z at the tip-face centre; full 2x2x2 Gauss, the reduced volumetric term
 from the full nu = 0.3 value (Timoshenko, Cowper's shear factor 10(1+nu)/(12+11nu)).
 
 Frame rows: the same cantilever as a scene with ``[nodes] kind = "affine"`` (20 and
-50 frames, natural-neighbour weights, the scene default of 200 mid-point samples,
+50 frames, natural-neighbour weights, the scene default of stabilised mid-point regions,
 clamp box at x = 0), u_z at the same tip point through the frames; the precompute is
 built once per grid and frame count, the material swapped per nu.  Columns: the
-frame model's full integration of the volumetric term, the reduced one (B-bar over
-the samples of each frame's cell, ``FrameModel(volumetric="reduced")``), "auto"
+frame model's full integration of the volumetric term, the reduced one (B-bar with the
+trace projected onto the frames' weights, ``FrameModel(volumetric="reduced")``), "auto"
 (reduced for nu >= 0.4, the scenes' default) and its ratio to the beam-theory trend
 from the full nu = 0.3 value.
 
@@ -66,7 +66,8 @@ def frame_layout(nx, count):
 def frame_tip(layout, nu, **kw):
     """Tip u_z of the frame cantilever with Poisson ratio nu on ``layout``'s frames and samples."""
     model = FrameModel(layout.image, layout.frames, layout.shape_function, layout.samples,
-                       {1: material("hooke", young=1e4, poisson=nu, strain="linear")}, **kw)
+                       {1: material("hooke", young=1e4, poisson=nu, strain="linear")}, hourglass=layout.hourglass,
+                       region_tables=layout.tables, **kw)
     rec = solve(model, fixed=[FixedRegion([-1e9, -1e9, -1e9], [1e-6, 1e9, 1e9])], gravity=[0, 0, -9.81],
                 densities={1: 1.0}, options=SolverOptions(tolerance=1e-10))
     return float((model.point_mapping([TIP]).apply(rec[-1].q)[0] - TIP)[2])

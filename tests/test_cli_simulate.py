@@ -42,10 +42,11 @@ def test_default_scene_runs_and_writes_a_result(tmp_path, capsys, monkeypatch):
     assert result.model["count"] == 40
     # the capsule sags.  Euler-Bernoulli (linear, round section r = 5 mm, free length 48.5 mm)
     # predicts rho g A L^4 / (8 E I) = 0.0119 m; the voxel model of the same image (2x2x2 Gauss,
-    # F-bar at nu = 0.45) gives 0.0136 m.  A reduced model is stiffer than that reference and the
-    # 40 frames give 0.0102 m: the band asserts "stiffer than the reference, not absurdly"
+    # F-bar at nu = 0.45) gives 0.0136 m.  The 40 frames, with the volume ratio projected onto their
+    # weights (nu = 0.45) and the stabilised mid-point regions, give 0.0139 m (the builder's 200 regions;
+    # 0.0144 m with 800; Gauss-Legendre on the same frames 0.0147 m): within 8 % of the reference
     uz = _tip_displacement(stdout)[2]
-    assert -0.0136 * 1.02 < uz < -0.5 * 0.0136, uz
+    assert abs(uz / -0.0136 - 1) < 0.08, uz
     assert result.probe_displacements()["tip"][2] == pytest.approx(uz, abs=1e-6)
 
 

@@ -22,7 +22,7 @@ ROOT = paths.ROOT
 PACKAGE = ROOT / "voxflex"
 
 # rank of each stage; modules at the same rank may import each other (models ~ layers)
-INFRASTRUCTURE = ("errors", "_atomic", "_blas", "_checks", "_jit", "_lazy", "_linalg", "_linalg_kernels", "_progress",
+INFRASTRUCTURE = ("errors", "_atomic", "_blas", "_checks", "_jit", "_lazy", "_linalg", "_linalg_kernels", "_progress", "_ties",
                   "_version", "cache")
 STAGES = [
     *((f"voxflex.{m}", 0) for m in INFRASTRUCTURE),

@@ -77,9 +77,12 @@ def test_render_of_the_default_scene(default_result, tmp_path):
     rows, cols = np.nonzero(obj)
     # the object's bounding box lies inside the picture, not touching its border ...
     assert rows.min() > 0 and rows.max() < 449 and cols.min() > 0
-    # ... and is elongated (a long strip): wider than a third of the frame, wider than tall
-    width, height = cols.max() - cols.min(), rows.max() - rows.min()
-    assert width > 800 / 3 and width > height, (width, height)
+    # ... and is elongated (a long capsule, bent): along its principal axis longer than a third of the
+    # frame and more than twice as long as across (the sag tilts it, so not along the picture's axes)
+    xy = np.stack([cols, rows]).astype(float)
+    ev, vec = np.linalg.eigh(np.cov(xy))
+    along = vec[:, -1] @ xy
+    assert along.max() - along.min() > 800 / 3 and ev[-1] > 4 * ev[0], (along.max() - along.min(), ev)
     # the background is white and dominates
     white = np.all(image[..., :3] > 245, axis=2).mean()
     assert white > 0.5

@@ -72,7 +72,7 @@ def check_output_path(path, *, what: str = "output", example: str = "out") -> Pa
     InputError
         The folder does not exist or is not writable, or ``path`` is a folder.
     """
-    path = Path(path)
+    path = check_name_length(path, what)
     folder = path.parent if str(path.parent) else Path(".")
     if path.is_dir():
         raise InputError(f"{what} '{path}' is a folder; give a file name inside it, e.g. '{path / example}'")
@@ -88,7 +88,58 @@ def check_output_path(path, *, what: str = "output", example: str = "out") -> Pa
         raise InputError(f"output folder '{folder}' is not writable; choose another path or fix its permissions")
     if path.exists() and not os.access(path, os.W_OK):
         raise InputError(f"{what} '{path}' exists and is read-only; choose another path or fix its permissions")
+    probe_folder(folder, what, path)
     return path
+
+
+def check_name_length(path, what: str = "output") -> Path:
+    """InputError when a part of ``path`` is longer than file names may be (before anything stats it: the
+    system's own error, ENAMETOOLONG, is not a one-line message)."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    for part in path.parts:
+        size = len(os.fsencode(part))
+        limit = _name_max(folder if part == path.name else Path("."))
+        if size > limit:
+            raise InputError(f"{what} '{part[:32]}...' is a name {size} bytes long, more than the {limit} the file "
+                             "system allows; choose a shorter name")
+    return path
+
+
+def _name_max(folder: Path) -> int:
+    """The longest file name (bytes) the file system of ``folder`` takes (255 where it does not say)."""
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):
+        return 255
+
+
+def probe_folder(folder: Path, what: str, path: Path) -> None:
+    """Create and remove a file in ``folder``: a folder that says it is writable but is not (/proc, a
+    read-only mount) is refused now, not after the run."""
+    try:
+        fd, name = tempfile.mkstemp(prefix=".voxflex-probe.", dir=folder)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as exc:
+        raise InputError(f"cannot create files in folder '{folder}' for {what} '{path}' ({exc.strerror or exc}); "
+                         "choose another path") from None
+
+
+def _temporary_name(path: Path, suffix: str, folder: Path) -> tuple[str, str]:
+    """(prefix, suffix) of :func:`tempfile.mkstemp` for ``path``: ``.STEM.XXXXXXXX.SUFFIX`` shortened (the stem
+    first, then the suffix to its last part) so that the hidden name fits the file system's name limit."""
+    limit = _name_max(folder)
+    random_part = 8  # mkstemp's random characters
+    stem = path.stem
+    fixed = 2 + random_part  # the leading and the separating dots
+    if len(os.fsencode(suffix)) + fixed + 1 > limit:
+        suffix = path.suffix  # the last suffix still names the format
+    room = limit - fixed - len(os.fsencode(suffix))
+    encoded = os.fsencode(stem)
+    if len(encoded) > room:
+        stem = encoded[:max(room, 0)].decode(errors="ignore")
+    return f".{stem}.", suffix
 
 
 class _Guard:
@@ -200,7 +251,8 @@ def atomic_path(path, *, suffix: str | None = None):
     try:
         mask = _block() if guarded else None  # no signal between creating the file and knowing its name
         try:
-            fd, name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=folder)
+            prefix, short = _temporary_name(path, suffix, folder)
+            fd, name = tempfile.mkstemp(prefix=prefix, suffix=short, dir=folder)
             tmp = Path(name)
             os.close(fd)
         finally:

@@ -169,6 +169,11 @@ def model(scene, *, image=None, cache: bool = True):
         image = build_image(scene)
     labels_present = np.unique(image.labels[image.labels > 0])
     materials = build_materials(scene, labels_present)
+    from .guards import check_thin_body, check_unreached_components
+
+    # before the kind's build (a frame precompute): what no model can hold, what no sample can see
+    check_unreached_components(scene, image)
+    check_thin_body(scene, image)
     from .deform.layers.cables import with_cables
     from .deform.layers.contact import with_contact
 

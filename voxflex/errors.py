@@ -37,3 +37,19 @@ def check_choice(name: str, value: str, choices) -> str:
             f"valid: {', '.join(sorted(choices))}"
         )
     return value
+
+
+def missing_file(path, what: str) -> InputError:
+    """The error for a ``what`` file (``"scene file"``, ``"mesh file"`` ...) that is not a readable file:
+    a folder is named as a folder (not "not found" or "bad extension"), anything else as not found."""
+    import os
+
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.strerror and exc.errno not in (2, 20):  # not ENOENT / ENOTDIR: a name too long, a loop ...
+            return InputError(f"{what} '{str(path)[:80]}' cannot be read ({exc.strerror}); check the path")
+        return InputError(f"{what} '{path}' not found; check the path")
+    if os.path.isdir(path):
+        return InputError(f"{what} '{path}' is a folder, not a file; give a file inside it")
+    return InputError(f"{what} '{path}' is not a regular file; give a file")

@@ -405,6 +405,7 @@ def render_frames(
     scale of the whole run.  See :func:`render` for the keywords.
     """
     result = _as_result(result)
+    _check_drawable(result)
     steps = [result.step_index(s) for s in steps]
     style = _style(result, window_size=window_size, title=title, cmap=cmap, view=view, azimuth=azimuth,
                    elevation=elevation, up=up, color=color, show_rest=show_rest, axes=axes, gravity=gravity,
@@ -472,6 +473,35 @@ def render_frames(
     return images
 
 
+DRAWABLE = 1e6
+"""A render refuses a result with a drawn point farther than this many body sizes (the rest surface's
+bounding-box diagonal) from the body's rest centre: a picture of it would be a dot, or VTK's garbage."""
+
+
+def _check_drawable(result) -> None:
+    """InputError when the result's surface or frames are not finite or lie absurdly far (:data:`DRAWABLE`)."""
+    rest = np.asarray(result.surface_rest, dtype=float)
+    if not np.all(np.isfinite(rest)) or len(rest) == 0:
+        raise InputError("the result's rest surface is empty or not finite; nothing can be drawn")
+    centre = 0.5 * (rest.min(axis=0) + rest.max(axis=0))
+    size = max(float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))), 1e-300)
+    series = [("surface", np.asarray(result.surface_positions, dtype=float))]
+    if result.node_points is not None:
+        series.append(("frames", np.asarray(result.node_points, dtype=float)))
+    for what, x in series:
+        bad = ~np.all(np.isfinite(x), axis=-1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            far = np.abs(x - centre).max(axis=-1) > DRAWABLE * size
+        wrong = bad | far
+        if np.any(wrong):
+            s = int(np.flatnonzero(wrong.reshape(len(x), -1).any(axis=1))[0])
+            how = "not finite (NaN or inf)" if np.any(bad[s]) else (
+                f"up to {float(np.nanmax(np.abs(x[s] - centre))):.3g} m from the body (more than {DRAWABLE:g} times "
+                f"its size, {size:.3g} m)")
+            raise InputError(f"the result's {what} at state {s} is {how}: there is nothing meaningful to draw; "
+                             "check the run (voxflex info) and simulate it again")
+
+
 def _place_camera(plotter, cam: _Camera, pts: np.ndarray, size):
     """Orthographic camera along ``cam`` whose view holds every point of ``pts`` with a margin.
 
@@ -480,7 +510,9 @@ def _place_camera(plotter, cam: _Camera, pts: np.ndarray, size):
     w, h = size
     x, y, z = pts @ cam.right, pts @ cam.up, pts @ cam.toward
     xmid, ymid = 0.5 * (x.min() + x.max()), 0.5 * (y.min() + y.max())
-    span = max(float(x.max() - x.min()), float(y.max() - y.min()), float(z.max() - z.min()), 1e-12)
+    span = max(float(x.max() - x.min()), float(y.max() - y.min()), float(z.max() - z.min()))
+    if not span > 0:  # every point in one place: any scale draws it (an absolute 1e-12 m floor was not unit-free)
+        span = max(float(np.abs(pts).max()), 1.0)
     per_pixel = max((x.max() - x.min()) / (w * (1 - 2 * _MARGIN)), (y.max() - y.min()) / (h * (1 - 2 * _MARGIN)))
     per_pixel = max(float(per_pixel), span * 1e-6)
     centre = xmid * cam.right + ymid * cam.up + float(z.mean()) * cam.toward
@@ -628,7 +660,11 @@ class _Layout:
         else:
             when = f"t = {result.time[step]:.4g} s"
         number = int(result.step[step]) if getattr(result, "step", None) is not None else step  # --every skips steps
-        lines = [style.title, f"step {number}/{result.n_steps}, {when}"]
+        state = f"step {number}/{result.n_steps}, {when}"
+        if not result.complete:  # a failed run's picture says so (it is not the answer the scene asked for)
+            reason = " ".join(str(result.error).split()) or "no reason recorded"
+            state = f"FAILED after step {result.n_steps}: {reason} | {state}"
+        lines = [style.title, state]
         y = pad
         for text, size in zip(lines, (self.font + 1, self.font - 1)):
             font, text = _fit_text(text, size, W - 2 * pad)
@@ -701,7 +737,6 @@ class _Layout:
         d_unit = g / np.linalg.norm(g)
         d = np.array([d_unit @ cam.right, -(d_unit @ cam.up)])
         arm = 0.32 * (x1 - x0)
-        font = _font(max(self.font - 2, 7))
         width = max(2, self.font // 6)
         length = float(np.hypot(*d))
         colour = (40, 40, 40)
@@ -792,6 +827,7 @@ def render(
         What was written (the file or the folder).
     """
     result = _as_result(result)
+    _check_drawable(result)
     path = Path(path)
     suffix = path.suffix.lower()
     if isinstance(fps, bool) or not isinstance(fps, (int, np.integer)) or fps < 1:

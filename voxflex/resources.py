@@ -323,8 +323,12 @@ def estimate(scene, *, output=None, keep="auto", every: int = 1) -> Estimate:
 def _estimate(scene, size=None, *, output=None, keep="all", every=1) -> Estimate:
     from .deform.models.kinds import node_kind
 
-    size = size if size is not None else _object_size(scene.object)
     kind = node_kind(scene.nodes.kind)
+    if size is None:
+        # a kind whose geometry is its own (a membrane: its mesh, flat or open) counts it in its estimator;
+        # measuring that mesh as a solid refused a flat membrane as "encloses no volume"
+        own = kind.image_builder is not None
+        size = (1, 8, 8, float(scene.object.voxel_size or 1.0)) if own else _object_size(scene.object)
     est = kind.estimate(scene, size, _material_class(scene))
     voxels, _, surface, h = size
     voxels = voxels if est.voxels is None else est.voxels
@@ -399,6 +403,7 @@ def check(scene, *, available: int | None = None, fraction: float = MEMORY_FRACT
     if not (isinstance(fraction, (int, float)) and 0 < fraction <= 1):
         raise InputError(f"fraction must be in (0, 1], got {fraction!r}")
     est = estimate(scene, output=output, keep=keep, every=every)
+    _check_count(scene, est)  # too many nodes for the object is the cause, not the memory or the disk
     if output is not None:
         if disk is None:
             disk = free_disk(output)
@@ -432,6 +437,24 @@ def check(scene, *, available: int | None = None, fraction: float = MEMORY_FRACT
     )
 
 
+COUNT_SLACK = 2.0
+"""A reduced kind's ``[nodes] count`` is refused up front when above this many times the object's estimated
+voxels (a frame per voxel at most; the estimate of a mesh's voxels is approximate, so the exact check is
+the placement's)."""
+
+
+def _check_count(scene, est: Estimate) -> None:
+    """InputError for more nodes than the object has voxels (before the memory and disk checks, which
+    would blame the memory or the free disk space for what the count causes)."""
+    from .deform.models.kinds import node_kind
+
+    kind = node_kind(est.node_kind)
+    count = scene.nodes.count
+    if kind.reduced and count is not None and count > COUNT_SLACK * max(est.voxels, 1):
+        raise InputError(f"[nodes] count = {count:,} is more {kind.plural} than the object's about {est.voxels:,} "
+                         f"voxels (one {kind.noun} per voxel at most); use [nodes] count <= {est.voxels:,}")
+
+
 def _check_disk(scene, est: Estimate, output, free: int, every: int) -> None:
     """Refuse a result file larger (uncompressed) than the free space of its folder, naming the ``every`` that fits."""
     if est.file_bytes <= free:
@@ -456,7 +479,7 @@ def _model_fix(scene, est: Estimate, budget: float, **run) -> str:
     obj = scene.object
     kind = node_kind(est.node_kind)
     if kind.reduced:  # fewer nodes: the largest count that fits (the estimate grows with the count)
-        count = int(scene.nodes.count or kind.default_count)
+        count = min(int(scene.nodes.count or kind.default_count), max(int(est.voxels), 1))
         while count > 1:
             count = count * 9 // 10 if count > 10 else count - 1
             small = dataclasses.replace(scene, nodes=dataclasses.replace(scene.nodes, count=count))

@@ -485,76 +485,99 @@ class Result:
         import h5py
 
         path = Path(path)
-        if not path.is_file():
-            raise InputError(f"result file '{path}' not found; check the path")
+        if not _is_file(path):
+            from .errors import missing_file
+
+            raise missing_file(path, "result file")
         try:
             f = h5py.File(path, "r")
-        except OSError:
+        except OSError as exc:
+            with open(path, "rb") as fh:
+                hdf5 = fh.read(8) == b"\x89HDF\r\n\x1a\n"
+            if hdf5:  # an HDF5 file cut short or damaged in its superblock
+                reason = " ".join(str(exc).split())[:160]
+                raise InputError(f"'{path}' is a damaged HDF5 file ({reason}); write it again with "
+                                 "'voxflex simulate'") from None
             raise InputError(f"'{path}' is not an HDF5 file; give a result file written by 'voxflex simulate'") from None
         with f:
-            required = ("time", "surface/rest", "surface/faces", "surface/positions", "nodes/rest", "nodes/state")
-            missing = [p for p in required if p not in f]
-            if "voxflex_version" not in f.attrs or missing:
-                what = f"lacks /{missing[0]}" if missing else "has no voxflex_version attribute"
-                raise InputError(
-                    f"'{path}' is not a voxflex result file ({what}); give a file written by 'voxflex simulate'"
-                )
-            T = f["time"].shape[0]
+            try:
+                return cls._read(f, path)
+            except InputError as exc:
+                if str(exc).startswith(f"'{path}'"):
+                    raise
+                raise InputError(f"'{path}' holds an inconsistent result ({exc}); write it again with "
+                                 "'voxflex simulate'") from None
+            except (RuntimeError, KeyError, OSError, ValueError, TypeError, IndexError, AttributeError) as exc:
+                # h5py's messages for a damaged file (a bad heap, a B-tree signature, a size past the end)
+                reason = " ".join(str(exc).split())[:160] or type(exc).__name__
+                raise InputError(f"'{path}' is damaged ({reason}); write it again with 'voxflex simulate'") from None
 
-            def get(name, default=None):
-                return f[name][()] if name in f else default
-
-            labels_ds = f["image/labels"] if "image/labels" in f else None
-            if labels_ds is not None:
-                labels = labels_ds[()]
-                spacing = labels_ds.attrs.get("spacing", f["image"].attrs.get("spacing", np.ones(3)))
-                origin = labels_ds.attrs.get("origin", f["image"].attrs.get("origin", np.zeros(3)))
-                direction = labels_ds.attrs.get("direction", f["image"].attrs.get("direction", np.eye(3)))
-            else:
-                labels, spacing, origin, direction = np.zeros((1, 1, 1), np.uint8), np.ones(3), np.zeros(3), np.eye(3)
-            zeros = np.zeros(T)
-            return cls(
-                time=f["time"][()],
-                probes={k: v[()] for k, v in f["probes"].items()} if "probes" in f else {},
-                surface_rest=f["surface/rest"][()],
-                surface_faces=f["surface/faces"][()],
-                surface_positions=f["surface/positions"][()],
-                nodes_rest=f["nodes/rest"][()],
-                nodes_state=f["nodes/state"][()],
-                energy_elastic=get("energy/elastic", zeros),
-                energy_kinetic=get("energy/kinetic", zeros),
-                newton_iterations=get("stats/newton_iterations", zeros.astype(np.int64)),
-                step_seconds=get("stats/step_seconds", zeros),
-                image_labels=labels,
-                image_spacing=spacing,
-                image_origin=origin,
-                image_direction=direction,
-                scene=_text(f.attrs.get("scene", "")),
-                version=_text(f.attrs["voxflex_version"]),
-                node_kind=_text(f.attrs["node_kind"]) if "node_kind" in f.attrs else _reference_kind(),
-                model={k: (_text(v) if isinstance(v, (bytes, str)) else np.asarray(v).item())
-                       for k, v in (f["model"].attrs.items() if "model" in f else ())},
-                contact_force=get("contact/force"),
-                cable_tension=get("cable/tension"),
-                cable_points=get("cable/points"),
-                cable_point_cable=get("cable/point_cable"),
-                plastic_samples=get("plasticity/yielded_samples"),
-                plastic_strain_max=get("plasticity/max_strain"),
-                fields={k: v[()] for k, v in f["surface/fields"].items()} if "surface/fields" in f else {},
-                cell_fields={k: v[()] for k, v in f["fields"].items()} if "fields" in f else {},
-                cell_location=_text(next(iter(f["fields"].values())).attrs.get("location", ""))
-                if "fields" in f and len(f["fields"]) else "",
-                reactions=get("reactions/force"),
-                inverted_samples=get("stats/inverted_samples"),
-                min_det_F=get("stats/min_det_F"),
-                complete=bool(f.attrs.get("complete", True)),
-                error=_text(f.attrs.get("error", "")),
-                step=get("stats/step"),
-                totals={k: v for k, v in (f["stats"].attrs.items() if "stats" in f else ()) if k in TOTALS},
-                problem=_read_problem(f["problem"]) if "problem" in f else {},
-                node_points=get("nodes/points"),
-                fraction=get("stats/fraction"),
+    @classmethod
+    def _read(cls, f, path) -> Result:
+        """The result in an open HDF5 file (h5py errors of a damaged file propagate)."""
+        required = ("time", "surface/rest", "surface/faces", "surface/positions", "nodes/rest", "nodes/state")
+        missing = [p for p in required if p not in f]
+        if "voxflex_version" not in f.attrs or missing:
+            what = f"lacks /{missing[0]}" if missing else "has no voxflex_version attribute"
+            raise InputError(
+                f"'{path}' is not a voxflex result file ({what}); give a file written by 'voxflex simulate'"
             )
+        T = f["time"].shape[0]
+
+        def get(name, default=None):
+            return f[name][()] if name in f else default
+
+        labels_ds = f["image/labels"] if "image/labels" in f else None
+        if labels_ds is not None:
+            labels = labels_ds[()]
+            spacing = labels_ds.attrs.get("spacing", f["image"].attrs.get("spacing", np.ones(3)))
+            origin = labels_ds.attrs.get("origin", f["image"].attrs.get("origin", np.zeros(3)))
+            direction = labels_ds.attrs.get("direction", f["image"].attrs.get("direction", np.eye(3)))
+        else:
+            labels, spacing, origin, direction = np.zeros((1, 1, 1), np.uint8), np.ones(3), np.zeros(3), np.eye(3)
+        zeros = np.zeros(T)
+        return cls(
+            time=f["time"][()],
+            probes={k: v[()] for k, v in f["probes"].items()} if "probes" in f else {},
+            surface_rest=f["surface/rest"][()],
+            surface_faces=f["surface/faces"][()],
+            surface_positions=f["surface/positions"][()],
+            nodes_rest=f["nodes/rest"][()],
+            nodes_state=f["nodes/state"][()],
+            energy_elastic=get("energy/elastic", zeros),
+            energy_kinetic=get("energy/kinetic", zeros),
+            newton_iterations=get("stats/newton_iterations", zeros.astype(np.int64)),
+            step_seconds=get("stats/step_seconds", zeros),
+            image_labels=labels,
+            image_spacing=spacing,
+            image_origin=origin,
+            image_direction=direction,
+            scene=_text(f.attrs.get("scene", "")),
+            version=_text(f.attrs["voxflex_version"]),
+            node_kind=_text(f.attrs["node_kind"]) if "node_kind" in f.attrs else _reference_kind(),
+            model={k: (_text(v) if isinstance(v, (bytes, str)) else np.asarray(v).item())
+                   for k, v in (f["model"].attrs.items() if "model" in f else ())},
+            contact_force=get("contact/force"),
+            cable_tension=get("cable/tension"),
+            cable_points=get("cable/points"),
+            cable_point_cable=get("cable/point_cable"),
+            plastic_samples=get("plasticity/yielded_samples"),
+            plastic_strain_max=get("plasticity/max_strain"),
+            fields={k: v[()] for k, v in f["surface/fields"].items()} if "surface/fields" in f else {},
+            cell_fields={k: v[()] for k, v in f["fields"].items()} if "fields" in f else {},
+            cell_location=_text(next(iter(f["fields"].values())).attrs.get("location", ""))
+            if "fields" in f and len(f["fields"]) else "",
+            reactions=get("reactions/force"),
+            inverted_samples=get("stats/inverted_samples"),
+            min_det_F=get("stats/min_det_F"),
+            complete=bool(f.attrs.get("complete", True)),
+            error=_text(f.attrs.get("error", "")),
+            step=get("stats/step"),
+            totals={k: v for k, v in (f["stats"].attrs.items() if "stats" in f else ()) if k in TOTALS},
+            problem=_read_problem(f["problem"]) if "problem" in f else {},
+            node_points=get("nodes/points"),
+            fraction=get("stats/fraction"),
+        )
 
     # -- ParaView ---------------------------------------------------------
     def export_vtk(self, target) -> Path:
@@ -872,6 +895,14 @@ def _reference_kind() -> str:
     from .deform.models.kinds import reference_kind
 
     return reference_kind().name
+
+
+def _is_file(path: Path) -> bool:
+    """``path.is_file()`` that says False instead of raising (a name too long, a loop of links)."""
+    try:
+        return path.is_file()
+    except OSError:
+        return False
 
 
 def _text(value) -> str:

@@ -11,7 +11,11 @@ __all__ = ["describe_result", "field_lines"]
 
 def describe_result(path) -> str:
     """A short human-readable summary of a result file (used by ``voxflex info``)."""
-    r = Result.load(path)
+    with np.errstate(over="ignore", invalid="ignore"):  # a damaged file's 1e300 positions: described, not warned
+        return _describe(Result.load(path), path)
+
+
+def _describe(r, path) -> str:
     T = r.n_states
     totals = r.run_totals()
     labels, counts = np.unique(r.image_labels[r.image_labels > 0], return_counts=True)
@@ -33,6 +37,9 @@ def describe_result(path) -> str:
     lines += [f"  {line}" for line in field_lines(r)]
     if not r.complete:
         lines.append(f"  INCOMPLETE: the run failed after step {r.n_steps}: {r.error}")
+    bad = [s for s in range(T) if not np.all(np.isfinite(r.surface_positions[s]))]
+    if bad:
+        lines.append(f"  DAMAGED: the surface positions of {len(bad)} state(s) are not finite (first: state {bad[0]})")
     return "\n".join(lines)
 
 
@@ -84,13 +91,18 @@ def _steps_list(steps) -> str:
 
 
 def _model_text(r) -> str:
-    """One phrase naming the model: node count (as its kind says them), DOFs, shape functions and quadrature."""
+    """One phrase naming the model: node count (as its kind says them), DOFs, shape functions, quadrature,
+    the frame builder's sample count and why (``samples_chosen``) when known."""
     m = r.model
     text = f"{r.n_nodes} {m.get('nodes', r.node_kind + ' nodes')}, {r.n_dofs} DOF"
-    extra = [f"{k.replace('_', ' ')} {m[k]}" for k in ("shape_function", "quadrature", "samples") if k in m]
+    extra = [f"{k.replace('_', ' ')} {m[k]}" for k in ("shape_function", "quadrature", "samples", "regions",
+                                                        "hourglass", "volumetric") if k in m]
     if "precompute_seconds" in m:
         extra.append(f"precompute {float(m['precompute_seconds']):.3g} s")
-    return text + (f" ({', '.join(extra)})" if extra else "")
+    text += f" ({', '.join(extra)})" if extra else ""
+    if "samples_chosen" in m:
+        text += f"; samples chosen: {m['samples_chosen']}"
+    return text
 
 
 def _fmt(v) -> str:

@@ -18,9 +18,8 @@ Example
 True
 
 Defaults: ``[nodes] kind = "affine"`` (frames); ``[elasticity] quadrature`` is the
-node kind's own (``"midpoint"`` for frames — not elastons, whose exact
-Hessian needs a strain with a constant second derivative, which the default
-neo-Hookean material's invariants are not — and ``"gauss-legendre"`` for voxels);
+node kind's own (``"midpoint"`` for frames: regions with their mean F and the
+fluctuation energy, ``hourglass = "stiffness"``; ``"gauss-legendre"`` for voxels);
 ``[nodes] parents = 6`` (not 4: measured, 4 parents were 9 % off on a
 cantilever where 6 were within 1 %).  Extensions: a top-level ``title``; ``[object]
 axis`` for cylinders; ``[[material]]`` model constants and a per-material
@@ -45,13 +44,7 @@ from .deform.layers.cable import Cable
 from .deform.layers.obstacles import OBSTACLE_KEYS as _OBSTACLE_KEYS
 from .deform.layers.obstacles import OBSTACLE_KINDS
 from .deform.layers.obstacles import POINT_RULES as CONTACT_POINT_RULES
-from .deform.materials.catalogue import (
-    MATERIAL_NAMES,
-    MODEL_CONSTANTS,
-    POISSON_RANGE,
-    STRAIN_NAMES,
-    check_constants,
-)
+from .deform.materials.catalogue import MATERIAL_NAMES, MODEL_CONSTANTS, POISSON_RANGE, STRAIN_NAMES, check_constants
 from .deform.materials.fbar import VOLUMETRIC
 from .deform.models.fields import check_field_names
 from .deform.models.kinds import default_kind, node_kind, node_kinds
@@ -89,6 +82,11 @@ SHAPES = {**{name: entry[1] for name, entry in PRIMITIVES.items()},
 NODE_KINDS = tuple(node_kinds())
 LOAD_KINDS = ("gravity", *FORCE_KINDS, *(k for kind in node_kinds().values() for k in kind.load_kinds))
 DISTANCES = ("geodesic", "compliance")
+MIN_PARENTS = 4
+"""Fewest ``[nodes] parents`` a frame model takes: weights pruned to fewer frames per point jump between
+frames, and the samples do not see the jumps (measured, benchmarks/bench_robustness.py: the 16x4x4 linear
+cantilever with 20 frames sags 0.536 m with 2 parents and 0.439 m with 3, against a converged 0.393 m;
+0.359 m with 4, 0.309 m with 6)."""
 KEEP = ("all", "largest")
 _INF = math.inf
 
@@ -354,12 +352,13 @@ class NodesSpec:
 @dataclass(frozen=True)
 class ElasticitySpec:
     """``[elasticity]``: quadrature, samples, strain, volumetric (``"auto"``: F-bar where nu >= 0.4)
-    and hourglass (mid-point stabilisation of voxels).
+    and hourglass (mid-point stabilisation of voxels and of frames' regions).
 
     ``quadrature`` defaults to the node kind's own (resolved by :class:`Scene`):
     ``"gauss-legendre"`` (2x2x2 per voxel) for voxel nodes, ``"midpoint"``
-    (``samples`` regions) for frames.  ``samples`` defaults to 20
-    per frame (``voxflex.deform.models.frames.build.SAMPLES_PER_FRAME``, resolved where the frame count is known)."""
+    (``samples`` regions) for frames.  ``samples`` (frames' regions) defaults to a count
+    the frame builder chooses from the frames and checks for soft modes
+    (``voxflex.deform.models.frames.build.REGIONS_PER_FRAME``, resolved where the frame count is known)."""
 
     quadrature: str | None = None
     samples: int | None = None
@@ -690,6 +689,13 @@ def _check_kind(scene) -> None:
     if q not in kind.quadratures:
         raise InputError(f'[elasticity] quadrature = "{q}" does not apply to [nodes] kind = "{kind.name}" '
                          f"({kind.plural}); valid for it: {', '.join(kind.quadratures)}")
+    if kind.reduced and kind.shape_functions and scene.nodes.parents < MIN_PARENTS:
+        p = scene.nodes.parents
+        raise InputError(
+            f"[nodes] parents = {p} is too few: with fewer than {MIN_PARENTS} parents per point (an affine field in "
+            "3-D needs 4) the weights are cut off between frames and the body tears there without energy (the "
+            "cantilever: 2 parents 37 % softer than the converged answer, 3 parents 12 %); use parents >= "
+            f"{MIN_PARENTS} (default {NodesSpec.parents})")
     kind.check(scene)
 
 
@@ -715,8 +721,9 @@ class Scene:
     """A complete simulation set-up (see the module docstring and docs/scene.md).
 
     Only ``object`` and at least one material are required.  ``base_dir`` is
-    the folder relative paths were resolved against (informational; not
-    compared, not written).
+    the folder relative paths were resolved against and ``path`` the file the
+    scene was read from (informational: not compared, not written; a run
+    refuses to write its result over ``path``).
     """
 
     object: ObjectSpec
@@ -734,6 +741,7 @@ class Scene:
     membrane: MembraneSpec | None = None
     title: str | None = None
     base_dir: str | None = field(default=None, compare=False)
+    path: str | None = field(default=None, compare=False)
 
     def __post_init__(self):
         if not isinstance(self.object, ObjectSpec):
@@ -772,12 +780,16 @@ class Scene:
         """Read a scene file; relative paths in it are resolved against its folder."""
         path = Path(path)
         if not path.is_file():
-            raise InputError(f"scene file '{path}' not found; check the path")
+            from .errors import missing_file
+
+            raise missing_file(path, "scene file")
         try:
             text = path.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
             raise InputError(f"cannot read scene file '{path}': {exc}") from None
-        return cls.from_toml_text(text, base_dir=path.resolve().parent, source=str(path))
+        scene = cls.from_toml_text(text, base_dir=path.resolve().parent, source=str(path))
+        object.__setattr__(scene, "path", str(path.resolve()))  # the file a run must not overwrite
+        return scene
 
     @classmethod
     def from_toml_text(cls, text: str, *, base_dir=None, source: str = "scene") -> Scene:

@@ -71,7 +71,7 @@ def _cannot_recover(material) -> bool:
 
 
 def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: bool = False,
-             cache: bool = True, keep=None, every=None) -> Result:
+             cache: bool = True, keep=None, every=None, force: bool = False) -> Result:
     """Run a scene and return its :class:`~voxflex.result.Result`.
 
     Parameters
@@ -101,6 +101,11 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     cache : bool
         Frame models load / store their precompute in the on-disk cache
         (:mod:`voxflex.cache`); ``False`` recomputes it.
+    force : bool
+        Write the result file even over a file that is not a voxflex result or is an input of the run
+        (the scene file, its mesh or image); without it those are refused before anything runs, as
+        ``voxflex simulate`` refuses them without ``--force`` (one implementation:
+        :func:`voxflex.outputs.check_result_output`).
     verbose : bool
         Log the model's size and memory estimate and one line per Newton iteration
         (residual, step length, linear solver and its iterations, seconds) on stderr.
@@ -115,7 +120,8 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     Raises
     ------
     InputError
-        Bad scene (a label without material, a probe outside the material...).
+        Bad scene (a label without material, a probe outside the material, loads or constants beyond what
+        double precision or a solid carries: :mod:`voxflex.guards`), or an output that would destroy a file.
     ConvergenceError
         The solver did not converge (the message says what was tried).  The steps
         that converged before are written to ``output`` all the same, the file
@@ -124,8 +130,10 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     Warns
     -----
     InversionWarning
-        When samples of a material that cannot recover from inversion (StVK, Hooke
-        with the polar corotational strain) end a step with det F <= 0.
+        When samples end a step with det F <= 0 (for a material that cannot recover from inversion, StVK
+        or Hooke with the polar corotational strain, naming the materials that can).
+    ImplausibleStateWarning
+        When a state is more than :data:`voxflex.guards.GROWTH_WARN` times the body's rest size.
     """
     if not isinstance(scene, Scene):
         if isinstance(scene, (str, Path)):
@@ -138,9 +146,17 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     from .build import model as build_model
     from .scene import check_every, check_keep
 
+    from . import guards
+
     keep = scene.output.keep if keep is None else check_keep(keep)
     every = scene.output.every if every is None else check_every(every)
     target = output if output is not None else scene.output.file
+    if target is not None:  # the checks the command line makes, here for the Python API too
+        from .outputs import check_result_output, run_inputs
+
+        check_result_output(target, inputs=run_inputs(scene.path, scene), force=force,
+                            option="output" if output is not None else "[output] file",
+                            hint="pass force=True to overwrite it")
     model_bytes = None
     if model is None:
         from .resources import check as check_resources
@@ -152,6 +168,7 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
         _progress.announce((est.dofs, f"estimate: {est.summary()}"), force=verbose or (progress and est.seconds >= 60),
                            quiet=not progress)
         image = build_image(scene)
+        guards.check_magnitudes(scene, image)
         _progress.announce(image_estimate(image, scene), force=verbose, quiet=not progress)
         t0 = time.perf_counter()
         model = build_model(scene, image=image, cache=cache)
@@ -159,10 +176,14 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
             _progress.log(f"model built in {time.perf_counter() - t0:.2f} s")
     else:
         image = model.image
+        if image is not None:
+            guards.check_magnitudes(scene, image)
     _progress.announce(model_estimate(model, scene.solver.steps, model_bytes), force=verbose,
                        quiet=not progress)
 
     problem = problem_of(scene, model)
+    guards.check_held(problem)
+    guards.warn_locking(model, scene)
     probe_map = None
     if problem.probes:
         probe_map = model.point_mapping(np.array([point for _, point in problem.probes], dtype=float))
@@ -183,8 +204,11 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     def run():
         """Solve, the recorder taking every record; the failure (advice added) or None."""
         try:
-            problem.solve(callback=callback, newton_callback=newton_callback if (bar is not None or verbose) else None,
-                          sink=recorder)
+            # overflow and invalid-value warnings stay inside: Newton rejects non-finite trials, and the
+            # recorder refuses every accepted state that is not finite or not plausible (voxflex.guards)
+            with np.errstate(all="ignore"):
+                problem.solve(callback=callback,
+                              newton_callback=newton_callback if (bar is not None or verbose) else None, sink=recorder)
         except ConvergenceError as exc:
             advice = model.advice()
             failure = ConvergenceError(f"{exc}; note: {advice}" if advice else str(exc))
@@ -210,6 +234,8 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
                     recorder.close(error=None if failure is None else str(failure))
                 finally:
                     recorder.abort()
+    except _WriteFailed as exc:  # the temporary file is gone (atomic_path) and the old target untouched
+        raise exc.error from None
     finally:
         if bar is not None:
             bar.close()
@@ -218,6 +244,7 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     if failure is not None:
         raise ConvergenceError(f"{failure}; the {recorder.steps_done} step(s) that converged were written to "
                                f"'{target}', marked incomplete") from None
+    recorder.check.warn()
     _warn_inversion(model, recorder)
     if recorder.worst_residual[0] > ROUNDOFF_WARN * options.tolerance:
         res, step = recorder.worst_residual
@@ -260,13 +287,21 @@ def model_estimate(model, steps: int, model_bytes: float | None = None):
 
 
 def _warn_inversion(model, recorder) -> None:
-    """InversionWarning when a material that cannot recover had inverted samples after some step."""
+    """InversionWarning when samples inverted after some step: naming the materials that cannot recover, or
+    (any other material) saying that the state is not physical."""
     if recorder.first_inverted is None:
         return
     bad = sorted({m.name for m in model.materials.values() if _cannot_recover(m)})
-    if not bad:
-        return
     step, count = recorder.first_inverted
+    if not bad:
+        warnings.warn(
+            f"{count} samples inverted (det F <= 0; min det F {recorder.totals['min_det_F']:.3g}) from step {step} on: "
+            "such a state is not physical (with linear strain the load is far beyond small strains); use smaller "
+            "loads, more steps, or a finite-strain material such as \"stable-neo-hookean\"",
+            InversionWarning,
+            stacklevel=3,
+        )
+        return
     warnings.warn(
         f"{count} samples inverted (det F <= 0; min det F {recorder.totals['min_det_F']:.3g}) from step {step} on, "
         f"with {', '.join(bad)}, a material that cannot recover from inversion; use model = \"stable-neo-hookean\" "
@@ -324,6 +359,10 @@ class _Recorder:
         self.worst_residual = (0.0, 0)  # (largest relative residual a step was accepted at, its step)
         self.roundoff_steps = 0  # steps accepted at the round-off floor, above options.tolerance
         self.tolerance = float(options.tolerance)
+        from .guards import StateCheck
+
+        self.check = StateCheck(self.surf_rest)  # every accepted state: finite, in balance, of plausible size
+        self._surface = None  # (q, drawn surface positions) of the state being recorded
 
     @property
     def steps_done(self) -> int:
@@ -335,6 +374,11 @@ class _Recorder:
         from ._atomic import check_interrupted
 
         k = self.count
+        q = np.asarray(rec.q, dtype=float)
+        self.check.state(k, q, float(rec.residual) if k > 0 else 0.0)
+        surface = self.surf_map.apply(q)
+        self._surface = (rec.q, surface)
+        self.check.size(k, surface)
         self.count += 1
         inversion, location = self._inversion(rec.q)
         self.location = location
@@ -375,11 +419,16 @@ class _Recorder:
     def close(self, *, error=None) -> None:
         """Finish the file: the buffered rows, ``complete`` / ``error`` and the totals."""
         if self.writer is not None:
-            self.writer.close(complete=error is None, error=error or "", totals=self._totals())
+            with _writing(self):
+                self.writer.close(complete=error is None, error=error or "", totals=self._totals())
 
     def abort(self) -> None:
         if self.writer is not None:
-            self.writer.abort()
+            try:
+                self.writer.abort()
+            except Exception as exc:  # noqa: BLE001 - cleanup after a failed write: the file is discarded anyway
+                if not _io_failure(exc):
+                    raise
 
     # -- rows -------------------------------------------------------------
     def _inversion(self, q):
@@ -398,7 +447,8 @@ class _Recorder:
             positions = self.probe_map.apply(q)
             for i, (name, _) in enumerate(self.problem.probes):
                 row[f"probes/{name}"] = positions[i]
-        row["surface/positions"] = self.surf_map.apply(q)
+        drawn = self._surface
+        row["surface/positions"] = drawn[1] if drawn is not None and drawn[0] is rec.q else self.surf_map.apply(q)
         row["nodes/state"] = q
         row["energy/elastic"] = float(rec.elastic_energy)
         row["energy/kinetic"] = float(rec.kinetic_energy)
@@ -437,11 +487,12 @@ class _Recorder:
         elif self.kept is not None:
             self.kept.append(row)
         if self.path is not None:
-            if self.writer is None:
-                from .result import ResultWriter
+            with _writing(self):
+                if self.writer is None:
+                    from .result import ResultWriter
 
-                self.writer = ResultWriter(self.path, self._static())
-            self.writer.append(row)
+                    self.writer = ResultWriter(self.path, self._static())
+                self.writer.append(row)
 
     def _start(self, row) -> None:
         """Decide what the rest of the run holds in memory (``keep``), from the size of the rest state's row."""
@@ -479,6 +530,49 @@ class _Recorder:
         stacked = {key: np.stack([np.asarray(r[key]) for r in rows]) for key in rows[0]}
         return Result(**self._static(), **series_of(stacked), totals=self._totals(),
                       complete=error is None, error=error or "")
+
+
+class _WriteFailed(Exception):
+    """The result file could not be written (a full disk, a vanished folder): carries the one-line
+    :class:`~voxflex.errors.VoxflexError` the run ends with, past the solver's own error handling."""
+
+    def __init__(self, error):
+        super().__init__(str(error))
+        self.error = error
+
+
+def _io_failure(exc) -> bool:
+    """An OSError, or h5py's RuntimeError for a failed write (its message carries the system's errno)."""
+    if isinstance(exc, OSError):
+        return True
+    text = str(exc)
+    return isinstance(exc, RuntimeError) and ("errno =" in text or "write failed" in text)
+
+
+class _writing:
+    """Turns an OSError of the result writer into :class:`_WriteFailed` naming the file, the step and the cause."""
+
+    def __init__(self, recorder):
+        self.recorder = recorder
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, exc, tb):
+        if exc is None or not _io_failure(exc):
+            return False
+        import errno
+
+        from .errors import VoxflexError
+
+        code = getattr(exc, "errno", None)
+        text = str(exc)
+        full = code in (errno.ENOSPC, errno.EDQUOT) or "No space left" in text or "errno = 28" in text
+        cause = "the disk is full" if full else f"{type(exc).__name__}: {text.splitlines()[0] if text else ''}"
+        fix = "free disk space, record fewer states (--every K) or write elsewhere" if full else "write elsewhere"
+        raise _WriteFailed(VoxflexError(
+            f"writing the result failed after step {self.recorder.steps_done} ({cause}); nothing was replaced and "
+            f"no partial file remains; {fix}")) from None
 
 
 class _Reactions:

@@ -144,8 +144,8 @@ class TradeoffTable:
         The error the ranking uses: ``probe_error`` when the scene has probes,
         else ``surface_error``.
     skipped : list of (str, str)
-        Configurations that could not run and why (e.g. elastons with a
-        strain they cannot integrate, a solver that did not converge).
+        Configurations that could not run and why (e.g. samples that leave
+        a soft mode, a solver that did not converge).
     choice : dict or None
         With ``max_error``: the cheapest row (least ``total_seconds``) whose
         ranked error is within the budget, or None.
@@ -331,10 +331,7 @@ def tradeoff(scene, *, frames=(5, 10, 20, 40), samples=(100, 400), shape_functio
         Shape-function kinds (``natural-neighbour``, ``sibson``, ``laplace``,
         ``distance-ratio``, ``shepard``).
     quadratures : sequence of str
-        ``"midpoint"``, ``"elaston"``, ``"gauss-legendre"``.  Elastons need a
-        strain with a constant second derivative (linear, green,
-        corotational-small): with other strains those configurations are
-        skipped with a note.
+        ``"midpoint"``, ``"elaston"``, ``"gauss-legendre"`` (every material with each).
     reference : {"scene", "finer"}
         The voxel model on the scene's image, or on the image with every voxel
         split into 2x2x2 (about 8x the cost of the scene's own voxel model).
@@ -388,6 +385,8 @@ def tradeoff(scene, *, frames=(5, 10, 20, 40), samples=(100, 400), shape_functio
         raise InputError(f"workers must be a positive number of worker processes, got {workers!r}")
     if scheduler is not None and (not isinstance(scheduler, str) or not scheduler.strip()):
         raise InputError(f"scheduler must be a Dask scheduler address such as tcp://host:8786, got {scheduler!r}")
+    if scheduler is not None:
+        probe_scheduler(scheduler)  # before the reference runs: a wrong address fails in seconds, not after it
     return _tradeoff_impl(scene, frames, samples, shape_functions, quadratures, reference, int(voxel_levels),
                           max_error, workers, scheduler, progress)
 
@@ -424,6 +423,7 @@ def _tradeoff_impl(scene, frames, samples, shape_functions, quadratures, referen
 
     base = build_image(scene)
     ref_level = 1 if reference == "finer" else 0
+    _check_levels(base, voxel_levels - ref_level, voxel_levels)
     ref_kind, swept = reference_kind(), default_kind()
     voxel_q = scene.elasticity.quadrature if scene.nodes.kind == ref_kind.name else ref_kind.default_quadrature
     configs = [Configuration(ref_kind.name, role="reference", level=ref_level, quadrature=voxel_q)]
@@ -495,6 +495,29 @@ def _warm_key(c: Configuration):
     return (c.kind, c.quadrature, c.shape_function)
 
 
+def _check_levels(image, merges: int, voxel_levels: int) -> None:
+    """InputError when merging 2x2x2 blocks ``merges`` times leaves no material (or less than a voxel along
+    an axis) in the image; the message names the largest ``voxel_levels`` that works."""
+    out, done = image, 0
+    while done < merges:
+        labels = np.asarray(out.labels)
+        if min(labels.shape) < 2:
+            break
+        merged = _merge(out)
+        if not np.any(np.asarray(merged.labels) > 0):
+            break
+        out, done = merged, done + 1
+    if done == merges:
+        return
+    shape = " x ".join(map(str, np.asarray(image.labels).shape))
+    last = " x ".join(map(str, np.asarray(out.labels).shape))
+    allowed = voxel_levels - (merges - done)
+    fix = f"use voxel_levels <= {allowed}" if allowed >= 1 else "use a finer voxel size or --reference finer"
+    raise InputError(f"voxel_levels = {voxel_levels} asks for grids down to 2^{merges} times coarser than the image "
+                     f"({shape} voxels), but {done} halving(s) leave {last} voxels and another leaves no material; "
+                     f"{fix}")
+
+
 def _level_size(image, level) -> float:
     return float(np.max(image.spacing)) * 2.0 ** (-level)
 
@@ -540,6 +563,49 @@ def _merge(image):
 
 
 # -- running --------------------------------------------------------------------
+SCHEDULER_WAIT = 5.0
+"""Seconds to wait for a Dask scheduler's greeting (it sends its handshake as soon as a client connects)."""
+
+
+def probe_scheduler(address: str, wait: float = SCHEDULER_WAIT) -> None:
+    """InputError unless a Dask scheduler answers at ``address`` within ``wait`` seconds.
+
+    A ``tcp://host:port`` address (or ``host:port``) is probed with a plain socket: a Dask scheduler
+    greets every connection with its handshake (msgpack naming ``compression`` and ``pickle-protocol``);
+    anything else -- nothing listening, a server that says nothing, a web server -- is refused, where
+    the Dask client would wait for a handshake that never comes.  Other schemes (``tls://``, ``ucx://``)
+    are left to the client.
+    """
+    import socket
+
+    scheme, sep, rest = address.strip().partition("://")
+    if not sep:
+        scheme, rest = "tcp", address.strip()
+    if scheme != "tcp":
+        return
+    host, colon, port = rest.rstrip("/").rpartition(":")
+    if not colon or not port.isdigit() or not host:
+        raise InputError(f"scheduler address '{address}' must be tcp://HOST:PORT (e.g. tcp://head:8786)")
+    host = host.strip("[]")
+    try:
+        with socket.create_connection((host, int(port)), timeout=wait) as sock:
+            sock.settimeout(wait)
+            greeting = b""
+            deadline = time.monotonic() + wait
+            while b"pickle-protocol" not in greeting and time.monotonic() < deadline and len(greeting) < 4096:
+                chunk = sock.recv(4096)
+                if not chunk:
+                    break
+                greeting += chunk
+    except socket.timeout:
+        raise InputError(f"'{address}' accepted the connection but sent no Dask handshake within {wait:g} s: it is "
+                         "not a Dask scheduler; check the address and the port") from None
+    except OSError as exc:
+        raise InputError(f"cannot reach the Dask scheduler at '{address}' ({exc.strerror or exc}); check the address "
+                         "and that the scheduler runs") from None
+    if b"compression" not in greeting or b"pickle-protocol" not in greeting:
+        raise InputError(f"'{address}' answered, but not with a Dask scheduler's handshake: it is not a Dask "
+                         "scheduler; check the address and the port")
 def _run_all(tasks, workers, scheduler, bar) -> list:
     if workers is None and scheduler is None:
         out = []

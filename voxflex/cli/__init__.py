@@ -61,6 +61,10 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 1
+    import warnings
+
+    previous = warnings.formatwarning
+    _one_line_warnings(args.command)
     try:
         return int(args.func(args) or 0)
     except VoxflexError as exc:
@@ -82,6 +86,25 @@ def main(argv=None) -> int:
             file=sys.stderr,
         )
         return 2
+    except OSError as exc:  # the system refused a read or a write the checks could not foresee
+        where = f" '{str(exc.filename)[:120]}'" if exc.filename else ""
+        print(f"voxflex {args.command}: error: the system refused{where}: {exc.strerror or exc}; check the path, "
+              "its permissions and the free space", file=sys.stderr)
+        return 2
+    finally:
+        warnings.formatwarning = previous
+
+
+def _one_line_warnings(command: str) -> None:
+    """Warnings print as one line on stderr, ``voxflex COMMAND: warning: MESSAGE (Category)``, without the
+    source location and line Python adds (which name voxflex's internals, not the user's input)."""
+    import warnings
+
+    def one_line(message, category, filename, lineno, line=None):
+        text = " ".join(str(message).split())
+        return f"voxflex {command}: warning: {text} ({category.__name__})\n"
+
+    warnings.formatwarning = one_line
 
 
 def entry() -> None:

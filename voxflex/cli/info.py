@@ -12,7 +12,7 @@ import argparse
 import importlib
 from pathlib import Path
 
-from ..errors import InputError, VoxflexError
+from ..errors import VoxflexError
 
 _EPILOG = """\
 supported image files: .npy (+ NAME.npy.json) .npz .nii .nii.gz .nrrd .mha .mhd
@@ -81,15 +81,20 @@ def _is_result_file(path: Path) -> bool:
 
     try:
         with h5py.File(str(path), "r") as f:
-            return "time" in f
-    except OSError:
-        return False  # not HDF5 or damaged: the image reader reports it
+            try:
+                return "time" in f or "voxflex_version" in f.attrs
+            except (RuntimeError, KeyError, ValueError):
+                return "voxflex_version" in f.attrs or f.attrs.get("format") is not None  # damaged: Result.load says so
+    except (OSError, RuntimeError, KeyError, ValueError):
+        return False  # not HDF5: the image reader reports it
 
 
 def run(args) -> int:
     path = Path(args.file)
-    if not path.exists():
-        raise InputError(f"file '{path}' not found; check the path")
+    if not path.is_file():
+        from ..errors import missing_file
+
+        raise missing_file(path, "file")
     name = path.name.lower()
     if name.endswith(".toml"):
         text = _describer("voxflex.scene", "describe_scene", "scene")(path)

@@ -92,7 +92,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     try:
         result = simulate(scene, progress=not args.quiet, output=output, verbose=args.verbose,
-                          cache=not args.no_cache, keep=args.keep, every=args.every)
+                          cache=not args.no_cache, keep=args.keep, every=args.every, force=args.force)
     except NotImplementedError as exc:
         from ..errors import VoxflexError
 
@@ -151,12 +151,7 @@ def _every_state(result, output):
 
 def check_outputs(args, scene, scene_path, output) -> None:
     """Validate -o (or the scene's [output] file), --render and --vtk before the run starts."""
-    from ._outputs import (
-        check_render_output,
-        check_result_output,
-        check_vtk_output,
-        run_inputs,
-    )
+    from ._outputs import check_render_output, check_result_output, check_vtk_output, run_inputs
 
     inputs = run_inputs(scene_path, scene)
     option = "-o" if args.output else "[output] file"

@@ -164,11 +164,11 @@ def read_image(path, *, spacing=None) -> dict:
         missing voxel size.
     """
     path = Path(path)
+    if not path.is_file():  # a folder is named as one, before its (missing) extension is judged
+        from ..errors import missing_file
+
+        raise missing_file(path, "image file")
     fmt = image_format(path)
-    if not path.exists():
-        raise InputError(f"image file '{path}' not found; check the path")
-    if path.is_dir():
-        raise InputError(f"'{path}' is a folder, not an image file; give the file's path")
     given = None
     if spacing is not None:
         given = _given_spacing(spacing)

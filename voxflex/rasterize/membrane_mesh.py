@@ -126,6 +126,10 @@ def load_membrane_mesh(path, *, up: str = "z"):
     from .orient import up_rotation
 
     path = Path(path)
+    if path.is_dir():  # named as a folder, not as a bad extension
+        from ..errors import missing_file
+
+        raise missing_file(path, "mesh file")
     if path.suffix.lower() not in MESH_EXTENSIONS:
         raise InputError(f"'{path}' is not a surface mesh file; use one of {' '.join(MESH_EXTENSIONS)}")
     if not path.is_file():

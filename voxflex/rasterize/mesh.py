@@ -79,7 +79,8 @@ class SurfaceMesh:
             raise InputError(f"{name}: every triangle is degenerate (repeated vertices); the mesh encloses nothing")
         lo, hi = self._span(vertices, faces)
         if np.any(hi - lo <= 0):
-            raise InputError(f"{name}: the mesh is flat (zero extent along an axis); it encloses no volume")
+            raise InputError(f"{name}: the mesh is flat (zero extent along an axis), so it encloses no volume to fill "
+                             'with voxels; a flat sheet is a membrane: [nodes] kind = "membrane" with a [membrane] table')
         for arr in (vertices, faces):
             arr.setflags(write=False)
         object.__setattr__(self, "vertices", vertices)
@@ -120,6 +121,10 @@ def load_mesh(path) -> SurfaceMesh:
         triangles, NaN/inf coordinates.
     """
     path = Path(path)
+    if path.is_dir():  # named as a folder, not as a bad extension
+        from ..errors import missing_file
+
+        raise missing_file(path, "mesh file")
     ext = path.suffix.lower()
     if ext not in MESH_EXTENSIONS:
         raise InputError(

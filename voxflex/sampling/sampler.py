@@ -43,6 +43,7 @@ import warnings
 
 import numpy as np
 
+from .._ties import first_extreme, tie_key
 from ..errors import InputError, check_choice
 from ..image import LabelImage
 from ..voronoi.shape_functions import ShapeValues
@@ -238,7 +239,7 @@ def _farthest_point_lloyd(ctx, cand, k, seed, iterations=None):
     seeds = [int(cand[rng.integers(len(cand))])]
     g.propagate(group, seeds[-1:], [0], dist, owner)
     while True:
-        v = int(np.argmax(dist))
+        v = first_extreme(dist, "max")  # ties broken scale-free (voxflex._ties)
         if dist[v] <= 0.0 or (len(seeds) >= k and np.isfinite(dist[v])):
             break
         seeds.append(v)
@@ -250,7 +251,7 @@ def _farthest_point_lloyd(ctx, cand, k, seed, iterations=None):
         own = owner[cand]
         vol = np.bincount(own, weights=wt, minlength=k)
         c = np.stack([np.bincount(own, weights=wt * x[:, a], minlength=k) for a in range(3)], axis=1) / vol[:, None]
-        d2 = ((x - c[own]) ** 2).sum(1)
+        d2 = tie_key(((x - c[own]) ** 2).sum(1), ctx.h**2)
         order = np.lexsort((cand, d2, own))
         first = np.searchsorted(own[order], np.arange(k))
         new = cand[order[first]]
@@ -297,8 +298,8 @@ def _elaston_regions(ctx, vv, count):
         vox = members[r]
         if len(vox) < 2:
             return
-        err = _linear_error(ctx.centres[vox], ctx.occ[vox], w_s[vox])
-        heapq.heappush(heap, (-err, -float(ctx.occ[vox].sum()), r))
+        err = _linear_error(ctx.centres[vox], ctx.occ[vox], w_s[vox])  # dimensionless: ties scale-free
+        heapq.heappush(heap, (-float(tie_key(err, 1.0)), -float(tie_key(ctx.occ[vox].sum(), 1.0)), r))
 
     for r in range(n0):
         push(r)
@@ -378,7 +379,9 @@ def _split(ctx, vox, region, dist, owner, iterations=2):
     x, wt = ctx.centres[vox], ctx.occ[vox]
     c = (wt @ x) / wt.sum()
     d2 = ((x - c) ** 2).sum(1)
-    seeds = np.array([vox[np.argmin(d2)], vox[np.argmax(d2)]], dtype=np.int64)
+    near = first_extreme(d2, "min")
+    far = first_extreme(np.where(np.arange(len(vox)) == near, -np.inf, d2), "max") if len(vox) > 1 else near
+    seeds = np.array([vox[near], vox[far]], dtype=np.int64)
     if seeds[0] == seeds[1]:
         return vox, vox[:0]
     for it in range(iterations + 1):
@@ -398,7 +401,7 @@ def _split(ctx, vox, region, dist, owner, iterations=2):
             if not sel.any():
                 break
             cs = (wt[sel] @ x[sel]) / wt[sel].sum()
-            new[s] = vox[sel][np.argmin(((x[sel] - cs) ** 2).sum(1))]
+            new[s] = vox[sel][first_extreme(((x[sel] - cs) ** 2).sum(1), "min")]
         if np.array_equal(new, seeds) or new[0] == new[1]:
             break
         seeds = new

@@ -24,7 +24,9 @@ class VoxelSamples:
     points : (m, 3) float, world (m)
     volume : (m,) float (m^3)
     label : (m,) int, the material label of each sample
-    values : ShapeValues of the samples (with Hessians for elastons)
+    values : ShapeValues of the samples
+    region : (m,) int or None, the sampling region of each point (elastons' sub-rules: several points
+        per region), else None
     """
 
     kind: str
@@ -32,6 +34,7 @@ class VoxelSamples:
     volume: np.ndarray
     label: np.ndarray
     values: ShapeValues
+    region: np.ndarray | None = None
 
 
 def voxel_samples(image, shape_function: Callable, *, rule: str = "gauss-legendre", use_occupancy: bool = True) -> VoxelSamples:

@@ -63,6 +63,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._ties import first_extreme
+
 from ..errors import InputError, check_choice
 from . import _march as M
 from .geodesic import _centres, _prepare, _seed_voxels
@@ -284,7 +286,7 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     while len(frames) < count:
         dm = dist[mflat]
         dm = np.where(np.isfinite(dm), dm, -1.0)
-        v = int(np.argmax(dm))
+        v = int(first_extreme(dm, "max"))
         frames.append(centres[v])
         frame_vox.append(v)
         M.march(mask, cost, pshape, spacing, seeds_of(centres[v]), [len(frames) - 1], fmm=0, dist=dist, owner=owner)
@@ -365,7 +367,7 @@ def _pinned(image, positions, boxes, material, vox_id, centres):
             continue
         sel = np.flatnonzero(inside)
         c = centres[sel].mean(axis=0)
-        v = int(sel[np.argmin(((centres[sel] - c) ** 2).sum(1))])
+        v = int(sel[first_extreme(((centres[sel] - c) ** 2).sum(1), "min")])
         frames.append(centres[v])
         frame_vox.append(v)
     return frames, frame_vox, n_user

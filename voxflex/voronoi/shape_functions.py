@@ -195,7 +195,8 @@ def keep_largest(values: ShapeValues, parents: int, *, backend: str = "numba") -
     ``ddw' = (ddw - dw' dS^T - dS dw'^T - w' ddS) / S`` — the exact derivatives of the
     renormalised functions while the kept set does not change (it jumps where the
     set changes: that is the cost of a bounded number of parents).  Ties keep the
-    first slot.  ``backend="numba"``: :func:`_keep_largest_kernel` (0.55 s of numpy on the
+    lowest frame index (not the first slot: slot order comes from sorts on rounded
+    values and differs between units).  ``backend="numba"``: :func:`_keep_largest_kernel` (0.55 s of numpy on the
     bunny's 94k voxel centres at 2 mm); ``"numpy"``: its twin.
     """
     parents = int(parents)
@@ -203,6 +204,9 @@ def keep_largest(values: ShapeValues, parents: int, *, backend: str = "numba") -
         raise InputError(f"parents must be >= 1, got {parents}")
     if values.n_parents <= parents:
         return values
+    # weights equal to 1e-12 tie (the lowest frame wins): the same scene in other units rounds its weights
+    # differently, and must keep the same parents (a 1 cm beam kept others than the 1 m beam: 0.05 % off)
+    key = np.round(values.w, 12)
     if backend != "numpy":
         m = values.m
         hess = values.ddw is not None
@@ -210,10 +214,12 @@ def keep_largest(values: ShapeValues, parents: int, *, backend: str = "numba") -
         w = np.zeros((m, parents))
         dw = np.zeros((m, parents, 3))
         ddw = np.zeros((m, parents, 3, 3)) if hess else np.zeros((1, 1, 3, 3))
-        _keep_largest_kernel(values.index, values.w, values.dw, values.ddw if hess else np.zeros((1, 1, 3, 3)),
-                             hess, idx, w, dw, ddw)
+        _keep_largest_kernel(values.index, key, values.w, values.dw,
+                             values.ddw if hess else np.zeros((1, 1, 3, 3)), hess, idx, w, dw, ddw)
         return ShapeValues(index=idx, w=w, dw=dw, ddw=ddw if hess else None, rest=values.rest, n_nodes=values.n_nodes)
-    order = np.argsort(-np.where(values.index >= 0, values.w, -np.inf), axis=1, kind="stable")[:, :parents]
+    big = np.iinfo(np.int64).max
+    order = np.lexsort((np.where(values.index >= 0, values.index, big),
+                        -np.where(values.index >= 0, key, -np.inf)), axis=1)[:, :parents]
     r = np.arange(values.m)[:, None]
     idx = values.index[r, order]
     keep = idx >= 0
@@ -234,9 +240,10 @@ def keep_largest(values: ShapeValues, parents: int, *, backend: str = "numba") -
 
 
 @njit
-def _keep_largest_kernel(index, w, dw, ddw, hess, out_idx, out_w, out_dw, out_ddw):  # pragma: no cover
+def _keep_largest_kernel(index, key, w, dw, ddw, hess, out_idx, out_w, out_dw, out_ddw):  # pragma: no cover
     """Compiled :func:`keep_largest` (the numpy path is its twin): per child, the slots sorted by
-    decreasing weight (stable), the first ``out_idx.shape[1]`` kept and renormalised."""
+    decreasing ``key`` (the weights rounded to 12 digits; ties by increasing frame index), the first
+    ``out_idx.shape[1]`` kept and renormalised."""
     m, P = index.shape
     K = out_idx.shape[1]
     order = np.empty(P, np.int64)
@@ -245,11 +252,12 @@ def _keep_largest_kernel(index, w, dw, ddw, hess, out_idx, out_w, out_dw, out_dd
     H = np.empty((3, 3))
     for s in range(m):
         nv = 0
-        for t in range(P):  # valid slots, stable insertion by decreasing weight
+        for t in range(P):  # valid slots, insertion by decreasing weight, then increasing frame index
             if index[s, t] < 0:
                 continue
             r = nv - 1
-            while r >= 0 and w[s, order[r]] < w[s, t]:
+            while r >= 0 and (key[s, order[r]] < key[s, t]
+                              or (key[s, order[r]] == key[s, t] and index[s, order[r]] > index[s, t])):
                 order[r + 1] = order[r]
                 r -= 1
             order[r + 1] = t

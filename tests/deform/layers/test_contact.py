@@ -52,7 +52,6 @@ def _run(model, *, f, fixed=(), M=None, dt=0.01, steps=10, tolerance=1e-10, x_fi
         factor = k / steps
         if M is None:
             start = x.copy()
-            problem_args = dict(f=factor * f)
         else:
             xhat = x + dt * v
             start = xhat.copy()

@@ -94,6 +94,12 @@ __all__ = ["ContactModel", "collision_points", "barrier", "friction_mollifier", 
 DISTANCE_FRACTION = 0.01
 """Default activation distance: this fraction of the smallest voxel spacing (so the gap at rest is below 1 %)."""
 
+VERTEX_SHARE = 0.25
+"""Share of the boundary area the ``"surface"`` rule gives to the drawn surface's vertices (the rest stays
+with the 2x2 Gauss points of the faces).  Colliding the vertices too keeps what a render draws out of
+every half-space obstacle: a box dropped on a plane tilted by 22 degrees sank its corner 6.8 % of a
+voxel into it with the face points alone; a triangle whose vertices are above a plane is above it."""
+
 SLIP_FRACTION = 0.01
 """Default friction slip distance ``eps``: this fraction of the activation distance (a stuck point creeps
 by less than ``eps`` per step)."""
@@ -168,7 +174,9 @@ def collision_points(model, points="surface"):
     model : Model
     points : "surface", "vertices", int or (m, 3) array
         ``"surface"``: the 2x2 Gauss points of every voxel face exposed to empty space
-        (:meth:`Model.load_surface`); an integer k: k x k Gauss points per face
+        (:meth:`Model.load_surface`) and the vertices of the drawn surface (:meth:`Model.boundary_surface`),
+        which share the area (:data:`VERTEX_SHARE` to the vertices), so that nothing drawn enters a plane;
+        an integer k: k x k Gauss points per face
         (k = 1: the face centres); ``"vertices"``: the vertices of the boundary surface
         (a third of each adjacent triangle's area); an array: these rest points,
         each standing for the mean area of a surface point.
@@ -183,12 +191,11 @@ def collision_points(model, points="surface"):
             raise InputError(f"contact points must be one of {', '.join(POINT_RULES)} or a count per face edge, "
                              f"got '{points}'")
         if points == "vertices":
-            V, faces, _ = model.boundary_surface()
-            tri = V[faces]
-            area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-            share = np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(V))
-            return np.asarray(V, dtype=float), share
-        k = 2
+            return _vertex_points(model)
+        surface = model.load_surface(2)
+        V, share = _vertex_points(model)
+        return (np.vstack([surface.points, V]),
+                np.concatenate([(1.0 - VERTEX_SHARE) * surface.weight, VERTEX_SHARE * share]))
     elif isinstance(points, (int, np.integer)) and not isinstance(points, bool):
         k = int(points)
         if not 1 <= k <= 8:
@@ -202,6 +209,17 @@ def collision_points(model, points="surface"):
         return pts, np.full(len(pts), area / len(pts))
     surface = model.load_surface(k)
     return surface.points, surface.weight
+
+
+def _vertex_points(model):
+    """The drawn surface's rest vertices (V, 3) and the area each stands for (a third of each adjacent
+    triangle's)."""
+    V, faces, _ = model.boundary_surface()
+    V = np.asarray(V, dtype=float)
+    tri = V[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    share = np.bincount(np.asarray(faces).ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(V))
+    return V, share
 
 
 def _largest_young(model) -> float | None:

@@ -318,16 +318,33 @@ class DistanceField(Obstacle):
         label image (see :meth:`from_labels`)."""
         path = Path(path)
         if not path.is_file():
-            raise InputError(f"obstacle file '{path}' not found; check the path")
+            from ...errors import missing_file
+
+            raise missing_file(path, "obstacle file")
         if path.suffix.lower() == ".npz":
-            with np.load(path) as z:
-                if "distance" in z:
-                    missing = [k for k in ("spacing", "origin") if k not in z]
-                    if missing:
-                        raise InputError(f"signed-distance file '{path}' lacks '{missing[0]}'; store spacing and origin")
-                    return cls(distance=z["distance"], spacing=z["spacing"], origin=z["origin"],
-                               direction=z["direction"] if "direction" in z else None, friction=friction,
-                               motion=motion)
+            try:
+                with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # fh closed if np.load fails
+                    if "distance" in z:
+                        missing = [k for k in ("spacing", "origin") if k not in z]
+                        if missing:
+                            raise InputError(f"signed-distance file '{path}' lacks '{missing[0]}'; store spacing "
+                                             "and origin")
+                        arrays = {k: z[k] for k in ("distance", "spacing", "origin", "direction") if k in z}
+                        for k, a in arrays.items():
+                            if not np.issubdtype(a.dtype, np.number):
+                                raise InputError(f"signed-distance file '{path}': '{k}' must be numbers, got {a.dtype}")
+                        return cls(distance=arrays["distance"], spacing=arrays["spacing"], origin=arrays["origin"],
+                                   direction=arrays.get("direction"), friction=friction, motion=motion)
+                    if "labels" not in z:
+                        found = ", ".join(repr(k) for k in z.files) or "nothing"
+                        raise InputError(f"obstacle file '{path}' holds neither 'distance' (a signed-distance image "
+                                         f"with spacing and origin) nor 'labels' (a label image); found {found}")
+            except InputError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - a damaged or foreign .npz (zip, pickle, CRC, truncation)
+                reason = " ".join(str(exc).split())[:160] or type(exc).__name__
+                raise InputError(f"obstacle file '{path}' cannot be read as a .npz signed-distance or label image "
+                                 f"({reason}); write it again with numpy.savez") from None
         from ...image import LabelImage
 
         return cls.from_labels(LabelImage.load(path), friction=friction, motion=motion)

@@ -290,8 +290,10 @@ class PlasticModel(ModelLayer):
     Parameters
     ----------
     inner : Model
-        A voxel model or an affine-frame model with point samples, built with
-        the plastic materials (labels without one stay elastic).
+        A voxel model or an affine-frame model, built with the plastic materials (labels
+        without one stay elastic).  Frame quadratures of point samples: Gauss-Legendre, elastons
+        (their sub-rules' points) and bare mid-point regions; stabilised mid-point regions are
+        refused (their fluctuation term, :mod:`voxflex.deform.models.frames.stabilise`, is elastic).
     stationary : float
         Settling threshold, a fraction of each material's yield strain (default :data:`STATIONARY`).
 
@@ -307,7 +309,7 @@ class PlasticModel(ModelLayer):
     Raises
     ------
     InputError
-        No plastic material; rigid frames, elastons or a reduced volumetric term (F-bar) on a plastic
+        No plastic material; rigid frames, stabilised mid-point regions or a reduced volumetric term (F-bar) on a plastic
         label; a voxel label too large to be evaluated in one call (see the module docstring).
     """
 
@@ -336,6 +338,8 @@ class PlasticModel(ModelLayer):
             mat.size(len(ids))
             self.plastic[lab] = (mat, ids)
         self.history = deque([self._snapshot()], maxlen=2)
+        self._pairs = []  # Anderson's passes of the current step (set here: the layer forwards unknown
+        # attributes to the model, and the frame model has a `_pairs` table of its own)
 
     def _snapshot(self) -> dict:
         return {lab: (m.plastic_strain.copy(), m.alpha.copy()) for lab, (m, _) in self.plastic.items()}
@@ -392,7 +396,7 @@ class PlasticModel(ModelLayer):
         Only the iterates change: a step settles where the return map reproduces its input, so
         the committed state is an exact return map of the converged solution either way.
         """
-        pairs = getattr(self, "_pairs", [])
+        pairs = self._pairs
         pairs.append((x, g))
         self._pairs = pairs = pairs[-(ANDERSON_DEPTH + 1):]
         if len(pairs) < 2:

@@ -91,84 +91,83 @@ def _inverse_products(Finv):
     return np.einsum("eli,ejk->eijkl", Finv, Finv).reshape(-1, 9, 9)
 
 
-def _bar_evaluate(material, F, Fg, *, linear, gradient=True, tangent=True):
-    """Derivatives of ``W(Phi(F, F_g))`` per sample in (F, F_g) (numpy).
+def bar_scalar(material, F, Jbar, *, linear, gradient=True, tangent=True):
+    """Derivatives of ``W(Phi(F, Jbar))`` per sample in (F, Jbar).
 
-    ``Phi = (det F_g / det F)^(1/3) F`` (F-bar) or, with ``linear``, its linearisation
-    ``F + (tr F_g - tr F) I / 3`` (B-bar).  With ``r = (det F_g / det F)^(1/3)``,
-    ``l = ln r`` (dl = ``(-F^-T : dF + F_g^-T : dF_g) / 3``), ``P~``, ``A~`` the material's stress
-    and tangent at ``Phi`` and ``s = P~ : F``: dPhi/dF = ``r I + r vec F (x) dl/dF``,
-    dPhi/dF_g = ``r vec F (x) dl/dF_g``, and the second-order term
-    ``P~ : d2Phi = s r (dl dl^T + d2l) + r (dl p^T + p dl^T)`` with ``p = (P~, 0)`` and
-    ``d2l = diag(T(F), -T(F_g)) / 3``.
+    ``Phi = (Jbar / det F)^(1/3) F`` (F-bar: the sample keeps its isochoric part and
+    takes the volume ratio ``Jbar``) or, with ``linear``, ``F + (Jbar - tr F) I / 3``
+    (B-bar: ``Jbar`` is then a trace).  F-bar, with ``r = (Jbar / det F)^(1/3)``,
+    ``l = ln r`` (``dl/dF = lF = -F^-T / 3``, ``dl/dJbar = lJ = 1 / (3 Jbar)``), ``P~``,
+    ``A~`` the material's stress and tangent at Phi and ``s = P~ : Phi``:
+    ``dPhi/dF = a = r (I + vec F (x) lF)``, ``dPhi/dJbar = b = r lJ vec F``;
+    ``gF = r P~ + s lF``, ``gJ = s lJ``;
+    ``HFF = a^T A~ a + r (lF (x) P~ + P~ (x) lF) + s (lF (x) lF + T(F) / 3)``,
+    ``HFJ = a^T A~ b + r lJ P~ + s lJ lF``, ``HJJ = b^T A~ b + s (lJ^2 - 1 / (3 Jbar^2))``
+    (``T`` as in :func:`_inverse_products`, ``-d2 ln det F``).
 
     Parameters
     ----------
-    F, Fg : (k, 3, 3) float, the sample's and its group's mean deformation gradient
+    F : (k, 3, 3) float, the samples' deformation gradients
+    Jbar : (k,) float, their projected volume ratios (traces with ``linear``)
 
     Returns
     -------
-    W : (k,) energy density (Pa), +inf where ``det F det F_g <= 0`` (F-bar)
-    gF, gG : (k, 9) dW/dF, dW/dF_g (Pa) or None
-    HFF, HFG, HGG : (k, 9, 9) second derivatives (Pa) or None
+    W : (k,) energy density (Pa), +inf where ``Jbar / det F <= 0`` (F-bar)
+    gF : (k, 9) dW/dF (Pa) or None;  gJ : (k,) dW/dJbar (Pa) or None
+    HFF : (k, 9, 9), HFJ : (k, 9), HJJ : (k,) second derivatives (Pa) or None
     """
     k = len(F)
+    Jbar = np.asarray(Jbar, dtype=float)
     if linear:
-        Ft = F + ((np.trace(Fg, axis1=1, axis2=2) - np.trace(F, axis1=1, axis2=2)) / 3.0)[:, None, None] * np.eye(3)
+        Ft = F + ((Jbar - np.trace(F, axis1=1, axis2=2)) / 3.0)[:, None, None] * np.eye(3)
         if not (gradient or tangent):
-            energy = getattr(material, "energy", None)
-            return (energy(Ft) if energy is not None else material.evaluate(Ft, tangent=False)[0]), None, None, \
-                None, None, None
+            return material.energy(Ft), None, None, None, None, None
         W, Pt, At = material.evaluate(Ft, tangent=tangent)
         Pt = Pt.reshape(k, 9)
-        b = np.outer(_I9, _I9) / 3.0
-        a = np.eye(9) - b
-        gF, gG = Pt @ a, Pt @ b
+        a = np.eye(9) - np.outer(_I9, _I9) / 3.0
+        b = _I9 / 3.0
+        gF, gJ = Pt @ a, Pt @ b
         if not tangent:
-            return W, gF, gG, None, None, None
+            return W, gF, gJ, None, None, None
         At = At.reshape(k, 9, 9)
-        return W, gF, gG, a @ At @ a, a @ At @ b, b @ At @ b
+        return W, gF, gJ, a @ At @ a, (a @ At) @ b, np.einsum("i,kij,j->k", b, At, b)
     J = np.linalg.det(F)
-    Jg = np.linalg.det(Fg)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = Jg / J
+        ratio = Jbar / J
     ok = np.isfinite(ratio) & (ratio > 0)
+    bad = ~ok
     r = np.where(ok, np.cbrt(np.where(ok, ratio, 1.0)), 1.0)
     Fs = np.where(ok[:, None, None], F, np.eye(3))
+    Js = np.where(ok, Jbar, 1.0)
     Ft = r[:, None, None] * Fs
-    bad = ~ok
     if not (gradient or tangent):
-        energy = getattr(material, "energy", None)
-        W = energy(Ft) if energy is not None else material.evaluate(Ft, tangent=False)[0]
-        return np.where(bad, np.inf, W), None, None, None, None, None
+        return np.where(bad, np.inf, material.energy(Ft)), None, None, None, None, None
     W, Pt, At = material.evaluate(Ft, tangent=tangent)
     W = np.where(bad, np.inf, W)
     Pt = Pt.reshape(k, 9)
     Finv = np.linalg.inv(Fs)
-    Fgs = np.where(ok[:, None, None], Fg, np.eye(3))
-    Fginv = np.linalg.inv(Fgs)
     lF = -Finv.transpose(0, 2, 1).reshape(k, 9) / 3.0
-    lG = Fginv.transpose(0, 2, 1).reshape(k, 9) / 3.0
-    s = np.einsum("ei,ei->e", Pt, Fs.reshape(k, 9))
-    gF = r[:, None] * Pt + (r * s)[:, None] * lF
-    gG = (r * s)[:, None] * lG
+    lJ = 1.0 / (3.0 * Js)
+    Fv = Fs.reshape(k, 9)
+    s = r * np.einsum("ei,ei->e", Pt, Fv)  # P~ : Phi
+    gF = r[:, None] * Pt + s[:, None] * lF
+    gJ = s * lJ
     if np.any(bad):
         gF[bad] = np.nan
-        gG[bad] = np.nan
+        gJ[bad] = np.nan
     if not tangent:
-        return W, gF, gG, None, None, None
+        return W, gF, gJ, None, None, None
     At = At.reshape(k, 9, 9)
-    Fv = Fs.reshape(k, 9)
-    a = r[:, None, None] * (np.eye(9)[None] + Fv[:, :, None] * lF[:, None, :])  # dPhi/dF (k, 9, 9)
-    b = r[:, None, None] * Fv[:, :, None] * lG[:, None, :]  # dPhi/dF_g
-    aT = a.transpose(0, 2, 1)
-    sr = (s * r)[:, None, None]
     rr = r[:, None, None]
-    HFF = aT @ At @ a + sr * (lF[:, :, None] * lF[:, None, :] + _inverse_products(Finv) / 3.0) \
+    a = rr * (np.eye(9)[None] + Fv[:, :, None] * lF[:, None, :])  # dPhi/dF (k, 9, 9)
+    b = (r * lJ)[:, None] * Fv  # dPhi/dJbar (k, 9)
+    aT = a.transpose(0, 2, 1)
+    HFF = aT @ At @ a + s[:, None, None] * (lF[:, :, None] * lF[:, None, :] + _inverse_products(Finv) / 3.0) \
         + rr * (lF[:, :, None] * Pt[:, None, :] + Pt[:, :, None] * lF[:, None, :])
-    HFG = aT @ At @ b + sr * (lF[:, :, None] * lG[:, None, :]) + rr * (Pt[:, :, None] * lG[:, None, :])
-    HGG = b.transpose(0, 2, 1) @ At @ b + sr * (lG[:, :, None] * lG[:, None, :] - _inverse_products(Fginv) / 3.0)
+    Ab = np.einsum("kij,kj->ki", At, b)
+    HFJ = np.einsum("kji,kj->ki", a, Ab) + (r * lJ)[:, None] * Pt + (s * lJ)[:, None] * lF
+    HJJ = np.einsum("ki,ki->k", b, Ab) + s * (lJ * lJ - 1.0 / (3.0 * Js * Js))
     if np.any(bad):
-        for M in (HFF, HFG, HGG):
+        for M in (HFF, HFJ, HJJ):
             M[bad] = np.nan
-    return W, gF, gG, HFF, HFG, HGG
+    return W, gF, gJ, HFF, HFJ, HJJ

@@ -24,9 +24,19 @@ _RANK_TOL = 1e-10
 
 
 def _rank(rows: np.ndarray) -> int:
-    """Numerical rank of the (k, 6) rows (columns already scaled to comparable size)."""
+    """Numerical rank of the (k, 6) rows, after scaling each row and then each column to unit length.
+
+    The scaling changes no exact rank, and makes the relative threshold independent of units: a frame's
+    DOFs mix a dimensionless matrix with a translation in metres, so a 1 um body's rows differed by 1e12
+    and its translations fell under the threshold (a clamped 1 um beam was refused as unsupported)."""
     if rows.shape[0] == 0:
         return 0
+    norms = np.linalg.norm(rows, axis=1)
+    rows = rows[norms > 0] / norms[norms > 0, None]
+    if rows.shape[0] == 0:
+        return 0
+    cols = np.linalg.norm(rows, axis=0)
+    rows = rows / np.where(cols > 0, cols, 1.0)
     G = rows.T @ rows
     ev = np.linalg.eigvalsh(G)
     top = ev.max()

@@ -1,8 +1,19 @@
 """Build an affine frame model from a scene: placement, shape functions, samples, the soft-mode guard.
 
-The precompute (frames, blended weights, samples) is stored in the on-disk
-cache (:mod:`voxflex.cache`).  Before a static solve the samples are checked
-for zero-energy and near-zero-energy modes and the scene refused with the fix.
+The precompute (frames, blended weights, samples and the regions' tables) is
+stored in the on-disk cache (:mod:`voxflex.cache`).
+
+Sample counts.  Unless a scene says ``[elasticity] samples``, the count of
+regions comes from the frames: :data:`REGIONS_PER_FRAME` per frame, then
+checked the way a static solve needs it -- the free body's zero-energy modes
+and the softest deformation against one mid-point sample per voxel
+(:mod:`voxflex.deform.models.frames.modes`) -- and doubled until both pass (at
+most :data:`MAX_DOUBLINGS` times, and no more regions than voxels).  What was
+chosen and why is in the model's info (``samples_chosen``, written to the
+result's ``/model`` and shown by ``voxflex info``).  A count the scene gives
+is kept as it is and only judged: a static scene whose samples leave a
+zero-energy or near-zero-energy mode among the frames it does not hold is
+refused before solving, others get a warning.
 """
 
 from __future__ import annotations
@@ -13,15 +24,33 @@ from ....errors import InputError
 from ..kinds import NodeEstimate
 from .kind import DEFAULT_FRAMES
 
-SAMPLES_PER_FRAME = 20
-"""Mid-point / elaston samples per frame when a scene does not say ``[elasticity] samples``.
+REGIONS_PER_FRAME = {"midpoint": 5, "elaston": 10}
+"""Mid-point / elaston regions per frame when a scene does not say ``[elasticity] samples`` (the start of
+the count the builder chooses; see the module docstring).  Measured on the neo-Hooke cantilever 32x8x8
+(``benchmarks/bench_frames_quadrature.py``): stabilised mid-point regions are within 0.3 % of
+Gauss-Legendre from 5 per frame on; elastons need 10 per frame and :data:`VOXELS_PER_ELASTON`."""
 
-Too few samples per frame leave near-mechanisms that the exact rank check does
-not see: the linear cantilever 32x8x8 with 50 frames sags -0.681, -0.453 and
--0.409 m with 200, 500 and 1000 samples against -0.388 m for the voxel model
-(the soft side of it is spurious). At 20 per frame the error is on the stiff
-side of the reference or within a few per cent (20 frames, 400 samples: -0.350 m).
-"""
+
+VOXELS_PER_ELASTON = 10
+"""Elaston regions are at most about this many voxels by default (count >= voxels / 10): a degree-2
+sub-rule of <= 10 points stands for the Gauss points of ~10 voxels.  Measured on the cantilever: 10 per
+frame on 20-voxel regions (10 frames) was 1.6 % off Gauss-Legendre, on 10-voxel regions 0.1 %."""
+
+
+def default_regions(quadrature: str, frames: int, voxels: int) -> int:
+    """The default number of mid-point or elaston regions (before the soft-mode check may double it)."""
+    n = REGIONS_PER_FRAME[quadrature] * frames
+    if quadrature == "elaston":
+        n = max(n, -(-voxels // VOXELS_PER_ELASTON))
+    return int(min(n, voxels))
+
+
+SAMPLES_PER_FRAME = REGIONS_PER_FRAME["midpoint"]
+"""Mid-point regions per frame by default (kept for callers of the former name)."""
+
+
+MAX_DOUBLINGS = 3
+"""Times the builder doubles a default region count whose samples leave a (near-)zero-energy mode."""
 
 
 UNTRUNCATED = ("reproducing-kernel", "eigenmode")
@@ -34,10 +63,10 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
     ``placement_energy``: the strain-energy density image of a first solve (``[nodes] placement =
     "strain"``, :func:`voxflex.build.strain_indicator`) whose metric places the frames.
 
-    The precompute (frames, blended weights, samples) is loaded from the on-disk
-    cache (:mod:`voxflex.cache`) when a run with the same image and settings made
-    it before; ``precompute_seconds`` in the result's ``/model`` is what this run
-    spent (``precompute_cached`` says whether it was loaded).
+    The precompute (frames, blended weights, samples, the regions' tables and the sample count chosen)
+    is loaded from the on-disk cache (:mod:`voxflex.cache`) when a run with the same image and settings
+    made it before; ``precompute_seconds`` in the result's ``/model`` is what this run spent
+    (``precompute_cached`` says whether it was loaded).
     """
     import time
 
@@ -57,7 +86,7 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
     fixed = [(np.asarray(f.min, dtype=float), np.asarray(f.max, dtype=float)) for f in scene.fixed]
     count = nodes.count if nodes.count is not None else min(DEFAULT_FRAMES, int((image.labels > 0).sum()))
     quadrature = scene.elasticity.quadrature
-    n_samples = scene.elasticity.samples if scene.elasticity.samples is not None else SAMPLES_PER_FRAME * count
+    hourglass = scene.elasticity.hourglass if quadrature == "midpoint" else "none"
     occupancy = bool(scene.object.occupancy)
     rk = kind == "reproducing-kernel"
     untruncated = kind in UNTRUNCATED  # never truncated to parents (conforming; linearly precise or global)
@@ -72,7 +101,8 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
                 "placement": None if density is None else disk.key_of(density),
                 "distance": nodes.distance, "seed": nodes.seed, "compliance": compliance,
                 "fixed": [(lo.tolist(), hi.tolist(), f.components) for (lo, hi), f in zip(fixed, scene.fixed)],
-                "quadrature": quadrature, "samples": n_samples, "occupancy": occupancy}
+                "quadrature": quadrature, "samples": scene.elasticity.samples, "occupancy": occupancy,
+                "hourglass": hourglass}
     use_cache = cache and disk.enabled()
     key = None
     if use_cache:
@@ -80,13 +110,16 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
         key = disk.key_of(disk.code_fingerprint(), image.labels, np.asarray(image.spacing),
                           np.asarray(image.origin), np.asarray(image.direction), occ, settings)
     stored = disk.load("frames", key) if use_cache else None
-    softest = None
     if stored is not None:
-        frames, sf, samples = _from_store(image, stored, kind, nodes.parents)
-        softest = float(stored["softest"]) if "softest" in stored else None
-    else:
-        frames, sf, samples = _precompute(image, count, kind, fixed, nodes, compliance, quadrature,
-                                          n_samples, occupancy, weight_space=weight_space, density=density)
+        try:
+            pre = _from_store(image, stored, kind, nodes.parents, occupancy)
+        except disk.CacheMismatch as exc:  # never trusted, never blamed on the scene: recomputed
+            disk.discard("frames", key, f"does not fit this image ({exc})")
+            stored = None
+    if stored is None:
+        pre = _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass,
+                          weight_space=weight_space, density=density)
+    sf = pre["sf"]
     info = {"shape_function": kind, "parents": int(sf.parents if untruncated else nodes.parents),
             "distance": nodes.distance, "precompute_cached": stored is not None,
             "placement": nodes.placement or "volume"}
@@ -96,41 +129,48 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
     if kind == "eigenmode":
         info.update(eigenmode_linear=bool(sf.linear), eigenmode_lifted=int(len(sf.lifted)),
                     eigenmode_condition=float(sf.condition), eigenmode_lebesgue=float(sf.max_lebesgue))
-    # [elasticity] volumetric: "reduced" asks for F-bar / B-bar over each frame's cell; "auto" stays "full"
-    # for frames: measured (benchmarks/bench_locking.py) the reduced term removes the locking but makes
-    # the cantilever 12-74 % softer than the beam trend, and at nu = 0.45 (the default scene) it is no closer
-    volumetric = scene.elasticity.volumetric
-    model = FrameModel.from_image(image, frames, sf, materials, samples=samples, use_occupancy=occupancy, info=info,
-                                  volumetric="full" if volumetric == "auto" else volumetric)
+    if pre.get("chosen"):
+        info["samples_chosen"] = pre["chosen"]
+    model = FrameModel(image, pre["frames"], pre["sf"], pre["samples"], materials, info=info,
+                       use_occupancy=occupancy, volumetric=scene.elasticity.volumetric, hourglass=hourglass,
+                       region_tables=pre.get("tables"))
+    if pre["regions"] is not None and model.regions is None:
+        model.regions = pre["regions"]
     if quadrature != "gauss-legendre":
         import warnings
 
-        from .modes import SpuriousModesWarning, check_modes, free_body_stiffness
+        from .modes import SpuriousModesWarning, check_modes
 
-        if rk:
-            warnings.warn(f'reproducing-kernel weights with {quadrature} samples: their kinematics no longer stiffen '
-                          'the model, so the reduced quadrature\'s softness shows (the neo-Hooke cantilever with 20 '
-                          'frames and mid-point samples came out 49 % too soft, 0.8 % with Gauss points); use '
-                          '[elasticity] quadrature = "gauss-legendre" with them for now', UserWarning, stacklevel=2)
-
-        K = free_body_stiffness(frames, samples)  # once: the rank check, the refusal and the softest mode
+        K = pre.get("K")
+        if K is None:
+            K = _unit_stiffness(model)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SpuriousModesWarning)
-            zero = check_modes(frames, samples, stiffness=K)  # warns, naming how many samples to add
+            zero = check_modes(pre["frames"], model.samples, stiffness=K, gauge=_gauge(model))  # warns, naming how many
         if zero > 6:
-            _refuse_static_mechanism(scene, model, K, samples, zero - 6)
-        elif stored is None:
-            softest = _softest_mode(scene, image, model, frames, sf, samples, occupancy, K)
+            _refuse_static_mechanism(scene, model, K, model.samples, zero - 6)
+        softest = pre.get("softest")
+        if zero <= 6 and softest is None and not pre.get("judged"):
+            softest = _softest(scene, image, model, pre["sf"], occupancy, K)
         for w in caught:
             warnings.warn(w.message, w.category, stacklevel=2)
         if zero <= 6 and softest is not None:
             model.info["softest_mode"] = softest
-            _judge_soft_modes(scene, samples, softest)
+            _judge_soft_modes(scene, model.samples, softest)
+        pre["softest"] = softest
     if use_cache and stored is None:
-        extra = {} if softest is None else {"softest": np.float64(softest)}
-        disk.save("frames", key, {**_to_store(frames, sf, samples), **extra})
+        disk.save("frames", key, _to_store(pre))
     model.info["precompute_seconds"] = time.perf_counter() - t0
     return model
+
+
+def _unit_stiffness(model) -> np.ndarray:
+    """The free body's stiffness at rest with unit linear isotropic elasticity (mu = lambda = 1) at every
+    sample, fluctuation included (what the soft-mode checks read)."""
+    from ...materials.constitutive import material
+
+    unit = material("hooke", strain="linear", mu=1.0, lmbda=1.0)
+    return model.rest_stiffness({lab: unit for lab in model.materials})
 
 
 def _static_frames(scene) -> bool:
@@ -147,7 +187,7 @@ def _held(scene, model) -> np.ndarray:
     return np.fromiter(sorted(held), dtype=np.int64, count=len(held))
 
 
-def _softest_mode(scene, image, model, frames, sf, samples, occupancy, K) -> float | None:
+def _softest(scene, image, model, sf, occupancy, K) -> float | None:
     """The samples' softest deformation against one mid-point sample per voxel
     (:func:`voxflex.deform.models.frames.modes.softest_mode`) over the DOFs the scene does not hold (a free
     body: all, rigid modes deflated).  About 0.1 s for the default scene; stored in the cache entry."""
@@ -161,8 +201,8 @@ def _softest_mode(scene, image, model, frames, sf, samples, occupancy, K) -> flo
     if getattr(sf, "kind", None) not in UNTRUNCATED:
         reference = dataclasses.replace(reference, values=keep_largest(reference.values, scene.nodes.parents))
     held = _held(scene, model)
-    free = np.setdiff1d(np.arange(12 * len(frames)), held) if len(held) else None
-    return softest_mode(frames, samples, reference, free, stiffness=K)
+    free = np.setdiff1d(np.arange(12 * model.n_nodes), held) if len(held) else None
+    return softest_mode(model.frames, model.samples, reference, free, stiffness=K)
 
 
 def _centre_values_of(sf):
@@ -202,16 +242,11 @@ def _refuse_static_mechanism(scene, model, K, samples, spurious: int) -> None:
     only move held frames; with any left among the free ones, static equilibrium is not unique and
     Newton cannot converge (it did not, after minutes of cut load steps).  Only static affine scenes
     without obstacles or cables are judged here (those layers may hold such modes; dynamics has mass).
-    ``K``: the free body's stiffness (:func:`voxflex.deform.models.frames.modes.free_body_stiffness`).
+    ``K``: the free body's stiffness (:func:`_unit_stiffness`).
     """
     if not _static_frames(scene):
         return
-    from ...._blas import one_thread
-
-    free = np.setdiff1d(np.arange(K.shape[0]), _held(scene, model))
-    with one_thread():
-        ev = np.linalg.eigvalsh(K[np.ix_(free, free)])
-    zero = int(np.count_nonzero(ev <= 1e-8 * max(float(ev.max(initial=0.0)), 1e-300)))
+    zero = _free_zero_modes(scene, model, K)
     if zero:
         raise InputError(
             f"the {len(samples.volume)} {samples.kind} samples leave {zero} zero-energy mode(s) among the frames "
@@ -219,16 +254,56 @@ def _refuse_static_mechanism(scene, model, K, samples, spurious: int) -> None:
             '[elasticity] samples, use fewer frames, or quadrature = "gauss-legendre"')
 
 
-def _precompute(image, count, kind, fixed, nodes, compliance, quadrature, n_samples, occupancy, *,
-                weight_space=None, density=None):
-    """Frames, blended shape functions and samples (pruned to ``parents``) of an image.  ``weight_space``:
-    the eigenmode weights' per-label stiffness and density (:func:`_weight_space`); ``density``: the relative
-    frame density of ``[nodes] placement = "strain"``."""
-    import dataclasses
+def _gauge(model) -> np.ndarray:
+    """(12n, g) the gauge motions of the model's weights: those of the 18 candidates that move no voxel
+    centre and deform none (:func:`~voxflex.deform.models.frames.modes.gauge_modes`); empty unless the weights
+    are linearly precise (reproducing kernels; eigenmode weights of a body without fixed regions).  Read at every voxel centre, not at the samples: a stabilised
+    mid-point region integrates Gauss points its centre does not show."""
+    from .modes import gauge_modes
 
-    from ....sampling.voxel import voxel_samples
+    sf = model.shape_function
+    if getattr(sf, "kind", None) not in UNTRUNCATED or not getattr(sf, "linear", True):
+        return np.zeros((12 * model.n_nodes, 0))
+    vv = sf.voxel_values() if hasattr(sf, "voxel_values") else None
+    if vv is None:
+        vv = sf(model.image.index_to_world(np.argwhere(model.image.labels > 0) + 0.5))
+    return gauge_modes(model.frames, vv)
+
+
+def _free_zero_modes(scene, model, K) -> int:
+    """Zero eigenvalues of the stiffness over the DOFs ``scene`` does not hold (translations scaled by the
+    samples' spread, so the verdict does not depend on the unit: :func:`~voxflex.deform.models.frames.modes.
+    dimensionless`), the gauge motions of linearly precise weights that the held DOFs leave free not counted:
+    they move nothing (:func:`~voxflex.deform.models.frames.modes.gauge_modes`; a clamp holding one or two
+    frames leaves up to 9 of the 18), so they are no mechanism."""
+    import scipy.linalg as sla
+
+    from ...._blas import one_thread
+    from .modes import dimensionless
+
+    held = _held(scene, model)
+    free = np.setdiff1d(np.arange(K.shape[0]), held)
+    Ks = dimensionless(K, model.samples)[np.ix_(free, free)]
+    G = _gauge(model)  # (12n, g); no translation: the scaling leaves it alone
+    if G.shape[1]:
+        N = sla.null_space(G[held]) if len(held) else np.eye(G.shape[1])
+        Gf = (G @ N)[free]
+        if Gf.shape[1]:
+            Ks = Ks + (np.trace(Ks) / len(Ks)) * (Gf @ Gf.T)
+    with one_thread():
+        ev = np.linalg.eigvalsh(Ks)
+    return int(np.count_nonzero(ev <= 1e-8 * max(float(ev.max(initial=0.0)), 1e-300)))
+
+
+def _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass, *,
+                weight_space=None, density=None):
+    """Frames, blended shape functions and samples (pruned to ``parents``) of an image, with the sample
+    count chosen (module docstring).  Returns a dict: frames, sf, samples (what the model integrates),
+    regions (the sampler's, or None), tables and gauss (stabilised mid-point regions), chosen (str),
+    K and softest (the checks of the chosen samples).  ``weight_space``: the eigenmode weights' per-label
+    stiffness and density (:func:`_weight_space`); ``density``: the relative frame density of
+    ``[nodes] placement = "strain"``."""
     from ....voronoi import place_frames, shape_function
-    from ....voronoi.shape_functions import keep_largest
 
     positions = None if nodes.positions is None else np.asarray(nodes.positions, dtype=float)
     rk = kind == "reproducing-kernel"
@@ -245,22 +320,84 @@ def _precompute(image, count, kind, fixed, nodes, compliance, quadrature, n_samp
         sf = shape_function(image, frames, kind=kind, parents=None if rk else nodes.parents, distance=nodes.distance,
                             compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed),
                             **({"support": nodes.support} if rk else {}))
-    untruncated = kind in UNTRUNCATED
+    if quadrature == "gauss-legendre":
+        return {"frames": frames, "sf": sf, **_samples(image, sf, frames, nodes, quadrature, 0, occupancy, hourglass)}
+    voxels = int((image.labels > 0).sum())
+    requested = scene.elasticity.samples
+    n = requested if requested is not None else default_regions(quadrature, len(frames), voxels)
+    log = []
+    for attempt in range(MAX_DOUBLINGS + 1):
+        pre = {"frames": frames, "sf": sf, **_samples(image, sf, frames, nodes, quadrature, n, occupancy, hourglass)}
+        if requested is not None:
+            return pre  # the scene's count: judged by the caller, not changed
+        verdict, K, softest = _check(scene, image, pre, occupancy, hourglass)
+        pre.update(K=K, softest=softest, judged=True)
+        regions = len(pre["regions"].volume)
+        log.append(f"{regions} regions: {verdict}")
+        if verdict == "sound" or n >= voxels or attempt == MAX_DOUBLINGS:
+            per = REGIONS_PER_FRAME[quadrature]
+            why = f"{per} per frame" + (f", at least one per {VOXELS_PER_ELASTON} voxels" if quadrature == "elaston"
+                                        else "") + ", at most one per voxel"
+            if len(log) > 1:
+                why += "; doubled while the samples left a soft mode"
+            pre["chosen"] = f"{regions} {quadrature} regions ({why}): " + "; ".join(log)
+            return pre
+        n = min(2 * n, voxels)
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _samples(image, sf, frames, nodes, quadrature, n, occupancy, hourglass) -> dict:
+    """The samples of one count: {samples, regions, tables, gauss}.  Reproducing-kernel and eigenmode weights
+    keep every parent (truncating them breaks linear precision and conformity)."""
+    import dataclasses
+
+    from ....sampling import sample
+    from ....sampling.voxel import voxel_samples
+    from ....voronoi.shape_functions import keep_largest
+    from .quadrature import elaston_samples, midpoint_tables
+
+    untruncated = getattr(sf, "kind", None) in UNTRUNCATED
+    parents = None if untruncated else nodes.parents
+    prune = (lambda v: v) if parents is None else (lambda v: keep_largest(v, parents))
     if quadrature == "gauss-legendre":
         # values and gradients only (F needs no Hessian): global eigenmode weights on the bunny's 750k Gauss
         # points would hold 2 GB of Hessians at 40 frames
-        samples = voxel_samples(image, (lambda p: sf(p, hessians=False)) if untruncated else sf,
-                                rule="gauss-legendre", use_occupancy=occupancy)
-    else:
-        from ....sampling import sample
+        s = voxel_samples(image, (lambda p: sf(p, hessians=False)) if untruncated else sf, rule="gauss-legendre",
+                          use_occupancy=occupancy)
+        # at most `parents` frames per sample (the stiffness costs ~432 P^2 flops per sample)
+        s = dataclasses.replace(s, values=prune(s.values))
+        return {"samples": s, "regions": None, "tables": None, "gauss": None}
+    # elastons and mid-point regions share the mid-point sampler's compact regions (farthest point + Lloyd);
+    # the union of a region's voxels' parents is pruned to `parents` at its centre
+    regions = sample(image, sf, kind="midpoint", count=int(n), seed=nodes.seed)
+    regions = dataclasses.replace(regions, values=prune(regions.values))
+    if quadrature == "elaston":
+        pts = elaston_samples(image, sf, regions, parents=parents, use_occupancy=occupancy)
+        return {"samples": pts, "regions": regions, "tables": None, "gauss": None}
+    if hourglass == "stiffness":
+        tables, gauss = midpoint_tables(image, sf, regions, frames, parents=parents, use_occupancy=occupancy)
+        return {"samples": regions, "regions": regions, "tables": tables, "gauss": gauss}
+    return {"samples": regions, "regions": regions, "tables": None, "gauss": None}
 
-        samples = sample(image, sf, kind=quadrature, count=n_samples, seed=nodes.seed)
-    # at most `parents` frames per sample: the blended weights of a sample (and the union over a
-    # region) have more, and the stiffness costs ~432 P^2 flops per sample; reproducing-kernel
-    # weights keep every parent (truncating them breaks linear precision and conformity)
-    if not untruncated:
-        samples = dataclasses.replace(samples, values=keep_largest(samples.values, nodes.parents))
-    return frames, sf, samples
+
+def _check(scene, image, pre, occupancy, hourglass):
+    """('sound' or why not, unit stiffness K, softest ratio) of a precompute's samples for ``scene``."""
+    from ...materials.constitutive import material
+    from .model import FrameModel
+    from .modes import SOFT_RATIO, zero_energy_modes
+
+    unit = material("hooke", strain="linear", mu=1.0, lmbda=1.0)
+    labels = np.unique(image.labels[image.labels > 0]).astype(int)
+    model = FrameModel(image, pre["frames"], pre["sf"], pre["samples"], {int(lab): unit for lab in labels},
+                       use_occupancy=occupancy, hourglass=hourglass, region_tables=pre["tables"])
+    K = model.rest_stiffness()
+    zero = zero_energy_modes(pre["frames"], model.samples, stiffness=K, gauge=_gauge(model))
+    if zero > 6:  # judged on the free body whatever the solver (the cache entry serves every solver kind)
+        return f"{zero - 6} zero-energy mode(s) in the free body", K, None
+    softest = _softest(scene, image, model, pre["sf"], occupancy, K)
+    if softest is not None and softest < SOFT_RATIO:
+        return f"a mode {1 / max(softest, 1e-300):.0f} times softer than one sample per voxel", K, softest
+    return "sound", K, softest
 
 
 def _weight_space(scene, materials) -> dict:
@@ -280,31 +417,99 @@ def _weight_space(scene, materials) -> dict:
     return {"stiffness": stiff, "density": dens if ok else None}
 
 
-def _to_store(frames, sf, samples) -> dict:
-    v = samples.values
+def _to_store(pre) -> dict:
+    sf = pre["sf"]
     if getattr(sf, "kind", None) in UNTRUNCATED:
-        out = sf.to_store()
+        out = {"frames": pre["frames"], **sf.to_store()}
     else:
         W = sf._smoothed()._W
-        out = {"W_indptr": W.indptr, "W_indices": W.indices, "W_data": W.data}
-    out.update({"frames": frames,
-           "kind": np.array(samples.kind), "points": samples.points, "volume": samples.volume,
-           "label": samples.label, "index": v.index, "w": v.w, "dw": v.dw,
-           "ddw": v.ddw if v.ddw is not None else np.zeros((0,))})
-    if hasattr(samples, "moments"):
-        out["moments"] = samples.moments
-        out["region"] = samples.region
+        out = {"frames": pre["frames"], "W_indptr": W.indptr, "W_indices": W.indices, "W_data": W.data}
+    for name in ("samples", "regions"):
+        s = pre[name]
+        if s is None:
+            continue
+        v = s.values
+        out.update({f"{name}_kind": np.array(s.kind), f"{name}_points": s.points, f"{name}_volume": s.volume,
+                    f"{name}_label": s.label, f"{name}_index": v.index, f"{name}_w": v.w, f"{name}_dw": v.dw,
+                    f"{name}_ddw": v.ddw if v.ddw is not None else np.zeros((0,))})
+        if getattr(s, "moments", None) is not None:
+            out[f"{name}_moments"] = s.moments
+        if getattr(s, "region", None) is not None:
+            out[f"{name}_region"] = s.region
+    if pre.get("gauss") is not None:
+        gv = pre["gauss"][0]
+        out.update({"gauss_index": gv.index, "gauss_w": gv.w, "gauss_dw": gv.dw})
+    if pre.get("chosen"):
+        out["chosen"] = np.array(pre["chosen"])
+    if pre.get("softest") is not None:
+        out["softest"] = np.float64(pre["softest"])
+    if pre.get("judged"):
+        out["judged"] = np.array(True)
     return out
 
 
-def _from_store(image, d, kind, parents):
-    """Rebuild (frames, shape function, samples) from a cache entry."""
+def _from_store(image, d, kind, parents, occupancy) -> dict:
+    """Rebuild the precompute (frames, shape function, samples, regions, tables) from a cache entry;
+    :class:`voxflex.cache.CacheMismatch` when the entry does not fit ``image`` (missing arrays, shapes,
+    non-finite values, labels, indices)."""
+    from .... import cache as disk
+
+    try:
+        _check_store(image, d)
+        return _rebuild(image, d, kind, parents, occupancy)
+    except disk.CacheMismatch:
+        raise
+    except (InputError, ValueError, KeyError, IndexError, TypeError) as exc:
+        raise disk.CacheMismatch(" ".join(str(exc).split())[:200] or type(exc).__name__) from None
+
+
+def _check_store(image, d) -> None:
+    """What a cache entry must satisfy to describe a precompute of ``image`` (CacheMismatch otherwise)."""
+    from .... import cache as disk
+
+    if "frames" not in d or "samples_kind" not in d or not ("rk_indptr" in d or "em_indptr" in d or "W_indptr" in d):
+        raise disk.CacheMismatch("it lacks the frames, the weights or the samples")
+    frames = np.asarray(d["frames"])
+    n = len(frames)
+    if not (frames.ndim == 2 and frames.shape[1:] == (3,) and n > 0):
+        raise disk.CacheMismatch("its frames do not fit")
+    voxels = int((image.labels > 0).sum())
+    if "W_indptr" in d and np.asarray(d["W_indptr"]).shape != (voxels + 1,):
+        raise disk.CacheMismatch("its weights of the voxels do not fit")
+    present = np.unique(image.labels[image.labels > 0])
+    for name in ("samples", "regions"):
+        if f"{name}_kind" not in d:
+            continue
+        points, index = np.asarray(d[f"{name}_points"]), np.asarray(d[f"{name}_index"])
+        m = len(points)
+        checks = [
+            (points.ndim == 2 and points.shape[1:] == (3,) and m > 0, "sample points"),
+            (np.asarray(d[f"{name}_volume"]).shape == (m,) and np.all(np.asarray(d[f"{name}_volume"]) > 0),
+             "sample volumes"),
+            (np.asarray(d[f"{name}_label"]).shape == (m,) and np.all(np.isin(d[f"{name}_label"], present)),
+             "sample labels"),
+            (index.ndim == 2 and len(index) == m and np.all((index >= -1) & (index < n)), "parent indices"),
+        ]
+        for ok, what in checks:
+            if not ok:
+                raise disk.CacheMismatch(f"its {what} do not fit")
+    for key, value in d.items():
+        a = np.asarray(value)
+        if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+            raise disk.CacheMismatch(f"its {key} are not finite")
+
+
+def _rebuild(image, d, kind, parents, occupancy) -> dict:
+    """The precompute of a checked cache entry (:func:`_check_store`)."""
     import scipy.sparse as sp
 
+    from ....sampling.samples import Samples
+    from ....sampling.subrule import gauss_points
     from ....sampling.voxel import VoxelSamples
+    from ....voronoi.weights import ShapeFunction
     from ....voronoi.shape_functions import ShapeValues
     from ....voronoi.smoothing import SmoothWeights
-    from ....voronoi.weights import ShapeFunction
+    from .quadrature import midpoint_tables
 
     frames = d["frames"]
     n = len(frames)
@@ -321,17 +526,33 @@ def _from_store(image, d, kind, parents):
         smooth = SmoothWeights.from_csr(image, W)
         sf = ShapeFunction(frames=frames, kind="sibson" if kind == "natural-neighbour" else kind, parents=parents,
                            image=image, smooth=True, _cache={"smooth": smooth})
-    ddw = d["ddw"] if d["ddw"].size else None
-    values = ShapeValues(index=d["index"], w=d["w"], dw=d["dw"], ddw=ddw, rest=d["points"], n_nodes=n)
-    skind = str(d["kind"])
-    if "moments" in d:
-        from ....sampling.samples import Samples
-
-        samples = Samples(kind=skind, points=d["points"], volume=d["volume"], moments=d["moments"],
-                          label=d["label"], region=d["region"], values=values)
-    else:
-        samples = VoxelSamples(skind, d["points"], d["volume"], d["label"], values)
-    return frames, sf, samples
+    out = {"frames": frames, "sf": sf, "regions": None, "tables": None, "gauss": None}
+    for name in ("samples", "regions"):
+        if f"{name}_kind" not in d:
+            continue
+        ddw = d[f"{name}_ddw"] if d[f"{name}_ddw"].size else None
+        values = ShapeValues(index=d[f"{name}_index"], w=d[f"{name}_w"], dw=d[f"{name}_dw"], ddw=ddw,
+                             rest=d[f"{name}_points"], n_nodes=n)
+        skind = str(d[f"{name}_kind"])
+        if f"{name}_moments" in d:
+            s = Samples(kind=skind, points=d[f"{name}_points"], volume=d[f"{name}_volume"],
+                        moments=d[f"{name}_moments"], label=d[f"{name}_label"], region=d[f"{name}_region"],
+                        values=values)
+        else:
+            s = VoxelSamples(skind, d[f"{name}_points"], d[f"{name}_volume"], d[f"{name}_label"], values,
+                             region=d.get(f"{name}_region"))
+        out[name] = s
+    if "gauss_index" in d:
+        points = gauss_points(image, use_occupancy=occupancy)[0]
+        gv = ShapeValues(index=d["gauss_index"], w=d["gauss_w"], dw=d["gauss_dw"], ddw=None, rest=points, n_nodes=n)
+        out["tables"], out["gauss"] = midpoint_tables(image, sf, out["regions"], frames, use_occupancy=occupancy,
+                                                      values=gv)
+    if "chosen" in d:
+        out["chosen"] = str(d["chosen"])
+    if "softest" in d:
+        out["softest"] = float(d["softest"])
+    out["judged"] = "judged" in d
+    return out
 
 
 def _clamp_owners(image, frames, boxes):

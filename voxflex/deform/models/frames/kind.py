@@ -17,7 +17,9 @@ PLASTIC_SURFACE_FIELDS = ("stress", "von-mises", "energy-density")
 
 
 def check_scene(scene) -> None:
-    """Refuse result fields the frames cannot give with plasticity (their surface layer has no plastic state)."""
+    """Refuse what frames cannot do with plasticity: result fields of the surface layer (it has no plastic
+    state).  Elastons carry plasticity on their sub-rule points; stabilised mid-point regions are refused
+    by the model (their stabilisation is a rest stiffness)."""
     if not any(m.yield_strain is not None for m in scene.materials):
         return
     bad = [f for f in scene.output.fields if f in PLASTIC_SURFACE_FIELDS]

@@ -11,38 +11,52 @@ The chain of mappings is the deformation core's: at each quadrature sample
 material ``W(F)``; the energy is ``E = sum_s vol_s W(F_s)``, the gradient
 ``J^T (vol P)`` and the Hessian ``J^T blockdiag(vol A) J``.  For affine
 frames J does not depend on the state (no geometric stiffness), so it is
-assembled once.  Mass, gravity, probes, loads and the visual surface are
-further point mappings of the same frames (mass points: the voxel centres,
-weighted by density and occupancy; their shape values are evaluated only
-when mass or gravity is needed).
+assembled once; per sample it is a constant table G (``_kernels``).  Mass,
+gravity, probes, loads and the visual surface are further point mappings of
+the same frames (mass points: the voxel centres, weighted by density and
+occupancy; their shape values are evaluated only when mass or gravity is
+needed).
 
-Volumetric locking (``volumetric``): a few frames bending a nearly
-incompressible body cannot keep every sample's volume, so the body is far too
-stiff (a 16x4x4 cantilever with 20 frames bends 10x too little at nu = 0.4999,
-``benchmarks/bench_locking.py``).  ``volumetric="reduced"`` integrates the
-volumetric term over coarser groups of samples: the samples of one label whose
-largest weight is on the same frame (the frame's cell) share the group's
-volume-weighted mean ``F_g = sum_s vol_s F_s / sum_s vol_s`` (linear in q), and each
-sample sees F-bar, ``F~_s = (det F_g / det F_s)^(1/3) F_s``, or for materials with
-a constant tangent its linearisation B-bar, ``F~_s = F_s + (tr F_g - tr F_s) I / 3``.
-The energy is ``sum_s vol_s W(F~_s)``, with its exact gradient and Hessian (every
-sample of a group couples with the group's mean: dense within a group, numpy,
-sparse products ``J^T C J_g``; one energy, gradient and Hessian pass of a neo-Hooke
-cantilever with 20 frames and 200 samples takes about 30 ms against 0.9 ms in
-full, 76 ms against 7.5 ms with 50 frames and 2048 Gauss samples, 2 CPUs: no
-compiled kernel yet).  Affine motions give ``F~ = F`` (the patch
-test holds).  As with the voxel model a sample cannot pass through zero volume
-(infinite energy where ``det F_s det F_g <= 0``).  ``"auto"`` reduces the labels
-whose effective Poisson ratio at rest is >= 0.4
-(:func:`~voxflex.deform.materials.fbar.nearly_incompressible`); elastons always
-integrate it in full (``"reduced"`` is refused there).  The class default is
-``"full"``; scenes build frames with ``"full"`` unless they say ``[elasticity]
-volumetric = "reduced"`` (their ``"auto"`` stays ``"full"`` for frames).  Measured
-(``benchmarks/bench_locking.py``): the reduced term removes the locking (the tip
-changes by < 10 % from nu = 0.3 to 0.4999, against 90 % with ``"full"`` and 20
-frames) but the groups span the beam's section, the affine frames cannot give the
-Poisson contraction's variation across it, and the cantilever comes out 12-74 %
-softer than the beam-theory trend from the full nu = 0.3 value.
+Quadratures (``samples.kind``; :mod:`voxflex.deform.models.frames.quadrature`)
+------------------------------------------------------------------------------
+* ``"gauss-legendre"``: 2x2x2 Gauss points per voxel (the exact rule the
+  others are measured against).
+* ``"elaston"``: the sampler's regions, each integrated by a moment-fitted
+  sub-rule -- at most 10 of its Gauss points whose non-negative weights
+  reproduce its volume moments to degree 2.  They are point samples, so every
+  material works with its own stress and tangent (exact gradient and Hessian).
+* ``"midpoint"``: one sample per region.  With ``hourglass="stiffness"`` (the
+  scenes' default) the sample's F is the exact mean of F over the region's
+  Gauss points and the fluctuation about it gets its linearised energy
+  (:mod:`voxflex.deform.models.frames.stabilise`): linear materials give the
+  Gauss-Legendre answer to round-off, other materials an objective
+  approximation of it; ``hourglass="none"`` is the bare one-point rule at the
+  region's centroid (shape values fitted over the region), which
+  under-integrates (soft modes: :mod:`voxflex.deform.models.frames.modes`).
+
+Volumetric locking (``volumetric``)
+-----------------------------------
+A few frames bending a nearly incompressible body cannot keep every sample's
+volume (they cannot give the Poisson contraction's variation across a section),
+so full integration of the volumetric term locks: the linear cantilever 32x8x8 with
+20 frames and Gauss points bends 45x too little at nu = 0.4999 (-0.0087 against
+-0.393 m projected, -0.376 m for the voxel model with B-bar).  ``volumetric="reduced"`` projects the volume
+ratio onto the span of the frames' weights: per label, the L2 projection
+
+    Jbar(X) = sum_a w_a(X) pi_a,   M pi = b,   M_ab = sum_s v_s w_a w_b,   b_a = sum_s v_s w_a J_s
+
+(``J_s = det F_s``; the quadrature's own samples), and each sample sees
+F-bar ``F~_s = (Jbar_s / J_s)^(1/3) F_s``, or for a material with a constant
+tangent B-bar, ``F~_s = F_s + (trbar_s - tr F_s) I / 3`` (the projected trace),
+which keeps its energy quadratic.  The weights are a partition of unity, so an
+affine motion gives ``Jbar = J`` (the patch test holds), and the projection
+space grows with the frames (the consistent limit is full integration).  The
+energy ``sum_s v_s W(F~_s)`` has its exact gradient and Hessian (every sample
+of a label couples with the projection: rank-n products, see
+:meth:`FrameModel._projected_pass`).  ``"auto"`` projects the labels whose
+effective Poisson ratio at rest is >= 0.4
+(:func:`~voxflex.deform.materials.fbar.nearly_incompressible`).  A sample cannot
+pass through zero volume (infinite energy where ``Jbar_s / J_s <= 0``).
 
 The model satisfies the protocol of :mod:`voxflex.deform.models.protocol`, so the same
 solvers, loads, result files and renders run it.
@@ -90,23 +104,17 @@ from ....errors import InputError, check_choice
 from ....image.grid import TrilinearGrid
 from ....image.surface import boundary_quads, face_points, triangulate
 from ....sampling.voxel import voxel_samples
-from ...chain.mappings import (
-    DeformationGradientMapping,
-    DeformationGradientWithGradientMapping,
-    PointMapping,
-)
+from ...chain.mappings import DeformationGradientMapping, PointMapping
 from ...chain.nodes import AffineFrames
 from ...materials.constitutive import project_psd
-from ...materials.fbar import VOLUMETRIC, _bar_evaluate, nearly_incompressible
+from ...materials.fbar import VOLUMETRIC, bar_scalar, nearly_incompressible
 from ..protocol import OnePass, Part, SurfacePoints
+from ..voxel.kind import HOURGLASS
 from . import _kernels as K
 from ._kernels import frame_tables
 from .kind import AFFINE
 
 __all__ = ["FrameModel"]
-
-ELASTON_CHUNK = 1 << 22
-"""Entries of the elastons' dense Hessian blocks ``J_e^T D_e J_e`` formed at a time (32 MB)."""
 
 
 class FrameModel(OnePass):
@@ -119,7 +127,9 @@ class FrameModel(OnePass):
     ----------
     image : LabelImage
     frames : (n, 3) float, rest positions X_a (m)
-    samples : VoxelSamples (or the sampling stage's Samples)
+    samples : VoxelSamples (or the sampling stage's Samples): the point samples integrated (for
+        elastons, the sub-rules' points; for stabilised mid-point regions, the regions)
+    regions : the sampling regions (Samples) of elastons and mid-point regions, else None
     materials : {label: Material}
     """
 
@@ -128,45 +138,53 @@ class FrameModel(OnePass):
     dofs_per_node = 12
 
     def __init__(self, image, frames, shape_function, samples, materials, *, info=None, use_occupancy=True,
-                 volumetric="full"):
+                 volumetric="full", hourglass="none", region_tables=None):
+        from .quadrature import elaston_samples, midpoint_tables
+
         self.image = image
         self.frames = np.asarray(frames, dtype=float)
         self.nodes = AffineFrames(self.frames)
         self.rest = self.nodes.rest
         self.rest.setflags(write=False)
         self.shape_function = shape_function
-        self.samples = samples
         self.materials = dict(materials)
         self.use_occupancy = bool(use_occupancy)
         self.info = dict(info or {})
-        self.elaston = samples.kind == "elaston"
-        if self.elaston:
-            self._fmap = DeformationGradientWithGradientMapping(self.nodes, samples.values)
-            for label, mat in self.materials.items():
-                if not getattr(mat.strain, "constant_hessian", False):
-                    raise InputError(
-                        f"elaston quadrature integrates the strain's gradient and needs a strain whose second "
-                        f"derivative is constant for an exact Hessian (linear, green, corotational-small); label "
-                        f"{label} uses '{mat.strain.name}': use quadrature = \"midpoint\" or \"gauss-legendre\", "
-                        f"or one of those strains"
-                    )
-        else:
-            self._fmap = DeformationGradientMapping(self.nodes, samples.values)
-            # the structured kernels: F = (I3 (x) G) d, forces and stiffness per sample (_frame_kernels);
-            # parents sorted by frame and the coupled frame pairs, once
-            self._index, self._G, self._pairs, self._pair_id = K.frame_pairs(
-                samples.values.index, frame_tables(samples.values, self.frames), len(self.frames))
         check_choice("volumetric", volumetric, VOLUMETRIC)
-        if self.elaston and volumetric == "reduced":
-            raise InputError('volumetric = "reduced" needs point samples (F-bar over groups of samples); elaston '
-                             'quadrature integrates the volumetric term in full: use "auto" or "full", or '
-                             'quadrature = "midpoint" or "gauss-legendre"')
+        check_choice("hourglass", hourglass, HOURGLASS)
+        self.regions = None
+        if samples.kind == "elaston" and getattr(samples, "moments", None) is not None:
+            # regions of the sampler: integrate each by its moment-fitted sub-rule
+            self.regions = samples
+            samples = elaston_samples(image, shape_function, samples, use_occupancy=use_occupancy)
+        self.samples = samples
+        self.hourglass = hourglass if samples.kind == "midpoint" else "none"
+        self.tables = None
+        if self.hourglass == "stiffness":
+            self.regions = samples
+            self.tables = region_tables if region_tables is not None else \
+                midpoint_tables(image, shape_function, samples, self.frames, use_occupancy=use_occupancy)[0]
+            if self.tables.n_regions != len(samples.volume):
+                raise InputError(f"region tables of {self.tables.n_regions} regions for {len(samples.volume)} samples")
+            index, G, wtab = self.tables.index, self.tables.G, self.tables.w
+        else:
+            values = samples.values
+            index, G, wtab = values.index, frame_tables(values, self.frames), values.w
+        # the structured kernels: F = (I3 (x) G) d, forces and stiffness per sample (_kernels); parents
+        # sorted by frame and the coupled frame pairs, once
+        self._index, self._G, self._pairs, self._pair_id = K.frame_pairs(index, G, len(self.frames))
+        order = np.argsort(np.where(np.asarray(index) >= 0, index, np.iinfo(np.int64).max), axis=1, kind="stable")
+        self._w = np.take_along_axis(np.where(np.asarray(index) >= 0, wtab, 0.0), order, axis=1)
         self.volumetric_option = volumetric
-        self.volumetric = {int(lab): (not self.elaston) and (volumetric == "reduced" or (
-            volumetric == "auto" and nearly_incompressible(mat))) for lab, mat in self.materials.items()}
-        self._bar = None
+        self.volumetric = {int(lab): volumetric == "reduced" or (volumetric == "auto" and nearly_incompressible(mat))
+                           for lab, mat in self.materials.items()}
+        self._fluct = None
+        if self.tables is not None:
+            from .stabilise import Fluctuation
+
+            self._fluct = Fluctuation(self.tables, samples.label, self.materials, self.volumetric, self.rest)
+        self._proj = None
         self._J = None
-        self._elaston_gather = None
         self._groups = [(int(lab), np.flatnonzero(samples.label == lab)) for lab in np.unique(samples.label)]
         self._volume = np.ascontiguousarray(samples.volume, dtype=float)
         self._surface = None
@@ -178,7 +196,7 @@ class FrameModel(OnePass):
     @classmethod
     def from_image(cls, image, frames, shape_function, materials: Mapping[int, object], *, samples=None,
                    quadrature: str = "gauss-legendre", use_occupancy: bool = True, info=None,
-                   volumetric: str = "full") -> "FrameModel":
+                   volumetric: str = "full", hourglass: str = "none", region_tables=None) -> "FrameModel":
         """Frame model of ``image`` with frames at ``frames`` (n, 3) and shape functions ``shape_function``.
 
         Parameters
@@ -189,21 +207,27 @@ class FrameModel(OnePass):
             ``shape_function(points (m, 3)) -> ShapeValues`` over the frames.
         materials : mapping label -> Material
         samples : optional
-            Quadrature samples (attributes of :class:`VoxelSamples`); default:
-            ``quadrature`` per voxel (``"gauss-legendre"`` or ``"midpoint"``).
+            Quadrature samples (attributes of :class:`VoxelSamples`, or the sampler's
+            :class:`~voxflex.sampling.samples.Samples`: elaston regions get their sub-rules);
+            default: ``quadrature`` per voxel (``"gauss-legendre"`` or ``"midpoint"``).
         use_occupancy : bool
             Weight volumes and masses by the image's occupancy fractions.
         volumetric : {"full", "reduced", "auto"}
             Integration of the volumetric term (module docstring): every sample
-            (``"full"``), F-bar / B-bar over the samples of each frame's cell
-            (``"reduced"``), or reduced for labels with an effective Poisson
-            ratio >= 0.4 (``"auto"``, the scenes' default).
+            (``"full"``), projected onto the frames' weights (``"reduced"``), or
+            projected for labels with an effective Poisson ratio >= 0.4 (``"auto"``,
+            the scenes' default).
+        hourglass : {"none", "stiffness"}
+            Mid-point samples: the bare one-point rule, or each region's mean F plus its
+            fluctuation energy (module docstring; the scenes' default).
+        region_tables : RegionTables, optional
+            The mid-point regions' tables when the caller has them (a cache).
 
         Raises
         ------
         InputError
             No frame, a label without material, shape functions that do not fit the frames,
-            an unknown ``volumetric`` or ``"reduced"`` with elastons.
+            an unknown ``volumetric`` or ``hourglass``.
         """
         frames = np.asarray(frames, dtype=float)
         if frames.ndim != 2 or frames.shape[1] != 3 or len(frames) == 0:
@@ -223,7 +247,8 @@ class FrameModel(OnePass):
                 f"the samples' shape functions were built for {samples.values.n_nodes} frames, not {len(frames)}"
             )
         return cls(image, frames, shape_function, samples, {int(k): materials[int(k)] for k in present},
-                   info=info, use_occupancy=use_occupancy, volumetric=volumetric)
+                   info=info, use_occupancy=use_occupancy, volumetric=volumetric, hourglass=hourglass,
+                   region_tables=region_tables)
 
     # -- sizes -----------------------------------------------------------------
     @property
@@ -233,6 +258,10 @@ class FrameModel(OnePass):
     @property
     def n_samples(self) -> int:
         return len(self.samples.volume)
+
+    @property
+    def elaston(self) -> bool:
+        return self.samples.kind == "elaston"
 
     @property
     def constant_tangent(self) -> bool:
@@ -245,18 +274,29 @@ class FrameModel(OnePass):
         return q
 
     # -- energy ----------------------------------------------------------------
+    def _dofs(self) -> np.ndarray:
+        """(m, P, 3, 4) DOF of (sample, parent, row i, column c) (0 where padded)."""
+        return K._dofs(self._index)
+
     def jacobian(self) -> sp.csr_matrix:
-        """dF/dq at the samples (9m, 12n) — or d(F, grad F)/dq (36m, 12n) for elastons — constant for
-        affine frames (assembled once)."""
+        """dF/dq at the samples (9m, 12n), constant for affine frames (assembled once from the tables:
+        ``dF_ij / d d[a_p, i, c] = G[p, c, j]``)."""
         if self._J is None:
-            self._J = self._fmap.jacobian(self.rest).tocsr()
+            m, P = self._index.shape
+            ok = np.broadcast_to((self._index >= 0)[:, :, None, :, None], (m, P, 3, 4, 3))
+            rows = np.broadcast_to(9 * np.arange(m)[:, None, None, None, None]
+                                   + 3 * np.arange(3)[None, None, :, None, None]
+                                   + np.arange(3)[None, None, None, None, :], (m, P, 3, 4, 3))
+            cols = np.broadcast_to(self._dofs()[..., None], (m, P, 3, 4, 3))
+            vals = np.broadcast_to(self._G[:, :, None, :, :], (m, P, 3, 4, 3))
+            J = sp.csr_matrix((vals[ok], (rows[ok], cols[ok])), shape=(9 * m, 12 * self.n_nodes))
+            J.sum_duplicates()
+            self._J = J
         return self._J
 
     def deformation_gradients(self, q) -> np.ndarray:
-        """F (m, 3, 3) at the samples."""
+        """F (m, 3, 3) at the samples (for stabilised mid-point regions: each region's mean F)."""
         q = self._check_q(q)
-        if self.elaston:
-            return self._fmap.apply(q)[0]
         F = np.empty((self.n_samples, 3, 3))
         K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
         return F
@@ -281,27 +321,57 @@ class FrameModel(OnePass):
     def set_tangent_projection(self, on: bool) -> bool:
         """Project the per-sample tangents dP/dF to positive semi-definite in later Hessians (``on``), or not.
 
-        F is linear in the affine frames' DOFs, so the Hessian is then positive
-        semi-definite.  Point samples with every volumetric term in full only: elastons
-        and reduced (F-bar) volumetric labels keep their exact Hessian.  Returns whether
-        the tangents are projected.
+        F is linear in the affine frames' DOFs, so the samples' Hessian is then positive
+        semi-definite.  Samples with every volumetric term in full only (projected labels keep
+        their exact Hessian); the mid-point regions' fluctuation term keeps its exact Hessian
+        (positive semi-definite at rest).  Returns whether the tangents are projected.
         """
-        self._project = bool(on) and not self.elaston and not any(self.volumetric.values())
+        self._project = bool(on) and not any(self.volumetric.values())
         return self._project and not self.constant_tangent
+
+    def rest_stiffness(self, materials=None) -> np.ndarray:
+        """The Hessian at rest (12n, 12n) with ``materials`` (default: the model's) at every sample,
+        fluctuation included, volumetric terms in full (a sound quadrature's free body has six
+        zero-energy modes: :mod:`voxflex.deform.models.frames.modes`)."""
+        mats = self.materials if materials is None else {int(k): v for k, v in dict(materials).items()}
+        m = self.n_samples
+        A = np.empty((m, 3, 3, 3, 3))
+        for label, ids in self._groups:
+            A[ids] = mats[label].evaluate(np.broadcast_to(np.eye(3), (len(ids), 3, 3)).copy(), tangent=True)[2]
+        H = K.frame_stiffness_dense(self._index, self._G, A, self.n_nodes, self._volume,
+                                    (self._index, self._G, self._pairs, self._pair_id))
+        if self.tables is not None:
+            from .stabilise import Fluctuation
+
+            H += Fluctuation(self.tables, self.samples.label, mats, {}, self.rest).rest_matrix()
+        return 0.5 * (H + H.T)
 
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
         """Energy (J), gradient (n, 12) and Hessian (12n, 12n) in one pass over the samples.
 
         The Hessian is a dense ndarray (frames sharing material couple, so it is nearly full)."""
         q = self._check_q(q)
-        if self.elaston:
-            return self._elaston_pass(q, gradient, hessian)
-        if any(self.volumetric.values()):
-            return self._reduced_pass(q, gradient, hessian)
         vol = self._volume
         m = len(vol)
         F = np.empty((m, 3, 3))
         K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
+        if any(self.volumetric.values()):
+            energy, grad, H = self._projected_pass(F, gradient, hessian)
+        else:
+            energy, grad, H = self._point_pass(F, gradient, hessian)
+        if self._fluct is not None and np.isfinite(energy):
+            e, g, h = self._fluct.evaluate(q, F, gradient=gradient, hessian=hessian)
+            energy += e
+            if gradient:
+                grad = grad + g
+            if hessian:
+                H += h
+        return float(energy), grad, H
+
+    def _point_pass(self, F, gradient, hessian):
+        """``sum_s v_s W(F_s)`` with its gradient and Hessian by the compiled kernels."""
+        vol = self._volume
+        m = len(vol)
         if len(self._groups) == 1:  # one material: its arrays as they come, no gather or scatter
             label = self._groups[0][0]
             W, P, A = self.materials[label].evaluate(F, tangent=hessian)
@@ -317,188 +387,140 @@ class FrameModel(OnePass):
                 energy += vdot(vol[ids], Wg)
                 if hessian:
                     A[ids] = project_psd(Ag) if self._project and not self.materials[label].constant_tangent else Ag
-        grad = None
-        if gradient:
-            grad = np.zeros((self.n_nodes, 12))
-            K.frame_forces(self._index, self._G, P, vol, grad)
-        H = None
-        if hessian:
-            # a dense Hessian: frames sharing material couple (the solver takes it as is)
-            H = K.frame_stiffness_dense(self._index, self._G, A, self.n_nodes, vol,
-                                        (self._index, self._G, self._pairs, self._pair_id))
-        return float(energy), grad, H
+        return energy, self._forces(P) if gradient else None, self._stiffness(A) if hessian else None
 
-    def _bar_tables(self):
-        """Groups of the reduced samples (label, largest-weight frame), their averaging matrix
-        ``vec F_g = Avg vec F`` (9 ng, 9 m) and ``J_g = Avg J`` (9 ng, 12 n), once."""
-        if self._bar is None:
-            v = self.samples.values
-            m = self.n_samples
-            red_labels = [lab for lab, red in self.volumetric.items() if red]
-            ids = np.flatnonzero(np.isin(self.samples.label, red_labels))
-            wmax = np.where(v.index[ids] >= 0, v.w[ids], -np.inf)
-            dom = v.index[ids, np.argmax(wmax, axis=1)].astype(np.int64)
-            key = self.samples.label[ids].astype(np.int64) * self.n_nodes + dom
-            _, gid = np.unique(key, return_inverse=True)
-            gid = gid.reshape(-1)
-            vol = self._volume[ids]
-            Vg = np.bincount(gid, vol)
-            wts = np.divide(vol, Vg[gid], out=np.zeros_like(vol), where=Vg[gid] > 0)
-            ng = len(Vg)
-            group = np.full(m, -1, dtype=np.int64)
-            group[ids] = gid
-            rows = (9 * gid[:, None] + np.arange(9)).ravel()
-            cols = (9 * ids[:, None] + np.arange(9)).ravel()
-            Avg = sp.csr_matrix((np.repeat(wts, 9), (rows, cols)), shape=(9 * ng, 9 * m))
-            self._bar = {"group": group, "Vg": Vg, "ng": ng, "Avg": Avg, "Jg": (Avg @ self.jacobian()).tocsr()}
-        return self._bar
+    def _forces(self, P) -> np.ndarray:
+        grad = np.zeros((self.n_nodes, 12))
+        K.frame_forces(self._index, self._G, np.ascontiguousarray(P), self._volume, grad)
+        return grad
 
-    def _reduced_pass(self, q, gradient, hessian):
-        """Point samples with the volumetric term of some labels reduced over groups (F-bar / B-bar).
+    def _stiffness(self, A) -> np.ndarray:
+        # a dense Hessian: frames sharing material couple (the solver takes it as is)
+        return K.frame_stiffness_dense(self._index, self._G, np.ascontiguousarray(A), self.n_nodes, self._volume,
+                                       (self._index, self._G, self._pairs, self._pair_id))
 
-        Per sample ``W(Phi(F_s, F_g))``: its derivatives in (F_s, F_g) from :func:`_bar_evaluate`,
-        chained through ``F_g = Avg F``; the Hessian is the dense kernel on the (F_s, F_s) blocks
-        plus ``J^T C J_g + (J^T C J_g)^T + J_g^T D J_g`` (C: the (F_s, F_g) blocks, D: the (F_g, F_g)
-        blocks summed per group), numpy and scipy.sparse.
+    # -- the volumetric term projected onto the frames' weights --------------------
+    def _projection(self):
+        """Per projected label: its samples, the weights N (sparse, samples x frames), the pseudo-inverse of
+        ``M = N^T V N`` over the frames it touches, and the sparse pattern of per-sample DOF rows; once."""
+        if self._proj is None:
+            n = self.n_nodes
+            out = []
+            dofs = self._dofs()
+            for label, ids in self._groups:
+                if not self.volumetric[label]:
+                    continue
+                idx = self._index[ids]
+                ok = idx >= 0
+                k = len(ids)
+                N = sp.csr_matrix((self._w[ids][ok], (np.broadcast_to(np.arange(k)[:, None], idx.shape)[ok], idx[ok])),
+                                  shape=(k, n))
+                N.sum_duplicates()
+                active = np.flatnonzero(np.asarray(abs(N).sum(axis=0)).ravel() > 0)
+                N = N[:, active].tocsr()
+                v = self._volume[ids]
+                M = (N.T @ sp.diags(v) @ N).toarray()
+                M = 0.5 * (M + M.T)
+                # rows of the per-sample DOF vectors (m, P, 3, 4) as a CSR pattern (k, 12n)
+                P = idx.shape[1]
+                okr = np.broadcast_to(ok[:, :, None, None], (k, P, 3, 4)).reshape(k, -1)
+                d = dofs[ids].reshape(k, -1)
+                counts = okr.sum(axis=1)
+                indptr = np.concatenate([[0], np.cumsum(counts)])
+                # M^+ = U diag(1 / lam) U^T over its range: with fewer samples than frames M is singular, and
+                # the projection (onto the span of the weights at the samples) is still an orthogonal one
+                lam, U = np.linalg.eigh(M)
+                keep = lam > 1e-12 * max(float(lam.max(initial=0.0)), 1e-300)
+                Minv = (U[:, keep] / lam[keep]) @ U[:, keep].T
+                out.append({"label": label, "ids": ids, "N": N, "NT": N.T.tocsr(), "M": 0.5 * (Minv + Minv.T),
+                            "okr": okr, "indices": d[okr], "indptr": indptr, "linear": bool(
+                                getattr(self.materials[label], "constant_tangent", False))})
+            self._proj = out
+        return self._proj
+
+    def _projected_pass(self, F, gradient, hessian):
+        """Samples with the volumetric term of some labels projected onto the frames' weights (module
+        docstring).
+
+        Per projected label, with ``J_s`` the samples' volume ratios (or traces, B-bar),
+        ``Jbar = N pi``, ``pi = M^-1 N^T V J``: the per-sample derivatives of ``W(F~(F_s, Jbar_s))``
+        (:func:`~voxflex.deform.materials.fbar.bar_scalar`: gF, gJ, HFF, HFJ, HJJ) chain as
+        gradient ``J^T (v gF + y c)`` with ``y = V N M^-1 N^T (v gJ)``, ``c_s = dJ_s/dF_s``, and Hessian
+        ``J^T blockdiag(v HFF + y d2J) J + X Q + (X Q)^T + Q^T N^T diag(v HJJ) N Q`` with
+        ``Q = M^-1 N^T V B`` (``B_s = c_s^T J_s``, the rows of dJ/dq) and
+        ``X = sum_s v_s J_s^T HFJ_s N_s`` (numpy and scipy.sparse; every product is rank n).
         """
-        tab = self._bar_tables()
         vol = self._volume
-        m, n, ng = len(vol), self.n_nodes, tab["ng"]
-        group = tab["group"]
-        F = np.empty((m, 3, 3))
-        K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
-        Fg = (tab["Avg"] @ F.reshape(-1)).reshape(ng, 3, 3)
+        m, n = len(vol), self.n_nodes
         want = gradient or hessian
         energy = 0.0
-        P = np.zeros((m, 9)) if want else None
-        A = np.zeros((m, 9, 9)) if hessian else None
-        SB = np.zeros((ng, 9))
-        C = np.zeros((m, 9, 9)) if hessian else None
-        D = np.zeros((ng, 9, 9)) if hessian else None
+        P = np.zeros((m, 3, 3)) if want else None
+        A = np.zeros((m, 3, 3, 3, 3)) if hessian else None
+        extra = []
         for label, ids in self._groups:
-            mat = self.materials[label]
-            if not self.volumetric[label]:
-                W, Pl, Al = mat.evaluate(F[ids], tangent=hessian)
-                energy += vdot(vol[ids], W)
-                if want:
-                    P[ids] = Pl.reshape(-1, 9)
-                if hessian:
-                    A[ids] = Al.reshape(-1, 9, 9)
+            if self.volumetric[label]:
                 continue
-            g = group[ids]
-            out = _bar_evaluate(mat, F[ids], Fg[g], linear=bool(getattr(mat, "constant_tangent", False)),
-                                gradient=want, tangent=hessian)
-            energy += vdot(vol[ids], out[0])
+            W, Pl, Al = self.materials[label].evaluate(F[ids], tangent=hessian)
+            energy += vdot(vol[ids], W)
             if want:
-                P[ids] = out[1]
-                np.add.at(SB, g, vol[ids, None] * out[2])
+                P[ids] = Pl
             if hessian:
-                A[ids] = out[3]
-                C[ids] = vol[ids, None, None] * out[4]
-                np.add.at(D, g, vol[ids, None, None] * out[5])
+                A[ids] = Al
+        for pr in self._projection():
+            ids, N, NT, cho, linear = pr["ids"], pr["N"], pr["NT"], pr["M"], pr["linear"]
+            Fl = F[ids]
+            v = vol[ids]
+            Js = np.trace(Fl, axis1=1, axis2=2) if linear else np.linalg.det(Fl)
+            Jbar = N @ (cho @ (NT @ (v * Js)))
+            out = bar_scalar(self.materials[pr["label"]], Fl, Jbar, linear=linear, gradient=want, tangent=hessian)
+            energy += vdot(v, out[0])
+            if not np.isfinite(energy):
+                return np.inf, (np.full((n, 12), np.nan) if gradient else None), \
+                    (np.full((12 * n, 12 * n), np.nan) if hessian else None)
+            if not want:
+                continue
+            gF, gJ = out[1], out[2]
+            y = v * (N @ (cho @ (NT @ (v * gJ))))  # dE/dJ_s through Jbar
+            if linear:
+                c = np.broadcast_to(np.eye(3), Fl.shape)
+            else:
+                c = np.linalg.det(Fl)[:, None, None] * np.linalg.inv(Fl).transpose(0, 2, 1)  # cofactor
+            P[ids] = gF.reshape(-1, 3, 3) + (y / v)[:, None, None] * c
+            if hessian:
+                Al = out[3].reshape(-1, 3, 3, 3, 3)
+                if not linear:  # y d2(det F): cof derivative, d2J/dF_ij dF_kl = J (Finv_ji Finv_lk - Finv_li Finv_jk)
+                    Fi = np.linalg.inv(Fl)
+                    Jd = np.linalg.det(Fl)
+                    d2 = Jd[:, None, None, None, None] * (np.einsum("sji,slk->sijkl", Fi, Fi)
+                                                          - np.einsum("sli,sjk->sijkl", Fi, Fi))
+                    Al = Al + (y / v)[:, None, None, None, None] * d2
+                A[ids] = Al
+                extra.append((pr, c, out[4], out[5]))
         if not want:
-            return float(energy), None, None
-        Vg = tab["Vg"]
-        red = group >= 0
-        P[red] += np.divide(SB, Vg[:, None], out=np.zeros_like(SB), where=Vg[:, None] > 0)[group[red]]
-        grad = None
-        if gradient:
-            grad = np.zeros((n, 12))
-            K.frame_forces(self._index, self._G, P.reshape(m, 3, 3), vol, grad)
+            return energy, None, None
+        grad = self._forces(P) if gradient else None
         H = None
         if hessian:
-            H = K.frame_stiffness_dense(self._index, self._G, A.reshape(m, 3, 3, 3, 3), n, vol,
-                                        (self._index, self._G, self._pairs, self._pair_id))
-            J, Jg = self.jacobian(), tab["Jg"]
-            rid = np.flatnonzero(red)
-            Cm = sp.bsr_matrix((C[rid], group[rid], np.searchsorted(rid, np.arange(m + 1))),
-                               shape=(9 * m, 9 * ng)).tocsr()
-            X = ((J.T @ Cm) @ Jg).toarray()
-            Dm = sp.bsr_matrix((D, np.arange(ng), np.arange(ng + 1)), shape=(9 * ng, 9 * ng)).tocsr()
-            H += X + X.T + (Jg.T @ (Dm @ Jg)).toarray()
-        return float(energy), grad, H
-
-    def _elaston_pass(self, q, gradient, hessian):
-        """Elastons: the energy of the strain's linear variation over each region from (F, grad F)
-        and the region's moments (:func:`voxflex.deform.materials.elaston.material_elaston_energy`)."""
-        from ...materials.elaston import material_elaston_energy
-
-        F, dF = self._fmap.apply(q)
-        s = self.samples
-        m = len(s.volume)
-        energy = 0.0
-        gF = np.zeros((m, 3, 3))
-        gdF = np.zeros((m, 3, 3, 3))
-        blocks = np.zeros((m, 36, 36)) if hessian else None
-        M1, M2 = s.M1, s.M2
-        for label, ids in self._groups:
-            out = material_elaston_energy(self.materials[label], F[ids], dF[ids], s.volume[ids], M1[ids], M2[ids],
-                                          hessian=hessian)
-            energy += float(out.energy.sum())
-            gF[ids], gdF[ids] = out.grad_F, out.grad_dF
-            if hessian:
-                h = out.hessian
-                k = len(ids)
-                b = np.zeros((k, 36, 36))
-                b[:, :9, :9] = h.FF.reshape(k, 9, 9)
-                b[:, :9, 9:] = h.FdF.reshape(k, 9, 27)
-                b[:, 9:, :9] = b[:, :9, 9:].transpose(0, 2, 1)
-                b[:, 9:, 9:] = h.dFdF.reshape(k, 27, 27)
-                blocks[ids] = b
-        grad = self._fmap.vjp(q, (gF, gdF)) if gradient else None
-        H = None
-        if hessian:
-            # sum_e J_e^T D_e J_e with J_e the elaston's 36 rows on the columns they touch (its parents'
-            # DOFs), dense, by chunks of at most 2^22 entries (32 MB) so that many elastons of many
-            # parents stay lean: 400 elastons of 6 parents (capsule, 20 frames) in 21 ms against 120 ms
-            # for the sparse J^T (D J) (min of 20, one run; with np.add.at in place of bincount, twice as long)
-            Je, idx, flat_all = self._elaston_rows()
-            N = 12 * self.n_nodes
-            H = np.zeros(N * N)
-            C = Je.shape[2]
-            step = max(1, ELASTON_CHUNK // (C * C))
-            for a in range(0, m, step):
-                b = slice(a, a + step)
-                He = np.matmul(Je[b].transpose(0, 2, 1), np.matmul(blocks[b], Je[b]))
-                single = flat_all is not None and step >= m  # one chunk: the index kept at build
-                flat = flat_all if single else (idx[b, :, None] * N + idx[b, None, :]).ravel()
-                if N * N <= ELASTON_CHUNK:  # a dense count of the small Hessian is the fastest sum
-                    H += np.bincount(flat, weights=He.ravel(), minlength=N * N)
-                else:
-                    np.add.at(H, flat, He.ravel())
-            H = H.reshape(N, N)
+            H = self._stiffness(A)
+            for pr, c, HFJ, HJJ in extra:
+                ids, N, NT, cho = pr["ids"], pr["N"], pr["NT"], pr["M"]
+                v = vol[ids]
+                B = self._dof_rows(pr, ids, c.reshape(-1, 3, 3))  # dJ_s/dq (k, 12n) sparse
+                Xr = self._dof_rows(pr, ids, (v[:, None] * HFJ).reshape(-1, 3, 3))  # v_s J_s^T HFJ_s
+                Z = (NT @ sp.diags(v) @ B).toarray()  # (na, 12n)
+                Q = cho @ Z
+                X = (Xr.T @ N).toarray()  # (12n, na)
+                XQ = X @ Q
+                ND = (NT @ sp.diags(v * HJJ) @ N).toarray()
+                H += XQ + XQ.T + Q.T @ (ND @ Q)
             H = 0.5 * (H + H.T)
-        return float(energy), grad, H
+        return energy, grad, H
 
-    def _elaston_rows(self):
-        """``Je (m, 36, C)``: each elaston's rows of the (F, grad F) Jacobian on the C columns it touches
-        (padded with zero columns), those columns ``(m, C)`` (0 for the padding) and, when the blocks
-        fit one chunk (``m C^2 <=`` :data:`ELASTON_CHUNK`), the flat index ``(m C^2,)`` of each block
-        entry in the (12n, 12n) Hessian (else None: each chunk computes its own); built once from
-        :meth:`jacobian` (constant for affine frames)."""
-        if self._elaston_gather is None:
-            J = self.jacobian().copy()
-            J.sum_duplicates()  # one entry per (row, column): the gather below assigns
-            m, N = J.shape[0] // 36, J.shape[1]
-            row = np.repeat(np.arange(J.shape[0]), np.diff(J.indptr))
-            key = (row // 36) * N + J.indices  # (elaston, column) of every entry
-            cols, inv = np.unique(key, return_inverse=True)
-            first = np.searchsorted(cols, np.arange(m) * N)  # where each elaston's columns start
-            count = np.diff(np.append(first, len(cols)))
-            C = max(int(count.max()), 1) if m else 1
-            Je = np.zeros((m, 36, C))
-            pos = inv - first[row // 36]
-            Je[row // 36, row % 36, pos] = J.data
-            idx = np.zeros((m, C), dtype=np.int64)
-            e = np.repeat(np.arange(m), count)
-            idx[e, np.arange(len(cols)) - first[e]] = cols % N
-            flat = None
-            if m * C * C <= ELASTON_CHUNK:
-                dt = np.int32 if N * N < np.iinfo(np.int32).max else np.int64
-                flat = (idx[:, :, None] * N + idx[:, None, :]).astype(dt).ravel()
-            self._elaston_gather = (Je, idx, flat)
-        return self._elaston_gather
-
+    def _dof_rows(self, pr, ids, c) -> sp.csr_matrix:
+        """Sparse (k, 12n) rows ``J_s^T vec(c_s)``: per sample the DOF vector of ``c_s : dF_s``
+        (``sum_j c[i, j] G[p, c, j]`` at DOF (p, i, c))."""
+        rows = np.einsum("sij,spcj->spic", c, self._G[ids]).reshape(len(ids), -1)
+        return sp.csr_matrix((rows[pr["okr"]], pr["indices"], pr["indptr"]), shape=(len(ids), 12 * self.n_nodes))
     # -- mass and gravity --------------------------------------------------------
     def _mass_points(self):
         """Mass points: the voxel centres, their volumes (occupancy-weighted) and labels (no shape values)."""
@@ -723,11 +745,15 @@ class FrameModel(OnePass):
         return np.asarray(q, dtype=float).reshape(self.n_nodes, 12)[:, 9:12].copy()
 
     def point_sample_refusal(self, labels) -> str:
-        """Internal variables need point samples with the full volumetric term: refused with elastons
-        (a region's moments, not points) or F-bar / B-bar labels."""
-        if self.elaston:
-            return ('plasticity needs point samples; give the plastic label(s) elastic behaviour, or use '
-                    '[elasticity] quadrature = "midpoint" or "gauss-legendre" instead of elastons')
+        """Internal variables need point samples with the full volumetric term: refused on stabilised
+        mid-point regions (their fluctuation about the region's mean F stays elastic) and on labels whose
+        volume ratio is projected.  Elastons are point samples (a sub-rule's Gauss points)."""
+        fix = "give the plastic label(s) elastic behaviour, or"
+        if self.hourglass == "stiffness" and self.samples.kind == "midpoint":
+            return ("plasticity on stabilised mid-point regions would yield at each region's mean F only, the "
+                    "fluctuation about it staying elastic (8 frames on the plastic bar: permanent set / bent 0.12 "
+                    f"against 0.25 with Gauss-Legendre); {fix} use [elasticity] quadrature = \"elaston\" or "
+                    '"gauss-legendre" (or hourglass = "none", the bare one-point rule)')
         reduced = sorted(int(lab) for lab in labels if self.volumetric.get(int(lab), False))
         if reduced:
             return (f"plasticity needs the full volumetric term, but label(s) {reduced} use F-bar; [elasticity] "
@@ -741,10 +767,11 @@ class FrameModel(OnePass):
         """The state a step starts from: ``q_start`` itself (models with obstacles may move it)."""
         return q_start
 
+
     def advice(self) -> str:
-        if self.samples.kind == "midpoint":
-            return ("mid-point samples may leave spurious zero-energy modes between frames; "
-                    "add samples or use quadrature = \"elaston\" or \"gauss-legendre\"")
+        if self.samples.kind == "midpoint" and self.hourglass == "none":
+            return ("bare mid-point samples under-integrate and may leave spurious zero-energy modes between "
+                    'frames; use [elasticity] hourglass = "stiffness", quadrature = "elaston" or "gauss-legendre"')
         return ""
 
     def describe(self) -> dict:
@@ -753,5 +780,9 @@ class FrameModel(OnePass):
                                           "reduced for label(s) " + ", ".join(map(str, reduced)))
         out = {"node_kind": self.node_kind, "count": self.n_nodes, "dofs": 12 * self.n_nodes,
                "quadrature": self.samples.kind, "samples": self.n_samples, "volumetric": vol}
+        if self.regions is not None:
+            out["regions"] = len(self.regions.volume)
+        if self.samples.kind == "midpoint":
+            out["hourglass"] = self.hourglass
         out.update(self.info)
         return out

@@ -24,7 +24,7 @@ from ...chain.mappings import DeformationGradientWithGradientMapping
 from ...chain.nodes import AffineFrames
 
 __all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness", "softest_mode",
-           "SOFT_RATIO", "gauge_modes"]
+           "SOFT_RATIO", "gauge_modes", "dimensionless"]
 
 GAUGE_TOL = 1e-8
 """A gauge candidate (:meth:`AffineFrames.gauge_modes`) whose deformation gradient and motion at the
@@ -92,7 +92,11 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
         Integration samples (their ``values`` are the shape functions on these frames).
     gradient : bool, optional
         Include the strain-gradient terms of elastons (``∇F`` with the moments
-        M1, M2); default: when ``samples.kind == "elaston"`` and the values have Hessians.
+        M1, M2: the Taylor elastons of :mod:`voxflex.deform.materials.elaston`); default: for
+        region samples of kind ``"elaston"`` with Hessians.  The frame model integrates elastons
+        by sub-rules of point samples: its own rest stiffness is
+        :meth:`~voxflex.deform.models.frames.model.FrameModel.rest_stiffness`, which the builder's
+        checks read (with the mid-point regions' fluctuation term).
 
     Returns
     -------
@@ -106,7 +110,7 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
             raise InputError(f"samples must be a voxflex Samples (missing '{attr}'); build them with vf.sample")
     values = samples.values
     if gradient is None:
-        gradient = getattr(samples, "kind", None) == "elaston" and values.ddw is not None
+        gradient = getattr(samples, "kind", None) == "elaston" and values.ddw is not None and hasattr(samples, "M1")
     if gradient and not (hasattr(samples, "M1") and hasattr(samples, "M2")):
         raise InputError("gradient terms need the samples' moments M1 and M2 (elastons from vf.sample)")
     C = _unit_hooke_F()
@@ -133,7 +137,8 @@ def free_body_stiffness(frames, samples, *, gradient: bool | None = None) -> np.
     return 0.5 * (K + K.T)
 
 
-def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None) -> int:
+def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None,
+                      gauge=None) -> int:
     """Number of zero eigenvalues of the free-body stiffness (six for a sound quadrature), the exact
     gauge modes of linearly precise weights (:func:`gauge_modes`, which move nothing) not counted.
 
@@ -148,6 +153,9 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
         See :func:`free_body_stiffness`.
     stiffness : (12n, 12n) float, optional
         ``free_body_stiffness(frames, samples, gradient=gradient)`` when the caller has it.
+    gauge : (12n, g) float, optional
+        The gauge motions (default: :func:`gauge_modes` at the samples; a model's builder passes those at
+        every voxel centre, which see what a stabilised region's Gauss points see).
 
     Returns
     -------
@@ -159,15 +167,35 @@ def zero_energy_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | No
     K = free_body_stiffness(frames, samples, gradient=gradient) if stiffness is None else stiffness
     from ...._blas import one_thread
 
-    G = gauge_modes(frames, samples.values)
+    Ks = dimensionless(K, samples)
+    G = gauge_modes(frames, samples.values) if gauge is None else gauge  # no translation: scaling leaves it
     if G.shape[1]:  # motions that move nothing are not zero-energy deformations: deflate them
-        K = K + (np.trace(K) / len(K)) * (G @ G.T)
+        Ks = Ks + (np.trace(Ks) / len(Ks)) * (G @ G.T)
     with one_thread():  # threaded BLAS stalls on small dense work here
-        ev = np.linalg.eigvalsh(K)
+        ev = np.linalg.eigvalsh(Ks)
     top = float(ev.max()) if ev.size else 0.0
     if top <= 0:
         return int(ev.size)
     return int((ev < tol * top).sum())
+
+
+def dimensionless(K, samples) -> np.ndarray:
+    """``S K S`` with the translation DOFs scaled by the samples' spread L (S = 1 on the matrix entries,
+    L on the translations): the eigenvalues of K mix the units of its blocks (Pa m^3 for the matrix
+    entries, Pa m for the translations), so a relative threshold on them would judge the same scene
+    differently at 1 um and 1 km; those of ``S K S`` scale uniformly with the scene.
+
+    L is the root-mean-square distance of the samples from their volume-weighted centroid [m].
+    """
+    pts = np.asarray(samples.points, dtype=np.float64)
+    vol = np.asarray(samples.volume, dtype=np.float64)
+    c = (vol @ pts) / vol.sum()
+    L = float(np.sqrt((vol @ ((pts - c) ** 2).sum(axis=1)) / vol.sum()))
+    if not L > 0:  # one sample: any length of the body will do
+        L = float(np.cbrt(vol.sum()))
+    s = np.ones(K.shape[0])
+    s.reshape(-1, 12)[:, 9:] = L
+    return K * s[:, None] * s[None, :]
 
 
 def _point_stiffness(frames, values, volume, C) -> np.ndarray:
@@ -251,20 +279,23 @@ def _rigid_modes(frames) -> np.ndarray:
     return Q
 
 
-def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None) -> int:
+def check_modes(frames, samples, *, tol: float = 1e-8, gradient: bool | None = None, stiffness=None,
+                gauge=None) -> int:
     """Count zero-energy modes and warn (:class:`SpuriousModesWarning`) when there are more than six.
 
     The warning names how many samples to add at least (each mid-point sample
     removes at most 6 modes, an elaston with gradient terms at most 24).
-    ``stiffness``: the free-body stiffness when the caller has it (see :func:`zero_energy_modes`).
+    ``stiffness``: the free-body stiffness when the caller has it, ``gauge`` the gauge motions (see
+    :func:`zero_energy_modes`).
 
     Returns
     -------
     int : the number of zero-energy modes.
     """
     if gradient is None:
-        gradient = getattr(samples, "kind", None) == "elaston" and samples.values.ddw is not None
-    zero = zero_energy_modes(frames, samples, tol=tol, gradient=gradient, stiffness=stiffness)
+        gradient = getattr(samples, "kind", None) == "elaston" and samples.values.ddw is not None \
+            and hasattr(samples, "M1")
+    zero = zero_energy_modes(frames, samples, tol=tol, gradient=gradient, stiffness=stiffness, gauge=gauge)
     if zero > 6:
         per = 24 if gradient else 6
         add = -(-(zero - 6) // per)

@@ -1,0 +1,129 @@
+"""Moment-fitted sub-rules (elastons): exact moments, positive weights, and the measured order of accuracy.
+
+Oracles: the regions' exact moments (the Gauss points' own, exact to degree 3 per voxel), and a
+5-point-per-axis Gauss integral per voxel of a smooth deformation's energy (converged to round-off
+for these integrands) as the reference of the energy-accuracy order, for every material.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from voxflex.errors import InputError
+from voxflex.image import LabelImage
+from voxflex.sampling.quadrature import gauss_legendre_cube
+from voxflex.sampling.subrule import gauss_points, moment_fitted_rule
+from voxflex.sampling.volume_moments import monomials
+
+sys.path.insert(0, str(Path(__file__).parent))
+from contract_materials import MATERIAL_SPECS, make  # noqa: E402
+
+
+def _l_region(h, origin=(0.0, 0.0, 0.0)):
+    """Six voxels of edge h in an L with one voxel on top: no symmetry (third moments != 0)."""
+    labels = np.zeros((3, 3, 2), dtype=np.uint8)
+    labels[:, 0, 0] = 1
+    labels[0, 1:, 0] = 1
+    labels[1, 1, 1] = 1
+    return LabelImage(labels, spacing=(h, h, h), origin=origin)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_rule_reproduces_the_moments_with_positive_weights(degree):
+    """Random regions of a random blob: per region the selected points' weights are > 0, there are at
+    most binom(degree + 3, 3) of them (a basic solution), and they reproduce every moment of degree
+    <= ``degree`` about the region's centroid to 1e-12 relative (round-off of the least-squares re-solve)."""
+    rng = np.random.default_rng(4)
+    labels = (rng.random((7, 6, 5)) < 0.7).astype(np.uint8)
+    img = LabelImage(labels, spacing=(0.2, 0.3, 0.25))
+    pts, vol, vox = gauss_points(img)
+    region_of_voxel = rng.integers(0, 9, size=int(labels.sum()))
+    region = region_of_voxel[vox]
+    m = int(region.max()) + 1
+    sel, w = moment_fitted_rule(pts, vol, region, m, h=0.2, degree=degree)
+    assert np.all(w > 0)
+    nm = {0: 1, 1: 4, 2: 10, 3: 20}[degree]
+    counts = np.bincount(region[sel], minlength=m)
+    assert np.all(counts <= nm) and np.all(counts >= 1)
+    assert np.all(np.diff(region[sel]) >= 0)  # grouped by region
+    for r in range(m):
+        ids = region == r
+        c = (vol[ids] @ pts[ids]) / vol[ids].sum()
+        full = vol[ids] @ monomials((pts[ids] - c) / 0.2)[:, :nm]
+        s = sel[region[sel] == r]
+        got = w[region[sel] == r] @ monomials((pts[s] - c) / 0.2)[:, :nm]
+        assert np.allclose(got, full, rtol=1e-12, atol=1e-12 * full[0])
+
+
+def test_rule_is_the_same_at_any_unit():
+    """The fit is made on (x - c) / h with relative thresholds: the same region at 1 um and 1 km gets a
+    rule of the same size reproducing its moments to 1e-12 relative (NNLS may break ties between the
+    symmetric Gauss points differently at the two scales, so the points themselves may differ)."""
+    sizes = []
+    for h in (1e-6, 1e3):
+        pts, vol, _ = gauss_points(_l_region(h))
+        sel, w = moment_fitted_rule(pts, vol, np.zeros(len(pts), dtype=np.int64), 1, h=h)
+        c = (vol @ pts) / vol.sum()
+        full = vol @ monomials((pts - c) / h)[:, :10]
+        assert np.allclose(w @ monomials((pts[sel] - c) / h)[:, :10], full, rtol=1e-12, atol=1e-12 * full[0])
+        sizes.append(len(sel))
+    assert sizes[0] == sizes[1]
+
+
+def test_bad_input_is_refused():
+    pts, vol, _ = gauss_points(_l_region(1.0))
+    region = np.zeros(len(pts), dtype=np.int64)
+    with pytest.raises(InputError, match="degree"):
+        moment_fitted_rule(pts, vol, region, 1, h=1.0, degree=4)
+    with pytest.raises(InputError, match="no candidate"):
+        moment_fitted_rule(pts, vol, region, 2, h=1.0)
+    with pytest.raises(InputError, match="positive length"):
+        moment_fitted_rule(pts, vol, region, 1, h=0.0)
+
+
+def _deformation_gradient(x):
+    """F of the smooth map x + 0.3 sin(x1 + 2 x2) e0 + 0.2 x0 x2 e1 - 0.25 cos(x0 - x1) e2."""
+    F = np.broadcast_to(np.eye(3), (len(x), 3, 3)).copy()
+    c = 0.3 * np.cos(x[:, 1] + 2 * x[:, 2])
+    F[:, 0, 1] += c
+    F[:, 0, 2] += 2 * c
+    F[:, 1, 0] += 0.2 * x[:, 2]
+    F[:, 1, 2] += 0.2 * x[:, 0]
+    s = 0.25 * np.sin(x[:, 0] - x[:, 1])
+    F[:, 2, 0] += s
+    F[:, 2, 1] -= s
+    return F
+
+
+def _energy_errors(mat, hs):
+    """|sub-rule - reference| / V of the L region of edge h, shrunk about a fixed centroid."""
+    labels = _l_region(1.0).labels
+    ijk = np.argwhere(labels > 0)
+    cu = (ijk + 0.5).mean(axis=0)
+    centre = np.array([0.3, 0.2, 0.1])
+    loc, lw = gauss_legendre_cube(5)
+    errs = []
+    for h in hs:
+        img = _l_region(h, origin=centre - h * cu)
+        pts, vol, _ = gauss_points(img)
+        sel, w = moment_fitted_rule(pts, vol, np.zeros(len(pts), dtype=np.int64), 1, h=h)
+        fine = img.index_to_world((ijk[:, None, :] + loc[None]).reshape(-1, 3))
+        fw = np.repeat(np.full(len(ijk), float(img.voxel_volume)), len(lw)) * np.tile(lw, len(ijk))
+        ref = fw @ mat.energy(_deformation_gradient(fine))
+        errs.append(abs(w @ mat.energy(_deformation_gradient(pts[sel])) - ref) / vol.sum())
+    return np.array(errs)
+
+
+@pytest.mark.parametrize("label", sorted(MATERIAL_SPECS))
+def test_energy_error_is_third_order_for_every_material(label):
+    """The stated order: a degree-2 sub-rule integrates a smooth energy density with an error O(h^3) per
+    unit volume (the first moments it does not reproduce are the region's third).  Measured on an
+    asymmetric region with h = 0.08 ... 0.01 (10 points of its 48 Gauss points): observed orders
+    2.95-3.44 for every registered material; required within 3 +- 0.5 on every halving."""
+    errs = _energy_errors(make(label), [0.08, 0.04, 0.02, 0.01])
+    orders = np.log2(errs[:-1] / errs[1:])
+    assert np.all(np.abs(orders - 3.0) < 0.5), (errs, orders)

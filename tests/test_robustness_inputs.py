@@ -1,0 +1,224 @@
+"""Inputs and accepted states at the extremes (issue 27): the Python API protects files as the command line
+does; magnitudes double precision cannot carry, and loads no solid carries, are refused; every accepted
+state is finite, in balance and of plausible size, or the run says so."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import robust
+from robust import assert_refused, beam
+
+import voxflex as vf
+from voxflex.cli import main
+from voxflex.errors import ConvergenceError, InputError, VoxflexError
+from voxflex.guards import GROWTH_REFUSE, RESIDUAL_REFUSE, ImplausibleStateWarning, StateCheck
+from voxflex.scene import Scene
+from voxflex.simulation import InversionWarning
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("VOXFLEX_PROGRESS", "0")
+    (tmp_path / "beam.toml").write_text(beam())
+    return tmp_path
+
+
+# ---------------------------------------------------------------------------
+# the API protects files like the command line
+# ---------------------------------------------------------------------------
+def _precious(folder):
+    (folder / "notes.h5").write_text("precious notes\n")
+    (folder / "picture.png").write_bytes(b"\x89PNG\r\n\x1a\nprecious")
+    return {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
+
+
+@pytest.mark.parametrize("target, expected", [
+    ("beam.toml", "is the scene file of this run"),
+    ("notes.h5", "is not a voxflex result file"),
+    ("picture.png", "must end in .h5"),
+    ("adir", "is a folder"),
+    ("missing/r.h5", "does not exist"),
+])
+def test_simulate_refuses_to_destroy_a_file(folder, target, expected):
+    (folder / "adir").mkdir()
+    before = _precious(folder)
+    scene = Scene.from_toml(folder / "beam.toml")
+    with pytest.raises(InputError, match=expected) as info:
+        vf.simulate(scene, progress=False, output=folder / target)
+    assert "\n" not in str(info.value)
+    assert {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()} == before
+    assert not list(folder.glob(".*"))  # no temporary left
+
+
+def test_simulate_refuses_the_scene_file_given_as_a_path(folder):
+    with pytest.raises(InputError, match="scene file of this run.*force=True"):
+        vf.simulate(folder / "beam.toml", progress=False, output=folder / "beam.toml")
+
+
+def test_simulate_refuses_the_scene_image(folder):
+    from voxflex.image import LabelImage
+
+    LabelImage(np.ones((4, 2, 2), dtype=np.uint8), spacing=0.5).save(folder / "img.h5")
+    (folder / "img.toml").write_text(robust.image_scene("img.h5", probe="[2.0, 0.5, 0.5]"))
+    with pytest.raises(InputError, match="the scene's image"):
+        vf.simulate(Scene.from_toml(folder / "img.toml"), progress=False, output=folder / "img.h5")
+
+
+def test_force_lets_the_api_overwrite_a_foreign_file(folder):
+    _precious(folder)
+    r = vf.simulate(Scene.from_toml(folder / "beam.toml"), progress=False, output=folder / "notes.h5", force=True)
+    assert vf.Result.load(folder / "notes.h5").n_states == r.n_states == 2
+
+
+def test_the_scene_output_file_is_checked_too(folder):
+    _precious(folder)
+    (folder / "out.toml").write_text(beam() + '\n[output]\nfile = "notes.h5"\n')
+    with pytest.raises(InputError, match=r"\[output\] file"):
+        vf.simulate(Scene.from_toml(folder / "out.toml"), progress=False)
+
+
+# ---------------------------------------------------------------------------
+# magnitudes
+# ---------------------------------------------------------------------------
+REFUSED = [
+    ("gravity_1e200", dict(gravity="[0.0, 0.0, -1e200]"), "outside 1e-100 .. 1e+100"),
+    ("gravity_1e30", dict(gravity="[0.0, 0.0, -1e30]"), "the load would strain the body 4e+26 times"),
+    ("gravity_1e8", dict(gravity="[0.0, 0.0, -1e8]"), "the load would strain the body 4e+04 times"),
+    ("young_1e-300", dict(young="1e-300"), "young = 1e-300 is outside"),
+    ("young_5e-324", dict(young="5e-324"), "young = 5e-324 is outside"),
+    ("young_1e-3", dict(young="1e-3"), "the load would strain the body"),
+    ("density_1e300", dict(density="1e300"), "density = 1e+300 is outside"),
+    ("density_1e-120", dict(density="1e-120"), "density = 1e-120 is outside"),
+    ("voxel_1e-120", dict(h=1e-120, size=(4e-120, 1e-120, 1e-120)), "voxel size along x = 1e-120 is outside"),
+    ("gravity_tiny", dict(gravity="[0.0, 0.0, -1e-150]"), "vector magnitude = 1e-150 is outside"),
+]
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
+@pytest.mark.parametrize("name, kw, expected", REFUSED, ids=[c[0] for c in REFUSED])
+def test_absurd_magnitudes_are_refused(folder, capfd, kind, name, kw, expected):
+    nodes = "count = 4" if kind == "affine" else ""
+    (folder / "s.toml").write_text(beam(kind, nodes=nodes, **kw))
+    status = main(["simulate", "s.toml", "-o", "r.h5", "--quiet"])
+    assert_refused(status, capfd.readouterr().err, "simulate", expected)
+    assert not (folder / "r.h5").exists()
+
+
+def test_traction_and_force_loads_are_measured_against_the_stiffness(folder):
+    for load, expected in (('kind = "traction"\nvector = [0.0, 0.0, -1e9]\nmin = [3.9, -1.0, -1.0]', "|t| / E"),
+                           ('kind = "force"\nvector = [0.0, 0.0, -1e12]\nmin = [3.9, -1.0, -1.0]', "|F| / (E A)")):
+        text = beam().replace('[[load]]\nkind = "gravity"\nvector = [0.0, 0.0, -9.81]', "[[load]]\n" + load)
+        with pytest.raises(InputError, match=expected.replace("|", r"\|").replace("(", r"\(").replace(")", r"\)")):
+            vf.simulate(Scene.from_toml_text(text), progress=False)
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
+def test_large_but_physical_loads_run_and_are_plausible(kind):
+    """rho g L / E = 0.04 (a soft jelly under its weight): accepted, finite, and no warning."""
+    scene = Scene.from_toml_text(beam(kind, model="neo-hookean", elasticity="", young="1.0e3",
+                                      nodes="count = 6" if kind == "affine" else "", solver="steps = 4"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = vf.simulate(scene, progress=False)
+    u = robust.tip(r)
+    assert -4.0 < u[2] < -0.5  # sags a lot (large deformation), less than its length
+    assert np.all(np.isfinite(r.surface_positions)) and r.totals["inverted_samples"] == 0
+
+
+def test_no_numpy_overflow_warning_leaks(folder, capfd):
+    """A load at the edge of what is accepted on a very soft linear body: whatever the solver meets inside,
+    the user sees voxflex's own lines only."""
+    (folder / "s.toml").write_text(beam(young="1.0", gravity="[0.0, 0.0, -200.0]"))
+    main(["simulate", "s.toml", "-o", "r.h5", "--quiet"])
+    err = capfd.readouterr().err
+    assert "RuntimeWarning" not in err and "overflow" not in err.lower()
+
+
+# ---------------------------------------------------------------------------
+# every accepted state
+# ---------------------------------------------------------------------------
+def test_a_non_finite_state_is_refused():
+    check = StateCheck(np.zeros((2, 3)) + [[0, 0, 0], [1, 1, 1]])
+    for bad in (np.nan, np.inf, -np.inf):
+        q = np.ones((4, 3))
+        q[1, 2] = bad
+        with pytest.raises(ConvergenceError, match="not finite"):
+            check(3, q, np.ones((2, 3)), 0.0)
+
+
+def test_a_step_accepted_out_of_balance_is_refused():
+    check = StateCheck(np.array([[0, 0, 0], [1, 1, 1]], dtype=float))
+    check(1, np.zeros(3), np.zeros((2, 3)), RESIDUAL_REFUSE / 2)
+    with pytest.raises(ConvergenceError, match="relative residual 1.00e\\+00"):
+        check(2, np.zeros(3), np.zeros((2, 3)), 1.0)
+
+
+def test_a_body_grown_a_thousandfold_is_refused_and_tenfold_warned():
+    rest = np.array([[0, 0, 0], [1, 1, 1]], dtype=float)
+    check = StateCheck(rest)
+    check(1, np.zeros(3), rest * 20, 0.0)
+    with pytest.warns(ImplausibleStateWarning, match="20 times its rest size"):
+        check.warn()
+    with pytest.raises(ConvergenceError, match="times its rest size"):
+        check(2, np.zeros(3), rest * 2 * GROWTH_REFUSE, 0.0)
+
+
+def test_a_linear_run_far_beyond_small_strains_is_warned_about():
+    """A one-voxel-thick linear plate sagging 3.5 times its length under gravity x 10: the run says the
+    state is implausible and that samples inverted (linear strain does not stop it)."""
+    scene = Scene.from_toml_text(beam(size=(4.0, 1.0, 0.25), h=0.25, gravity="[0.0, 0.0, -300.0]"))
+    with pytest.warns(Warning) as caught:
+        r = vf.simulate(scene, progress=False)
+    kinds = {w.category for w in caught}
+    assert ImplausibleStateWarning in kinds or InversionWarning in kinds, [str(w.message) for w in caught]
+    assert np.all(np.isfinite(r.surface_positions))
+
+
+def test_inverted_samples_of_any_material_are_warned_about():
+    from voxflex.simulation import _warn_inversion
+
+    class _Rec:
+        first_inverted = (2, 5)
+        totals = {"min_det_F": -0.3}
+
+    class _Model:
+        materials = {1: vf.material("neo-hookean", young=1e4, poisson=0.3)}
+
+    with pytest.warns(InversionWarning, match="5 samples inverted.*not physical"):
+        _warn_inversion(_Model(), _Rec())
+
+
+def test_friction_1e12_is_not_accepted_at_relative_residual_1(folder, capfd):
+    """A sliding ball on a plane with friction 1e12: the round-off floor of the friction stiffness let Newton
+    accept residual 1.0; the run now stops at that step with the reason (earlier steps kept, marked)."""
+    import pathlib
+
+    text = pathlib.Path(robust.__file__).resolve().parents[2].joinpath("examples", "ball_on_plane.toml").read_text()
+    text = text.replace("normal = [0.0, 0.0, 1.0]", "normal = [0.0, 0.0, 1.0]\nfriction = 1e12")
+    text = text.replace("vector = [0.0, 0.0, -9.81]", "vector = [3.0, 0.0, -9.81]").replace("steps = 50", "steps = 6")
+    (folder / "f.toml").write_text(text)
+    status = main(["simulate", "f.toml", "-o", "r.h5", "--quiet"])
+    line = assert_refused(status, capfd.readouterr().err, "simulate", ["relative residual", "not an equilibrium"])
+    assert "marked incomplete" in line
+    r = vf.Result.load(folder / "r.h5")
+    assert not r.complete and np.all(np.isfinite(r.surface_positions))
+
+
+def test_the_state_check_error_reaches_the_api_as_a_voxflex_error(monkeypatch):
+    """A model whose solve yields NaN (a stand-in for an overflow) ends in a VoxflexError, not exit 0."""
+    from voxflex import simulation
+
+    original = simulation._Recorder.__call__
+
+    def poisoned(self, rec):
+        if self.count == 1:
+            rec.q = np.full_like(np.asarray(rec.q, dtype=float), np.nan)
+        return original(self, rec)
+
+    monkeypatch.setattr(simulation._Recorder, "__call__", poisoned)
+    with pytest.raises(VoxflexError, match="not finite"):
+        vf.simulate(Scene.from_toml_text(beam()), progress=False)
