@@ -190,6 +190,13 @@ STRAIN_SOLVE_VOXELS = 4000
 """``[nodes] placement = "strain"``: the first solve runs on the scene's image merged 2x2x2 while it has more
 material voxels than this (a linear voxel model of at most ~15k DOF: a few seconds)."""
 
+ROUNDOFF_STRAIN = 1e-12
+"""``[nodes] placement = "strain"``: a first solve whose largest strain-energy density is below that of this
+strain (``0.5 (lambda + 2 mu) eps^2`` of the stiffest material) has nothing to follow (a scene without loads
+solves to round-off: measured 3e-26 Pa, a strain of 2e-15, on the clamped cantilever at E = 1e4 Pa): the
+indicator is zero and the placement that of ``placement = "volume"``.  Dimensionless, so the same scene in
+other length units gets the same verdict (gravity at 1 um still strains the cantilever by ~1e-7)."""
+
 
 def _linearised(material):
     """Linear isotropic elasticity (strain "linear") with the rest tangent's Lame constants of ``material``
@@ -215,6 +222,8 @@ def strain_indicator(scene: Scene, image, materials) -> np.ndarray:
     (of the nearest coarse material voxel where the merge left none).  A voxel model, not a few frames, so
     that the indicator depends on no placement (no frames to place first) and resolves stress
     concentrations to its own voxel size.
+
+    Zero everywhere when the solve's energy is round-off (:data:`ROUNDOFF_STRAIN`: a scene without loads).
 
     Raises
     ------
@@ -242,6 +251,7 @@ def strain_indicator(scene: Scene, image, materials) -> np.ndarray:
         coarse, levels = nxt, levels + 1
     ref = reference_kind()
     lin = {lab: _linearised(m) for lab, m in materials.items()}
+    modulus = max(float(np.asarray(m.tangent(np.eye(3)[None]))[0][0, 0, 0, 0]) for m in lin.values())
     present = {int(x) for x in np.unique(coarse.labels[coarse.labels > 0])}
     lin = {lab: m for lab, m in lin.items() if lab in present}
     s = dataclasses.replace(
@@ -260,5 +270,7 @@ def strain_indicator(scene: Scene, image, materials) -> np.ndarray:
         e = e[tuple(idx)]
     ijk = np.argwhere(image.labels > 0)
     out = np.zeros(image.shape)
+    if float(e.max(initial=0.0)) <= 0.5 * modulus * ROUNDOFF_STRAIN ** 2:
+        return out  # round-off of a load-free solve: nothing to follow
     out[tuple(ijk.T)] = e[tuple((ijk >> levels).T)]
     return out

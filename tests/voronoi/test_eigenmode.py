@@ -290,7 +290,7 @@ young = 1e3
 poisson = 0.3
 density = 1.0
 [nodes]
-count = 6
+count = 7
 shape_function = "eigenmode"
 [elasticity]
 quadrature = "gauss-legendre"
@@ -305,7 +305,7 @@ max = [1e-6, 1, 1]
         a = vf.model(scene)
         b = vf.model(scene)
     assert not a.info["precompute_cached"] and b.info["precompute_cached"]
-    assert a.info["shape_function"] == "eigenmode" and a.info["parents"] == 6 == a.samples.values.n_parents
+    assert a.info["shape_function"] == "eigenmode" and a.info["parents"] == 7 == a.samples.values.n_parents
     assert a.info["eigenmode_lifted"] == 1 and not a.info["eigenmode_linear"]
     assert a.frames[0][0] < 0.1  # the clamp's frame first
     np.testing.assert_array_equal(a.frames, b.frames)
@@ -313,3 +313,25 @@ max = [1e-6, 1, 1]
     assert (a.shape_function.weights != b.shape_function.weights).nnz == 0
     # the weights do not depend on the materials' scale (D and rho both scaled), but the key does
     assert a.samples.values.ddw is None  # Gauss points: no Hessians stored
+
+
+def test_a_degenerate_cluster_is_taken_whole_and_the_frames_do_not_depend_on_the_unit():
+    """The clamped square bar's modes come in pairs (bending about y and z): asking for 6 frames (the clamp's
+    and 5 modes) would cut the pair of modes 5 and 6, leaving a round-off-driven direction of it; the pair is
+    completed (7 frames).  The same bar at 1 m and 1 um: the same frames (Q-DEIM ties broken scale-free; LAPACK's
+    pivoting put them 3 voxels apart) and the same weights."""
+    out = {}
+    for s in (1.0, 1e-6):
+        image = LabelImage(np.ones((16, 4, 4), np.uint8), spacing=(s * H,) * 3)
+        owner = -np.ones(image.shape, dtype=np.int64)
+        owner[0] = 0
+        out[s] = shape_function(image, [[0.5 * s * H, 1.5 * s * H, 1.5 * s * H]], kind="eigenmode", count=6,
+                                seed_owner=owner)
+    a, b = out[1.0], out[1e-6]
+    assert len(a.frames) == 7 and len(a.eigenvalues) == 6
+    lam = a.eigenvalues
+    assert abs(lam[5] - lam[4]) < 1e-9 * lam[5] and lam[4] > lam[3] * (1 + 1e-3)
+    np.testing.assert_allclose(b.frames / 1e-6, a.frames, rtol=0, atol=1e-12 * 1.6)
+    np.testing.assert_allclose(b.weights.toarray(), a.weights.toarray(), rtol=0, atol=1e-9)
+    assert len(shape_function(image, [[0.5 * H * 1e-6, 1.5e-6 * H, 1.5e-6 * H]], kind="eigenmode", count=7,
+                              seed_owner=owner).frames) == 7

@@ -38,14 +38,20 @@ components of the elasticity Hessian is a material-weighted Laplacian.  Here:
    the voxel centres chosen by column-pivoted QR of the modal basis at the
    material voxel centres (Q-DEIM, Drmac & Gugercin 2016): the points where the
    modes are most distinguishable, so that interpolation at them is well
-   conditioned.  A frame that owns no Dirichlet corner gets the **cardinal
+   conditioned (a greedy pivoted Gram-Schmidt whose ties -- symmetric bodies -- go to the first voxel in C
+   order within a relative 1e-9, so that the same scene in other units picks the same voxels).
+   A frame that owns no Dirichlet corner gets the **cardinal
    function** of S at its point (``w_i(X_k) = delta_ik`` over those frames);
    the frame of region j gets ``h_j - sum_k h_j(X_k) l_k`` (``l_k`` the
    cardinal functions of the modes).  Then ``sum_i w_i = 1`` everywhere
    (and ``sum_i w_i X_i = X`` without fixed regions) to round-off.  The weights are
    global (every frame is a parent of every point) and sign-changing; the span
    of the blended frames (``S (x) affine``) depends on the count and the fixed
-   regions, not on where the free frames sit.
+   regions, not on where the free frames sit.  When the last mode asked for is one of a degenerate cluster
+   (:data:`CLUSTER_TOL`; e.g. a square cross-section's two bending directions) the whole cluster is taken
+   and the model has **more frames than asked** (the info's frame count says how many): a partial
+   cluster would be an arbitrary, round-off-driven subspace (measured on the 32x8x8 cantilever: clusters
+   end between counts 5/6, 7/8, 10/11, 12/13, 17/18, 22/23, ..., 39/40 with one clamp frame).
 4. **Inside a voxel** the corner values are interpolated trilinearly, like the
    reproducing-kernel weights (C0, conforming, exact derivatives).
 
@@ -91,6 +97,14 @@ MODE_TOL = 1e-6
 
 MAX_ITERATIONS = 60
 """LOBPCG iterations per level at most (a warning names the residual reached when they run out)."""
+
+CLUSTER_TOL = 1e-6
+"""Eigenvalues within this relative distance of each other are one (degenerate) cluster: a square section's
+two bending directions, a symmetric body's mirror pairs.  A cut through a cluster would keep an arbitrary
+(round-off driven) part of it, so the last mode's cluster is always taken whole (see :func:`eigenmode`)."""
+
+GUARD_MODES = 4
+"""Modes computed beyond those asked for, to see whether the last one's cluster continues."""
 
 CONDITION_MAX = 1e10
 """Largest admissible condition number of the interpolation matrix of the modes at the free frames:
@@ -547,22 +561,25 @@ def eigenmode(image, frames, count, *, seed_owner=None, stiffness=None, density=
             if nm > len(free):
                 raise InputError(f"count = {count} exceeds the {len(free) + J} weight-space dimensions of the "
                                  "image's free corners; ask for fewer frames")
-            lam, Vf, info = lowest_modes(Kf, Mf, nm, tol=tol)
+            lam, Vf, info = lowest_modes(Kf, Mf, min(len(free), nm + GUARD_MODES), tol=tol)
+            nm = _whole_clusters(lam, nm)
+            lam, Vf = lam[:nm], Vf[:, :nm]
+            count = J + nm
             V = np.zeros((nn, nm))
             V[free] = Vf
     else:
         m = np.asarray(M.sum(1)).ravel()
         c = (m @ X) / m.sum()
         lin = np.column_stack([np.ones(nn), (X - c) / L])
-        lam, Vm, info = lowest_modes(K, M, min(nn, count), tol=tol)
+        lam, Vm, info = lowest_modes(K, M, min(nn, count + GUARD_MODES), tol=tol)
         # M-orthonormal basis: the linear functions (Gram-Schmidt in order: 1, x, y, z), then the modes in
         # order while independent
         G = _sym(lin.T @ (M @ lin))
         B = sla.solve_triangular(np.linalg.cholesky(G), lin.T, lower=True).T
-        keep = []
+        keep, last = [], None
         for j in range(Vm.shape[1]):
-            if B.shape[1] + len(keep) >= count:
-                break
+            if B.shape[1] + len(keep) >= count and (last is None or _whole_clusters(lam[[last, j]], 1) == 1):
+                break  # enough, and mode j starts a new cluster
             v = Vm[:, j] - B @ (B.T @ (M @ Vm[:, j]))
             if len(keep):
                 Q = np.column_stack(keep)
@@ -570,10 +587,12 @@ def eigenmode(image, frames, count, *, seed_owner=None, stiffness=None, density=
             nv = float(np.sqrt(v @ (M @ v)))
             if nv > 1e-6:
                 keep.append(v / nv)
+                last = j
         V = np.column_stack([B] + keep) if keep else B
         if V.shape[1] < count:
             raise InputError(f"count = {count} eigenmode frames exceed the modes found ({V.shape[1]}); "
                              "ask for fewer frames")
+        count = V.shape[1] if count >= 4 else count
         V = V[:, :count]
     seconds["modes"] = time.perf_counter() - t
 
@@ -612,8 +631,7 @@ def eigenmode(image, frames, count, *, seed_owner=None, stiffness=None, density=
         if len(rows):
             Q, _ = np.linalg.qr(rows.T)
             A = A - (A @ Q) @ Q.T
-        _, _, piv = sla.qr(A.T, mode="economic", pivoting=True)
-        chosen = ci[piv[:need]]
+        chosen = ci[_pivots(A, need)]
     Fc = centres[chosen] if len(chosen) else np.zeros((0, 3))
     frames_all = np.concatenate([F0, Fc])
     card = np.concatenate([card_given, k0 + np.arange(len(chosen))]).astype(np.int64)
@@ -649,6 +667,39 @@ def eigenmode(image, frames, count, *, seed_owner=None, stiffness=None, density=
     seconds["weights"] = time.perf_counter() - t
     return EigenmodeWeights(frames=frames_all, image=image, grid=grid, weights=Wc, eigenvalues=np.asarray(lam),
                             lifted=lifted, linear=J == 0 and count >= 4, max_lebesgue=lebesgue, condition=cond, seconds=seconds, solver=info)
+
+
+def _whole_clusters(lam, n):
+    """The number of leading eigenvalues to keep, at least ``n``, so that no cluster (:data:`CLUSTER_TOL`
+    relative to the larger magnitude, dimensionless) is cut; ``lam`` ascending (the guard modes after n)."""
+    lam = np.asarray(lam, dtype=float)
+    while 0 < n < len(lam) and abs(lam[n] - lam[n - 1]) <= CLUSTER_TOL * max(abs(lam[n]), abs(lam[n - 1])):
+        n += 1
+    return n
+
+
+def _pivots(A, k):
+    """The first ``k`` pivots of column-pivoted QR of ``A.T`` (the rows of A (m, r) of largest remaining norm,
+    one after the other, each projected out of the rest): Q-DEIM's points.  Greedy Gram-Schmidt with scale-free
+    ties (:func:`voxflex._ties.first_extreme`: within a relative 1e-9 the first row wins), where LAPACK's
+    pivoting would pick among rows of equal norm by round-off (a symmetric bar at 1 m and 1 um got frames
+    three voxels apart).  O(k m r) flops."""
+    from .._ties import first_extreme
+
+    R = np.array(A, dtype=float, copy=True)
+    norms = np.einsum("ij,ij->i", R, R)
+    out = []
+    for _ in range(int(k)):
+        p = first_extreme(np.where(np.isin(np.arange(len(R)), out), -1.0, norms), "max")
+        out.append(p)
+        v = R[p].copy()
+        nv = float(np.sqrt(v @ v))
+        if nv == 0.0:
+            continue
+        v /= nv
+        R -= np.outer(R @ v, v)
+        norms = np.einsum("ij,ij->i", R, R)
+    return np.asarray(out, dtype=np.int64)
 
 
 def _centre_or_point(grid, points, values):
