@@ -183,6 +183,10 @@ def test_frames_that_cannot_tell_the_modes_apart_are_refused():
                        kind="eigenmode", count=1)
     with pytest.raises(InputError, match="eigenmode"):
         shape_function(LabelImage(np.ones((4, 4, 4), np.uint8)), [[0.5, 0.5, 0.5]], count=3)
+    for count, what in ((9, "exceeds the 8 material voxels"), (0, "count must be an integer >= 1")):
+        with pytest.raises(InputError, match=what) as err:
+            shape_function(LabelImage(np.ones((2, 2, 2), np.uint8)), np.zeros((0, 3)), kind="eigenmode", count=count)
+        assert "\n" not in str(err.value)
 
 
 def test_soft_segment_carries_the_first_mode():
