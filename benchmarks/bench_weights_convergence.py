@@ -18,9 +18,22 @@ distance-ratio and shepard blended by the quadratic B-spline and pruned to the s
    model (trilinear, same image) is given for reference.
 2. **Neo-Hooke cantilever** (``--part cantilever``): ``examples/cantilever.toml`` at 32x8x8
    (voxel 0.125), neo-Hooke E = 1e3, nu = 0.3, rho g = 9.81 along -z, clamp x = 0, 5 load steps;
-   tip u_z at (4, 0.5, 0.5).  Voxel model on the same image: -2.687096; converged: -2.7087.
+   tip u_z at (4, 0.5, 0.5).  Voxel model on the same image: -2.687096 (solved and timed in the first
+   row); converged: -2.7087.  ``--quadratures gauss-legendre,elaston`` adds the elaston rows (the default
+   region count the builder chooses), ``--placements volume,strain`` the frames placed by the first
+   solve's strain energy (``[nodes] placement = "strain"``; not for eigenmode weights, whose frames are
+   their modes' Q-DEIM points).  ``frames`` is what the model got: eigenmode weights complete a
+   degenerate cluster of modes (a square section's pair), so they may have one more than asked.
 3. **Support** (``--part support``): the reproducing-kernel radius (in local frame spacings)
    against parents per point, bending ratio and cantilever tip.
+5. **Cost** (``--part cost``): precompute and one assembly of the stiffness at rest (``model.hessian``)
+   on the cantilever with Gauss points, per family and count: the assembly grows as parents^2 per
+   sample, and eigenmode weights make every frame a parent of every point.
+6. **Bunny** (``--part bunny``): ``../shared/meshes/stanford-bunny.obj`` (y-up) at ``--voxel`` (default
+   3 mm), linear Hooke E = 3e4, nu = 0.3, density 100, the lowest 10 % of its height clamped, gravity
+   along -z after turning up; frames (``--counts``, default 40) with reproducing-kernel weights and Gauss
+   points, placement volume vs strain, against the voxel model of the same image: the RMS over the
+   boundary voxels' centres of |u_frames - u_voxel|, relative to the RMS of |u_voxel| there.
 4. **Conformity** (``--part conformity``): the same reproducing-kernel corner values, either
    interpolated trilinearly (the shipped construction: C0, linearly precise everywhere) or blended
    by the quadratic B-spline of :mod:`voxflex.voronoi.smoothing` from the voxel-centre values (C1,
@@ -31,8 +44,9 @@ off), ``solve`` = the static solve (bending: one sparse saddle-point solve; cant
 steps of Newton with the dense Cholesky of the frame model), min / median over ``--repeat`` runs
 (kernels warmed by a first, untimed run of every configuration).  The load average is printed.
 
-Usage: python benchmarks/bench_weights_convergence.py [--part bending|cantilever|support|conformity|all]
-       [--counts 10,20,40] [--kinds natural-neighbour,...] [--repeat 3]
+Usage: python benchmarks/bench_weights_convergence.py [--part bending|cantilever|support|conformity|cost|bunny|all]
+       [--counts 10,20,40] [--kinds natural-neighbour,...] [--repeat 3] [--quadratures gauss-legendre,elaston]
+       [--placements volume,strain] [--voxel 0.003]
 """
 
 from __future__ import annotations
@@ -52,7 +66,7 @@ import scipy.sparse.linalg as spl
 import voxflex as vf
 from voxflex.scene import ElasticitySpec, MaterialSpec, NodesSpec, ObjectSpec, Scene, SolverSpec
 
-KINDS = ("natural-neighbour", "laplace", "distance-ratio", "shepard", "reproducing-kernel")
+KINDS = ("natural-neighbour", "laplace", "distance-ratio", "shepard", "reproducing-kernel", "eigenmode")
 E_BEND, NU, KAPPA = 1e4, 0.3, 1e-3
 VOXEL_TIP, CONVERGED_TIP = -2.687096, -2.7087
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
@@ -129,11 +143,12 @@ def bending(kinds, counts, repeat):
 
 
 # ----------------------------------------------------------------------------- cantilever
-def cantilever_scene(nodes):
+def cantilever_scene(nodes, quadrature="gauss-legendre"):
     base = Scene.from_toml(os.path.join(ROOT, "examples", "cantilever.toml"))
     return replace(base, object=replace(base.object, voxel_size=0.125), nodes=nodes,
                    materials=(MaterialSpec(model="neo-hookean", young=1e3, poisson=0.3, density=1.0),),
-                   elasticity=ElasticitySpec(quadrature="gauss-legendre"), solver=SolverSpec(steps=5))
+                   elasticity=ElasticitySpec(quadrature=quadrature if nodes.kind != "voxel" else None),
+                   solver=SolverSpec(steps=5))
 
 
 def _tip(scene, model):
@@ -142,25 +157,142 @@ def _tip(scene, model):
     return float(r.probe_displacements()["tip"][2]), int(r.newton_iterations.sum()), time.perf_counter() - t
 
 
-def cantilever(kinds, counts, repeat):
-    print("\n### Neo-Hooke cantilever 32x8x8, 2x2x2 Gauss points: tip u_z\n")
+def cantilever(kinds, counts, repeat, quadratures=("gauss-legendre",), placements=("volume",)):
+    print("\n### Neo-Hooke cantilever 32x8x8: tip u_z\n")
     print(f"Voxel model on the image: {VOXEL_TIP}; converged: {CONVERGED_TIP}.\n")
-    print("| weights | frames | parents | u_z (m) | error vs voxel model | error vs converged | Newton it. "
-          "| precompute s (min / median) | solve s (min / median) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| quadrature | weights | placement | frames (asked / got) | parents | u_z (m) | error vs voxel model "
+          "| error vs converged | Newton it. | precompute s (min / median) | solve s (min / median) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    scene = cantilever_scene(NodesSpec(kind="voxel"))
+    tp, tsl = [], []
+    for rep in range(repeat + 1):
+        model, t = _build(scene)
+        u, its, ts = _tip(scene, model)
+        if rep:
+            tp.append(t)
+            tsl.append(ts)
+    print(f"| 2x2x2 Gauss | voxel model (trilinear) | - | {model.rest.size} DOF | 8 | {u:.6f} | "
+          f"{100 * (u - VOXEL_TIP) / abs(VOXEL_TIP):+.2f} % | {100 * (u - CONVERGED_TIP) / abs(CONVERGED_TIP):+.2f} % "
+          f"| {its} | {_times(tp)} | {_times(tsl)} |", flush=True)
+    for quadrature in quadratures:
+        for kind in kinds:
+            for placement in placements:
+                if placement != "volume" and kind == "eigenmode":
+                    continue  # its frames are the modes' points
+                for n in counts:
+                    scene = cantilever_scene(NodesSpec(kind="affine", count=n, shape_function=kind,
+                                                       placement=placement), quadrature)
+                    tp, tsl = [], []
+                    for rep in range(repeat + (1 if n == counts[0] else 0)):  # the first count warms the kernels
+                        model, t = _build(scene)
+                        u, its, ts = _tip(scene, model)
+                        if rep or n != counts[0]:
+                            tp.append(t)
+                            tsl.append(ts)
+                    print(f"| {quadrature} | {kind} | {placement} | {n} / {len(model.frames)} | {model.info['parents']} "
+                          f"| {u:.6f} | {100 * (u - VOXEL_TIP) / abs(VOXEL_TIP):+.2f} % "
+                          f"| {100 * (u - CONVERGED_TIP) / abs(CONVERGED_TIP):+.2f} % | {its} | {_times(tp)} "
+                          f"| {_times(tsl)} |", flush=True)
+
+
+# ----------------------------------------------------------------------------- cost of the families
+def cost(kinds, counts, repeat):
+    print("\n### Cost: cantilever 32x8x8 (16384 Gauss points), precompute and one stiffness assembly at rest\n")
+    print("| weights | frames | parents | precompute s (min / median) | stiffness assembly s (min / median) |")
+    print("|---|---|---|---|---|")
     for kind in kinds:
         for n in counts:
             scene = cantilever_scene(NodesSpec(kind="affine", count=n, shape_function=kind))
-            tp, tsl = [], []
-            for rep in range(repeat + (1 if n == counts[0] else 0)):  # the first configuration warms the kernels
+            tp, ta = [], []
+            for rep in range(repeat + (1 if n == counts[0] else 0)):
                 model, t = _build(scene)
-                u, its, ts = _tip(scene, model)
+                t0 = time.perf_counter()
+                model.hessian(model.rest)
                 if rep or n != counts[0]:
                     tp.append(t)
-                    tsl.append(ts)
-            print(f"| {kind} | {n} | {model.info['parents']} | {u:.6f} | {100 * (u - VOXEL_TIP) / abs(VOXEL_TIP):+.2f} % "
-                  f"| {100 * (u - CONVERGED_TIP) / abs(CONVERGED_TIP):+.2f} % | {its} | {_times(tp)} | {_times(tsl)} |",
+                    ta.append(time.perf_counter() - t0)
+            extra = ""
+            if kind == "eigenmode":
+                sec = model.shape_function.seconds
+                extra = " (" + ", ".join(f"{k} {v:.2f}" for k, v in sec.items()) + " s in the last run)"
+            print(f"| {kind} | {len(model.frames)} | {model.info['parents']} | {_times(tp)}{extra} | {_times(ta)} |",
                   flush=True)
+
+
+# ----------------------------------------------------------------------------- the bunny
+def bunny_scene(nodes, voxel):
+    from voxflex.rasterize import load_mesh
+
+    mesh = os.path.join(ROOT, "..", "shared", "meshes", "stanford-bunny.obj")
+    lo, hi = load_mesh(mesh).bounds()
+    base = Scene.from_toml_text(f"""
+[object]
+mesh = "{mesh}"
+voxel_size = {voxel}
+keep = "largest"
+up = "y"
+[[material]]
+model = "hooke"
+strain = "linear"
+young = 3e4
+poisson = 0.3
+density = 100.0
+[elasticity]
+strain = "linear"
+[[fixed]]
+min = [-1e9, -1e9, -1e9]
+max = [1e9, 1e9, {lo[1] + 0.1 * (hi[1] - lo[1])}]
+[[load]]
+kind = "gravity"
+vector = [0.0, 0.0, -9.81]
+""")
+    quadrature = "gauss-legendre" if nodes.kind != "voxel" else None
+    return replace(base, nodes=nodes, elasticity=replace(base.elasticity, quadrature=quadrature))
+
+
+def _surface_u(scene, model, points):
+    t = time.perf_counter()
+    r = vf.simulate(scene, model=model, progress=False)
+    ts = time.perf_counter() - t
+    q = np.asarray(r.nodes_state[-1], dtype=float).ravel()
+    return np.asarray(model.point_mapping(points).apply(q)).reshape(-1, 3) - points, ts
+
+
+def bunny(counts, repeat, voxel, placements):
+    from scipy import ndimage
+
+    print(f"\n### Bunny at {1000 * voxel:g} mm, linear, base clamped, gravity: relative RMS surface error "
+          "against the voxel model of the same image\n")
+    scene = bunny_scene(NodesSpec(kind="voxel"), voxel)
+    tp, tsl = [], []
+    for _ in range(repeat):
+        ref, t = _build(scene)
+        tp.append(t)
+        m = ref.image.labels > 0
+        surf = m & ~ndimage.binary_erosion(m, border_value=0)
+        pts = ref.image.index_to_world(np.argwhere(surf) + 0.5)
+        u_ref, ts = _surface_u(scene, ref, pts)
+        tsl.append(ts)
+    scale = float(np.sqrt(np.mean(np.sum(u_ref ** 2, axis=1))))
+    print(f"{int(m.sum())} voxels {ref.image.shape}, {len(pts)} boundary voxels; voxel model {ref.rest.size} DOF: "
+          f"RMS |u| {scale:.4g} m, build {_times(tp)} s, solve {_times(tsl)} s (min / median)\n")
+    print("| weights | placement | frames | parents | RMS surface error | max surface error | precompute s "
+          "(min / median) | solve s (min / median) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for placement in placements:
+        for n in counts:
+            sc = bunny_scene(NodesSpec(kind="affine", count=n, shape_function="reproducing-kernel",
+                                       placement=placement), voxel)
+            tp, tsl = [], []
+            for _ in range(repeat):
+                model, t = _build(sc)
+                u, ts = _surface_u(sc, model, pts)
+                tp.append(t)
+                tsl.append(ts)
+            err = np.sqrt(np.sum((u - u_ref) ** 2, axis=1))
+            print(f"| reproducing-kernel | {placement} | {len(model.frames)} | {model.info['parents']} | "
+                  f"{100 * np.sqrt(np.mean(err ** 2)) / scale:.2f} % | {100 * err.max() / scale:.1f} % | "
+                  f"{_times(tp)} | {_times(tsl)} |", flush=True)
 
 
 # ----------------------------------------------------------------------------- support and conformity
@@ -236,7 +368,11 @@ def conformity(counts):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--part", default="all", choices=["bending", "cantilever", "support", "conformity", "all"])
+    ap.add_argument("--part", default="all",
+                    choices=["bending", "cantilever", "support", "conformity", "cost", "bunny", "all"])
+    ap.add_argument("--quadratures", default="gauss-legendre", help="cantilever: gauss-legendre,elaston,midpoint")
+    ap.add_argument("--placements", default="volume", help="cantilever and bunny: volume,strain")
+    ap.add_argument("--voxel", type=float, default=0.003, help="bunny voxel size (m)")
     ap.add_argument("--counts", default=None, help="frame counts (default 10,20,40 bending; 5,...,80 cantilever)")
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--supports", default="1.5,2.0,2.5,3.0")
@@ -249,11 +385,16 @@ def main():
     if args.part in ("bending", "all"):
         bending(kinds, pick("10,20,40"), args.repeat)
     if args.part in ("cantilever", "all"):
-        cantilever(kinds, pick("5,10,20,40,80"), args.repeat)
+        cantilever(kinds, pick("5,10,20,40,80"), args.repeat, args.quadratures.split(","),
+                   args.placements.split(","))
     if args.part in ("support", "all"):
         support(pick("10,20,40"), [float(s) for s in args.supports.split(",")])
     if args.part in ("conformity", "all"):
         conformity(pick("10,20,40"))
+    if args.part in ("cost", "all"):
+        cost(kinds, pick("10,20,40,80"), args.repeat)
+    if args.part == "bunny":  # minutes: only when asked
+        bunny(pick("40"), args.repeat, args.voxel, args.placements.split(","))
     print(f"\nload average at the end: {os.getloadavg()[0]:.2f}")
 
 

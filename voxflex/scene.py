@@ -55,7 +55,7 @@ from .deform.solve.options import SolverOptions
 from .errors import InputError, check_choice, did_you_mean
 from .rasterize.primitives import PRIMITIVES
 from .sampling.quadrature import QUADRATURES
-from .voronoi.families import SHAPE_FUNCTIONS
+from .voronoi.families import PLACEMENTS, SHAPE_FUNCTIONS
 
 __all__ = [
     "Scene",
@@ -292,8 +292,12 @@ class NodesSpec:
     many frames influence a material point; not applied to
     ``"reproducing-kernel"``, whose weights are never truncated), ``support``
     (``"reproducing-kernel"`` only: kernel radius in local frame spacings,
-    default 2.5), ``distance`` (``geodesic`` or ``compliance``) and ``seed``
-    (placement is deterministic for a seed).
+    default 2.5), ``distance`` (``geodesic`` or ``compliance``), ``seed``
+    (placement is deterministic for a seed) and ``placement`` (``"volume"``, the
+    default: farthest point and Lloyd over the material; ``"strain"``: the same in
+    the metric of a first cheap solve's strain energy, see
+    :func:`voxflex.build.strain_indicator`; not with ``"eigenmode"`` weights, whose
+    frames are chosen from the modes).
     Each kind takes the shape functions its :class:`~voxflex.deform.models.kinds.NodeKind` names
     (voxel nodes: ``"trilinear"`` only; membranes: none).
     """
@@ -306,6 +310,7 @@ class NodesSpec:
     distance: str = "geodesic"
     seed: int = 0
     support: float | None = None
+    placement: str | None = None
 
     def __post_init__(self):
         t = "nodes"
@@ -333,6 +338,15 @@ class NodesSpec:
                 raise InputError('[nodes] support is the kernel radius of shape_function = "reproducing-kernel"; '
                                  'remove it or set that shape function')
             object.__setattr__(self, "support", _number(t, "support", self.support, positive=True))
+        if self.placement is not None:
+            _string(t, "placement", self.placement, PLACEMENTS)
+            if self.placement != "volume" and "strain-placement" not in node_kind(self.kind).takes:
+                raise InputError(f'[nodes] placement = "{self.placement}" places frames; kind = "{self.kind}" '
+                                 "does not take it (remove the key)")
+            if self.placement == "strain" and self.shape_function == "eigenmode":
+                raise InputError('[nodes] placement = "strain" does not apply to shape_function = "eigenmode": its '
+                                 "frames are chosen from the modes (the weights' span does not depend on where "
+                                 "they sit); remove placement")
 
 
 @dataclass(frozen=True)

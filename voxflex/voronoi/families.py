@@ -7,13 +7,15 @@ Each node kind (:mod:`voxflex.deform.models.kinds`) names the families it takes.
 
 from __future__ import annotations
 
-__all__ = ["FRAME_SHAPE_FUNCTIONS", "VOXEL_SHAPE_FUNCTIONS", "SHAPE_FUNCTIONS", "ALIASES"]
+__all__ = ["FRAME_SHAPE_FUNCTIONS", "VOXEL_SHAPE_FUNCTIONS", "SHAPE_FUNCTIONS", "ALIASES", "PLACEMENTS"]
 
-FRAME_SHAPE_FUNCTIONS = ("reproducing-kernel", "natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard")
+FRAME_SHAPE_FUNCTIONS = ("reproducing-kernel", "natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard",
+                         "eigenmode")
 """Weights of frames over the image (:func:`voxflex.voronoi.shape_function`).  Reproducing-kernel weights,
 the default, are linearly precise (:mod:`voxflex.voronoi.reproducing_kernel`): blended affine frames then
 bend without parasitic strain and converge to the voxel model from the stiff side; natural-neighbour
-(Sibson's) weights are interpolating and lock in bending (see docs/frames.md)."""
+(Sibson's) weights are interpolating and lock in bending (docs/scene.md, ``shape_function``); eigenmode
+weights are global, from the lowest modes of the elastic energy (:mod:`voxflex.voronoi.eigenmode`)."""
 
 VOXEL_SHAPE_FUNCTIONS = ("trilinear",)
 """Weights of the voxel model's corner nodes (:mod:`voxflex.voronoi.trilinear`)."""
@@ -23,3 +25,7 @@ SHAPE_FUNCTIONS = FRAME_SHAPE_FUNCTIONS + VOXEL_SHAPE_FUNCTIONS
 
 ALIASES = {"natural-neighbour": "sibson"}
 """Names that are another family's name (what the implementation computes)."""
+
+PLACEMENTS = ("volume", "strain")
+"""``[nodes] placement``: frames spread over the material's volume (farthest point and Lloyd, the default),
+or in the metric of a first cheap solve's strain energy (:func:`voxflex.build.strain_indicator`)."""

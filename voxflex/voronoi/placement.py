@@ -69,13 +69,49 @@ from ..errors import InputError, check_choice
 from . import _march as M
 from .geodesic import _centres, _prepare, _seed_voxels
 
-__all__ = ["place_frames"]
+__all__ = ["place_frames", "pinned_frames", "strain_density", "STRAIN_EXPONENT", "STRAIN_CLIP"]
 
 DISTANCES = ("geodesic", "compliance")
 #: images with at least this many material voxels are first placed at half resolution
 COARSE_MIN_VOXELS = 200_000
 #: fine Lloyd iterations after a half-resolution placement
 FINE_ITERATIONS = 3
+
+
+STRAIN_EXPONENT = 0.5
+"""``[nodes] placement = "strain"``: frames per volume follow ``(e / e_mean)^0.5`` (e the first solve's strain
+energy density): an energy-error equidistribution for quadratically complete kinematics would put
+``(|grad^3 u|^2)^(3/7)``; the strain energy is a proxy of lower order, and the square root keeps the
+unstrained parts (a cantilever's free end carries the motion) from being starved."""
+
+STRAIN_CLIP = 16.0
+"""``e / e_mean`` is clipped to [1/16, 16] before the exponent: frame densities within a factor 16 of each other
+(spacings within 16^(1/3) = 2.5), so that a stress singularity (a clamp's edge) cannot take every frame."""
+
+
+def strain_density(energy, image, *, exponent=STRAIN_EXPONENT, clip=STRAIN_CLIP):
+    """Relative frame density (for :func:`place_frames`' ``density``) from a strain-energy density image.
+
+    Parameters
+    ----------
+    energy : (nx, ny, nz) float, Pa, >= 0 in the material (e.g. :func:`voxflex.build.strain_indicator`)
+    image : LabelImage
+    exponent, clip : float, see :data:`STRAIN_EXPONENT` and :data:`STRAIN_CLIP`
+
+    Returns
+    -------
+    (nx, ny, nz) float: ``clip(e / mean(e), 1 / clip, clip) ** exponent`` in the material (1 outside); all ones
+    when the energy is zero everywhere (nothing to follow).
+    """
+    e = np.asarray(energy, dtype=np.float64)
+    material = image.labels > 0
+    if e.shape != image.shape or not np.all(np.isfinite(e[material])) or np.any(e[material] < 0):
+        raise InputError(f"energy must be a finite, non-negative image of shape {image.shape}")
+    mean = float(e[material].mean()) if material.any() else 0.0
+    out = np.ones(image.shape)
+    if mean > 0:
+        out[material] = np.clip(e[material] / mean, 1.0 / clip, clip) ** exponent
+    return out
 
 
 def _compliance_for(distance, compliance):
@@ -120,7 +156,7 @@ def voxels_touching_box(image, lo, hi) -> np.ndarray:
 
 
 def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="geodesic", compliance=None,
-                 iterations=10):
+                 iterations=10, density=None):
     """Frame positions spread evenly over the material in the geodesic metric.
 
     Parameters
@@ -147,6 +183,13 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
         Maximum number of Lloyd iterations (0 disables the relaxation); on
         large images those of the half-resolution placement, followed by at
         most 3 at full resolution (see the module notes).
+    density : (nx, ny, nz) float array, optional
+        Relative frame density wanted in each material voxel (> 0, dimensionless;
+        e.g. from a first solve's strain energy: ``[nodes] placement = "strain"``).
+        Distances are measured with the slowness ``density^(1/3)`` (a frame's cell
+        is smaller where the density is higher: frames per volume follow the
+        density) and the Lloyd centroids are weighted by the density.  The
+        half-resolution shortcut of large images is not used with it.
 
     Returns
     -------
@@ -186,32 +229,23 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     boxes = _boxes(fixed)
 
     mask, cost, pshape, spacing = _prepare(image, comp)
+    weight = None
+    if density is not None:
+        density = np.asarray(density, dtype=np.float64)
+        if density.shape != image.shape:
+            raise InputError(f"density must be an image of shape {image.shape}, got {density.shape}")
+        if not np.all(np.isfinite(density[material])) or np.any(density[material] <= 0):
+            raise InputError("density must be finite and positive in every material voxel")
+        d = np.where(material, density, 1.0) / float(np.mean(density[material]))
+        cost = cost * M.pad_grid(material, np.cbrt(d))[1]
+        weight = d[material]
     ijk = np.argwhere(material)
     centres = _centres(image, ijk)
     mflat = M.inner_to_flat(ijk, pshape)
     vox_id = -np.ones(image.shape, dtype=np.int64)
     vox_id[material] = np.arange(nmat)
 
-    frames: list[np.ndarray] = []  # world positions
-    frame_vox: list[int] = []      # material voxel id of each frame
-    if positions is not None and np.size(positions):
-        P, _, pijk = _seed_voxels(image, positions, name="positions")
-        frames.extend(P)
-        frame_vox.extend(vox_id[tuple(pijk.T)].tolist())
-    n_user = len(frames)
-
-    for i, (lo, hi) in enumerate(boxes):
-        inside = voxels_touching_box(image, lo, hi)[material]
-        if not inside.any():
-            raise InputError(f"fixed[{i}] box {lo.tolist()} .. {hi.tolist()} touches no material voxel; "
-                             "move or enlarge it")
-        if frame_vox and np.any(inside[np.asarray(frame_vox, dtype=np.int64)]):
-            continue
-        sel = np.flatnonzero(inside)
-        c = centres[sel].mean(axis=0)
-        v = int(sel[first_extreme(((centres[sel] - c) ** 2).sum(1), "min")])
-        frames.append(centres[v])
-        frame_vox.append(v)
+    frames, frame_vox, n_user = _pinned(image, positions, boxes, material, vox_id, centres)
     n_pinned = len(frames)
 
     comp_lab, ncomp = ndimage.label(material, structure=np.ones((3, 3, 3), bool))
@@ -235,7 +269,7 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
         return image.world_to_index(np.asarray(pos).reshape(-1, 3)) + M.PAD
 
     coarse = None
-    if iterations > 0 and comp is None and nmat >= COARSE_MIN_VOXELS:
+    if iterations > 0 and comp is None and density is None and nmat >= COARSE_MIN_VOXELS:
         coarse = _coarse_layout(image, material, ncomp, count, frames[:n_pinned], seed, iterations)
     if coarse is not None:  # automatic frames from the half-resolution placement, then a few fine Lloyd steps
         del frames[n_pinned:], frame_vox[n_pinned:]
@@ -272,8 +306,10 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     for it in range(iterations if len(movable) else 0):
         own = owner[mflat]
         cnt = np.bincount(own, minlength=n).astype(np.float64)
-        cen = np.stack([np.bincount(own, weights=centres[:, a], minlength=n) for a in range(3)], axis=1)
-        cen /= np.maximum(cnt, 1.0)[:, None]
+        wsum = cnt if weight is None else np.bincount(own, weights=weight, minlength=n)
+        wc = centres if weight is None else centres * weight[:, None]
+        cen = np.stack([np.bincount(own, weights=wc[:, a], minlength=n) for a in range(3)], axis=1)
+        cen /= np.where(wsum > 0, wsum, 1.0)[:, None]
         cijk = np.floor(image.world_to_index(cen)).astype(np.int64)
         inside = np.all((cijk >= 0) & (cijk < np.array(image.shape)), axis=1)
         cvox = np.full(n, -1, dtype=np.int64)
@@ -309,6 +345,44 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     for i in movable:
         ijk = np.floor(image.world_to_index(pos[i][None])[0]).astype(np.int64)
         frames[i] = image.index_to_world((ijk + 0.5)[None])[0]
+    return np.array(frames, dtype=np.float64).reshape(-1, 3)
+
+
+def _pinned(image, positions, boxes, material, vox_id, centres):
+    """Steps 1-2 of :func:`place_frames`: the user's positions, then one frame in every fixed box holding
+    none.  Returns (world positions (list), material voxel ids (list), number of user frames)."""
+    frames: list[np.ndarray] = []  # world positions
+    frame_vox: list[int] = []      # material voxel id of each frame
+    if positions is not None and np.size(positions):
+        P, _, pijk = _seed_voxels(image, positions, name="positions")
+        frames.extend(P)
+        frame_vox.extend(vox_id[tuple(pijk.T)].tolist())
+    n_user = len(frames)
+    for i, (lo, hi) in enumerate(boxes):
+        inside = voxels_touching_box(image, lo, hi)[material]
+        if not inside.any():
+            raise InputError(f"fixed[{i}] box {lo.tolist()} .. {hi.tolist()} touches no material voxel; "
+                             "move or enlarge it")
+        if frame_vox and np.any(inside[np.asarray(frame_vox, dtype=np.int64)]):
+            continue
+        sel = np.flatnonzero(inside)
+        c = centres[sel].mean(axis=0)
+        v = int(sel[first_extreme(((centres[sel] - c) ** 2).sum(1), "min")])
+        frames.append(centres[v])
+        frame_vox.append(v)
+    return frames, frame_vox, n_user
+
+
+def pinned_frames(image, *, positions=None, fixed=()):
+    """The frames :func:`place_frames` places first: the user's ``positions`` (kept as given), then one frame
+    in the material part of every ``fixed`` box that holds none yet (the material voxel nearest the centroid
+    of that part).  Returns (k, 3) world positions (k = 0 without either).  Eigenmode weights choose the
+    other frames from their modes (:mod:`voxflex.voronoi.eigenmode`)."""
+    material = image.labels > 0
+    ijk = np.argwhere(material)
+    vox_id = -np.ones(image.shape, dtype=np.int64)
+    vox_id[material] = np.arange(len(ijk))
+    frames, _, _ = _pinned(image, positions, _boxes(fixed), material, vox_id, _centres(image, ijk))
     return np.array(frames, dtype=np.float64).reshape(-1, 3)
 
 

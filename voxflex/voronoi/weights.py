@@ -369,7 +369,8 @@ def _evaluate_impl(X, npos, nfr, ncoef, h, P):
 
 
 def shape_function(image, frames, *, kind="natural-neighbour", parents=None, distance="geodesic", compliance=None,
-                   resolution=3.0, seed_owner=None, smooth=True, support=None):
+                   resolution=3.0, seed_owner=None, smooth=True, support=None, count=None, stiffness=None,
+                   density=None):
     """Shape functions of ``frames`` over the material of ``image``.
 
     Parameters
@@ -378,7 +379,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
     frames : (n, 3) float array, metres
         Frame positions, each in a material voxel, at most one per voxel, at
         least one in every connected component of the material.
-    kind : {"natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard", "reproducing-kernel"}
+    kind : {"natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard", "reproducing-kernel", "eigenmode"}
         ``"natural-neighbour"`` is Sibson's coordinates.  ``"distance-ratio"``:
         ``w_i ~ 1 / h_i`` over the point's natural neighbours i (the frames
         whose cells it would steal from), ``h_i`` its geodesic distance to frame
@@ -393,6 +394,12 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
         fields exactly and interpolated trilinearly in between
         (:mod:`voxflex.voronoi.reproducing_kernel`; returns a
         :class:`~voxflex.voronoi.reproducing_kernel.ReproducingKernel`).
+        ``"eigenmode"``: skinning eigenmodes, global weights from the lowest modes
+        of the scalar elastic energy on the voxel grid
+        (:mod:`voxflex.voronoi.eigenmode`; returns an
+        :class:`~voxflex.voronoi.eigenmode.EigenmodeWeights` whose ``frames`` are
+        the given ``frames`` followed by the points chosen from the modes, up to
+        ``count``).
     parents : int, optional
         At most this many frames per point (>= 1; default 4); see the module
         notes.  Reproducing-kernel weights are never truncated (that would break
@@ -425,6 +432,14 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
     support : float, optional
         ``"reproducing-kernel"`` only: the kernel radius in local frame spacings
         (default :data:`~voxflex.voronoi.reproducing_kernel.DEFAULT_SUPPORT`).
+    count : int, optional
+        ``"eigenmode"`` only: the number of frames (default ``len(frames)``); the
+        frames beyond the given ones are chosen from the modes.  ``frames`` may then
+        be empty.
+    stiffness, density : dict {label: ...}, optional
+        ``"eigenmode"`` only: the trace ``D`` (3x3, Pa) of each label's rest tangent
+        and its density (kg/m^3) (:func:`~voxflex.voronoi.eigenmode.scalar_operators`;
+        default 1: the modes of the plain Laplacian).
 
     Returns
     -------
@@ -440,6 +455,10 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
     check_choice("kind", kind, KINDS)
     comp = _compliance_for(distance, compliance)
     rk = kind == "reproducing-kernel"
+    if kind != "eigenmode" and (count is not None or stiffness is not None or density is not None):
+        raise InputError(f'count, stiffness and density apply to kind = "eigenmode" only, not "{kind}"')
+    if kind == "eigenmode":
+        return _eigenmode(image, frames, parents, support, seed_owner, count, stiffness, density)
     if parents is None:
         parents = None if rk else 4
     elif isinstance(parents, bool) or not isinstance(parents, (int, np.integer)) or int(parents) < 1:
@@ -566,6 +585,40 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
                          image=image, _node_pos=node_pos, _node_of_voxel=node_of_voxel,
                          _node_frames=node_frames, _node_coef=node_coef, _scale=h,
                          _anchor=np.where(anchored, seed_owner, -1) if np.any(anchored) else None, smooth=bool(smooth))
+
+
+def _eigenmode(image, frames, parents, support, seed_owner, count, stiffness, density):
+    """Validated inputs of :func:`voxflex.voronoi.eigenmode.eigenmode`."""
+    import warnings
+
+    from .eigenmode import eigenmode
+
+    if support is not None:
+        raise InputError('support applies to kind = "reproducing-kernel" only, not "eigenmode"')
+    F = np.asarray(frames, dtype=np.float64) if frames is not None else np.zeros((0, 3))
+    if F.size:
+        F, _, fijk = _seed_voxels(image, F, name="frames")
+        key = np.ravel_multi_index(tuple(fijk.T), image.shape)
+        if len(np.unique(key)) != len(key):
+            raise InputError("two frames share a material voxel; keep one per voxel")
+    else:
+        F = np.zeros((0, 3))
+    if count is None:
+        count = len(F)
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or int(count) < 1:
+        raise InputError(f"count must be an integer >= 1 (the number of eigenmode frames), got {count!r}")
+    if seed_owner is not None:
+        seed_owner = np.asarray(seed_owner)
+        if seed_owner.shape != image.shape or not np.issubdtype(seed_owner.dtype, np.integer):
+            raise InputError(f"seed_owner must be an integer image of shape {image.shape}, -1 where unused")
+        if np.any(seed_owner >= len(F)):
+            raise InputError(f"seed_owner refers to frame {int(seed_owner.max())} but {len(F)} frames are given")
+    sf = eigenmode(image, F, int(count), seed_owner=seed_owner, stiffness=stiffness, density=density)
+    if parents is not None and parents < sf.parents:
+        warnings.warn(f"eigenmode weights are global: up to {sf.parents} parents per point; parents = {parents} "
+                      "would truncate them (breaking the partition of unity and conformity), so all are kept",
+                      UserWarning, stacklevel=3)
+    return sf
 
 
 def _shepard_nodes(mask, cost, pshape, spacing, frame_pts, pts, kmax, power=2.0):

@@ -73,7 +73,9 @@ class NodeKind:
         Runs static scenes only.
     takes : frozenset of str
         Scene features it supports beyond elasticity: ``"plasticity"``, ``"obstacles"``,
-        ``"cables"``, ``"force-loads"`` (traction and force regions), ``"dynamics"``.
+        ``"cables"``, ``"force-loads"`` (traction and force regions), ``"dynamics"``,
+        ``"strain-placement"`` (``[nodes] placement = "strain"``: its builder takes the keyword
+        ``placement_energy``, the strain-energy density image of :func:`voxflex.build.strain_indicator`).
     builder, estimator : str
         ``"module:function"``: ``builder(scene, image, materials, *, cache) -> Model`` and
         ``estimator(scene, size, material_class) -> NodeEstimate``
@@ -125,9 +127,10 @@ class NodeKind:
         """``"20 frames"``, ``"1 frame"``: a number of nodes as messages say it."""
         return f"{n} {self.noun if n == 1 else self.plural}"
 
-    def build(self, scene, image, materials, *, cache: bool = True):
-        """The model of ``scene`` on ``image`` (see :attr:`builder`)."""
-        return _load(self.builder)(scene, image, materials, cache=cache)
+    def build(self, scene, image, materials, *, cache: bool = True, **extra):
+        """The model of ``scene`` on ``image`` (see :attr:`builder`); ``extra``: what the features in
+        :attr:`takes` hand the builder (``placement_energy`` for ``"strain-placement"``)."""
+        return _load(self.builder)(scene, image, materials, cache=cache, **extra)
 
     def estimate(self, scene, size, material_class: str):
         """A :class:`NodeEstimate` before building (see :attr:`estimator`); ``size`` = (voxels, corner nodes,

@@ -1,7 +1,7 @@
 """A problem: a model with everything a run fixes — held regions, loads, options, probes — built once.
 
 The scene is translated into a :class:`Problem` in one place
-(:func:`voxflex.simulation.problem_of`); the solver reads it
+(:func:`voxflex.problems.problem_of`); the solver reads it
 (:meth:`Problem.solve`) and so does the recorder of the result (the run
 fraction of a state, the reactions' regions, what a render needs), so that
 no two parts of a run read the scene differently.

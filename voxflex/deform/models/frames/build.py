@@ -53,8 +53,15 @@ MAX_DOUBLINGS = 3
 """Times the builder doubles a default region count whose samples leave a (near-)zero-energy mode."""
 
 
-def build(scene, image, materials, *, cache: bool = True):
+UNTRUNCATED = ("reproducing-kernel", "eigenmode")
+"""Weight families never truncated to ``parents`` (conforming; linearly precise or global)."""
+
+
+def build(scene, image, materials, *, cache: bool = True, placement_energy=None):
     """Affine frames: placement, shape functions and samples from the image, then the frame model.
+
+    ``placement_energy``: the strain-energy density image of a first solve (``[nodes] placement =
+    "strain"``, :func:`voxflex.build.strain_indicator`) whose metric places the frames.
 
     The precompute (frames, blended weights, samples, the regions' tables and the sample count chosen)
     is loaded from the on-disk cache (:mod:`voxflex.cache`) when a run with the same image and settings
@@ -81,9 +88,17 @@ def build(scene, image, materials, *, cache: bool = True):
     quadrature = scene.elasticity.quadrature
     hourglass = scene.elasticity.hourglass if quadrature == "midpoint" else "none"
     occupancy = bool(scene.object.occupancy)
-    rk = kind == "reproducing-kernel"  # never truncated to parents (conforming, linearly precise)
+    rk = kind == "reproducing-kernel"
+    untruncated = kind in UNTRUNCATED  # never truncated to parents (conforming; linearly precise or global)
+    weight_space = _weight_space(scene, materials) if kind == "eigenmode" else None
+    density = None
+    if placement_energy is not None:
+        from ....voronoi.placement import strain_density
+
+        density = strain_density(placement_energy, image)
     settings = {"count": count, "positions": nodes.positions, "kind": kind, "parents": nodes.parents,
-                "support": nodes.support,
+                "support": nodes.support, "weight_space": weight_space,
+                "placement": None if density is None else disk.key_of(density),
                 "distance": nodes.distance, "seed": nodes.seed, "compliance": compliance,
                 "fixed": [(lo.tolist(), hi.tolist(), f.components) for (lo, hi), f in zip(fixed, scene.fixed)],
                 "quadrature": quadrature, "samples": scene.elasticity.samples, "occupancy": occupancy,
@@ -102,13 +117,18 @@ def build(scene, image, materials, *, cache: bool = True):
             disk.discard("frames", key, f"does not fit this image ({exc})")
             stored = None
     if stored is None:
-        pre = _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass)
+        pre = _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass,
+                          weight_space=weight_space, density=density)
     sf = pre["sf"]
-    info = {"shape_function": kind, "parents": int(sf.parents if rk else nodes.parents), "distance": nodes.distance,
-            "precompute_cached": stored is not None}
+    info = {"shape_function": kind, "parents": int(sf.parents if untruncated else nodes.parents),
+            "distance": nodes.distance, "precompute_cached": stored is not None,
+            "placement": nodes.placement or "volume"}
     if rk:
         info.update(support=float(sf.support), kernel_grown_frames=int(sf.grown_frames),
                     kernel_fallback_corners=int(sf.fallback_corners))
+    if kind == "eigenmode":
+        info.update(eigenmode_linear=bool(sf.linear), eigenmode_lifted=int(len(sf.lifted)),
+                    eigenmode_condition=float(sf.condition), eigenmode_lebesgue=float(sf.max_lebesgue))
     if pre.get("chosen"):
         info["samples_chosen"] = pre["chosen"]
     model = FrameModel(image, pre["frames"], pre["sf"], pre["samples"], materials, info=info,
@@ -178,7 +198,7 @@ def _softest(scene, image, model, sf, occupancy, K) -> float | None:
     from .modes import softest_mode
 
     reference = voxel_samples(image, _centre_values_of(sf), rule="midpoint", use_occupancy=occupancy)
-    if getattr(sf, "kind", None) != "reproducing-kernel":
+    if getattr(sf, "kind", None) not in UNTRUNCATED:
         reference = dataclasses.replace(reference, values=keep_largest(reference.values, scene.nodes.parents))
     held = _held(scene, model)
     free = np.setdiff1d(np.arange(12 * model.n_nodes), held) if len(held) else None
@@ -237,7 +257,7 @@ def _refuse_static_mechanism(scene, model, K, samples, spurious: int) -> None:
 def _gauge(model) -> np.ndarray:
     """(12n, g) the gauge motions of the model's weights: those of the 18 candidates that move no voxel
     centre and deform none (:func:`~voxflex.deform.models.frames.modes.gauge_modes`); empty unless the weights
-    are linearly precise (reproducing kernels).  Read at every voxel centre, not at the samples: a stabilised
+    are linearly precise (reproducing kernels; eigenmode weights of a body without fixed regions).  Read at every voxel centre, not at the samples: a stabilised
     mid-point region integrates Gauss points its centre does not show."""
     from .modes import gauge_modes
 
@@ -283,20 +303,31 @@ def _free_zero_modes(scene, model, K) -> int:
     return int(np.count_nonzero(ev <= 1e-8 * max(float(ev.max(initial=0.0)), 1e-300)))
 
 
-def _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass):
+def _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass, *,
+                weight_space=None, density=None):
     """Frames, blended shape functions and samples (pruned to ``parents``) of an image, with the sample
     count chosen (module docstring).  Returns a dict: frames, sf, samples (what the model integrates),
     regions (the sampler's, or None), tables and gauss (stabilised mid-point regions), chosen (str),
-    K and softest (the checks of the chosen samples)."""
+    K and softest (the checks of the chosen samples).  ``weight_space``: the eigenmode weights' per-label
+    stiffness and density (:func:`_weight_space`); ``density``: the relative frame density of
+    ``[nodes] placement = "strain"``."""
     from ....voronoi import place_frames, shape_function
 
     positions = None if nodes.positions is None else np.asarray(nodes.positions, dtype=float)
-    frames = place_frames(image, count, positions=positions, fixed=fixed, seed=nodes.seed,
-                          distance=nodes.distance, compliance=compliance)
     rk = kind == "reproducing-kernel"
-    sf = shape_function(image, frames, kind=kind, parents=None if rk else nodes.parents, distance=nodes.distance,
-                        compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed),
-                        **({"support": nodes.support} if rk else {}))
+    if kind == "eigenmode":  # the scene's positions and one frame per fixed region; the rest from the modes
+        from ....voronoi.placement import pinned_frames
+
+        given = pinned_frames(image, positions=positions, fixed=fixed)
+        sf = shape_function(image, given, kind=kind, count=count, seed_owner=_clamp_owners(image, given, fixed),
+                            **(weight_space or {}))
+        frames = sf.frames
+    else:
+        frames = place_frames(image, count, positions=positions, fixed=fixed, seed=nodes.seed,
+                              distance=nodes.distance, compliance=compliance, density=density)
+        sf = shape_function(image, frames, kind=kind, parents=None if rk else nodes.parents, distance=nodes.distance,
+                            compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed),
+                            **({"support": nodes.support} if rk else {}))
     if quadrature == "gauss-legendre":
         return {"frames": frames, "sf": sf, **_samples(image, sf, frames, nodes, quadrature, 0, occupancy, hourglass)}
     voxels = int((image.labels > 0).sum())
@@ -324,8 +355,8 @@ def _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature,
 
 
 def _samples(image, sf, frames, nodes, quadrature, n, occupancy, hourglass) -> dict:
-    """The samples of one count: {samples, regions, tables, gauss}.  Reproducing-kernel weights keep every
-    parent (truncating them breaks linear precision and conformity)."""
+    """The samples of one count: {samples, regions, tables, gauss}.  Reproducing-kernel and eigenmode weights
+    keep every parent (truncating them breaks linear precision and conformity)."""
     import dataclasses
 
     from ....sampling import sample
@@ -333,10 +364,14 @@ def _samples(image, sf, frames, nodes, quadrature, n, occupancy, hourglass) -> d
     from ....voronoi.shape_functions import keep_largest
     from .quadrature import elaston_samples, midpoint_tables
 
-    parents = None if getattr(sf, "kind", None) == "reproducing-kernel" else nodes.parents
+    untruncated = getattr(sf, "kind", None) in UNTRUNCATED
+    parents = None if untruncated else nodes.parents
     prune = (lambda v: v) if parents is None else (lambda v: keep_largest(v, parents))
     if quadrature == "gauss-legendre":
-        s = voxel_samples(image, sf, rule="gauss-legendre", use_occupancy=occupancy)
+        # values and gradients only (F needs no Hessian): global eigenmode weights on the bunny's 750k Gauss
+        # points would hold 2 GB of Hessians at 40 frames
+        s = voxel_samples(image, (lambda p: sf(p, hessians=False)) if untruncated else sf, rule="gauss-legendre",
+                          use_occupancy=occupancy)
         # at most `parents` frames per sample (the stiffness costs ~432 P^2 flops per sample)
         s = dataclasses.replace(s, values=prune(s.values))
         return {"samples": s, "regions": None, "tables": None, "gauss": None}
@@ -373,9 +408,26 @@ def _check(scene, image, pre, occupancy, hourglass):
     return "sound", K, softest
 
 
+def _weight_space(scene, materials) -> dict:
+    """The eigenmode weights' operators per label: ``stiffness`` D = the trace over the displacement components
+    of the material's rest tangent (``D_jl = sum_d C_djdl``; ``(lambda + 4 mu) I`` for isotropic materials) and
+    ``density`` (the scene's, when every label has a positive one; else uniform)."""
+    stiff = {}
+    for label, m in materials.items():
+        base = getattr(m, "base", m)
+        C = np.asarray(base.tangent(np.eye(3)[None]))[0]
+        stiff[int(label)] = np.einsum("djdl->jl", C).round(12).tolist()
+    dens = {}
+    for label in materials:
+        d = scene.material_for(int(label)).density
+        dens[int(label)] = None if d is None else float(d)
+    ok = all(v is not None and v > 0 for v in dens.values())
+    return {"stiffness": stiff, "density": dens if ok else None}
+
+
 def _to_store(pre) -> dict:
     sf = pre["sf"]
-    if getattr(sf, "kind", None) == "reproducing-kernel":
+    if getattr(sf, "kind", None) in UNTRUNCATED:
         out = {"frames": pre["frames"], **sf.to_store()}
     else:
         W = sf._smoothed()._W
@@ -423,7 +475,7 @@ def _check_store(image, d) -> None:
     """What a cache entry must satisfy to describe a precompute of ``image`` (CacheMismatch otherwise)."""
     from .... import cache as disk
 
-    if "frames" not in d or "samples_kind" not in d or not ("rk_indptr" in d or "W_indptr" in d):
+    if "frames" not in d or "samples_kind" not in d or not ("rk_indptr" in d or "em_indptr" in d or "W_indptr" in d):
         raise disk.CacheMismatch("it lacks the frames, the weights or the samples")
     frames = np.asarray(d["frames"])
     n = len(frames)
@@ -473,6 +525,10 @@ def _rebuild(image, d, kind, parents, occupancy) -> dict:
         from ....voronoi.reproducing_kernel import ReproducingKernel
 
         sf = ReproducingKernel.from_store(image, frames, d)
+    elif "em_indptr" in d:
+        from ....voronoi.eigenmode import EigenmodeWeights
+
+        sf = EigenmodeWeights.from_store(image, frames, d)
     else:
         W = sp.csr_matrix((d["W_data"], d["W_indices"], d["W_indptr"]), shape=(int((image.labels > 0).sum()), n))
         smooth = SmoothWeights.from_csr(image, W)
@@ -554,6 +610,8 @@ def estimate(scene, size, material_class: str):
         # measured 29 / 50 parents with 40 / 80 frames at support 2.5 on the cantilever, 35 on the bunny
         support = scene.nodes.support or 2.5
         parents = min(nodes, int(np.ceil(2.5 * support ** 3)))
+    elif scene.nodes.shape_function == "eigenmode":  # global: every frame is a parent of every point
+        parents = nodes
     model = (FRAME_BYTES_PER_VOXEL_PARENT * parents + 64.0) * voxels + FRAME_DENSE_COPIES * 8.0 * dofs**2
     iterations = 1 if material_class == "constant" else 5
     seconds = int(scene.solver.steps) * iterations * (dofs**3 / 3 / 1e10 + 2e-6 * voxels)

@@ -40,6 +40,6 @@ AFFINE = NodeKind(
     estimator="voxflex.deform.models.frames.build:estimate",
     reduced=True,
     default_count=DEFAULT_FRAMES,
-    takes=frozenset({"plasticity", "obstacles", "cables", "force-loads", "dynamics"}),
+    takes=frozenset({"plasticity", "obstacles", "cables", "force-loads", "dynamics", "strain-placement"}),
     check_scene="voxflex.deform.models.frames.kind:check_scene",
 )

@@ -46,9 +46,9 @@ RIGID = NodeKind(
     plural="rigid frames",
     dofs_per_node=6,
     quadratures=("midpoint", *(q for q in AFFINE.quadratures if q != "midpoint")),
-    # not reproducing kernels: a rigid frame's reference point is its mass centre, which negative
-    # weights (reproducing kernels have them) do not define
-    shape_functions=tuple(s for s in AFFINE.shape_functions if s != "reproducing-kernel"),
+    # not reproducing kernels nor eigenmodes: a rigid frame's reference point is its mass centre, which
+    # negative weights (both have them) do not define
+    shape_functions=tuple(s for s in AFFINE.shape_functions if s not in ("reproducing-kernel", "eigenmode")),
     description="rigid frames (6 DOF each: the mass centre, then the rotation vector); static scenes only",
     builder="voxflex.deform.models.rigid.build:build",
     estimator="voxflex.deform.models.frames.build:estimate",
