@@ -18,7 +18,7 @@ import voxflex as vf
 from voxflex.errors import VoxflexError
 from voxflex.scene import Scene
 
-SCALES = (1e-6, 1e-2, 1.0, 1e3)
+SCALES = (1e-6, 1e-2, 0.37, 1.0, 1e3)  # 0.37: not a power of ten (rounds every length)
 
 
 def _scaled(s: float, kind: str, **kw) -> Scene:

@@ -288,7 +288,8 @@ class NodesSpec:
     reference) or ``"rigid"`` (6-DOF frames: static scenes only).  The frame keys: ``count`` frames in all
     (default 20, or the number of material voxels when the object has fewer),
     ``positions`` (frames given by the user, world, placed first),
-    ``shape_function`` (default natural-neighbour), ``parents`` (at most this
+    ``shape_function`` (default: the kind's own, ``"reproducing-kernel"`` for affine
+    frames; :attr:`weights` names it), ``parents`` (at most this
     many frames influence a material point; not applied to
     ``"reproducing-kernel"``, whose weights are never truncated), ``support``
     (``"reproducing-kernel"`` only: kernel radius in local frame spacings,
@@ -334,7 +335,7 @@ class NodesSpec:
         _string(t, "distance", self.distance, DISTANCES)
         object.__setattr__(self, "seed", _number(t, "seed", self.seed, integer=True, minimum=0))
         if self.support is not None:
-            if self.shape_function != "reproducing-kernel":
+            if self.weights != "reproducing-kernel":
                 raise InputError('[nodes] support is the kernel radius of shape_function = "reproducing-kernel"; '
                                  'remove it or set that shape function')
             object.__setattr__(self, "support", _number(t, "support", self.support, positive=True))
@@ -343,10 +344,16 @@ class NodesSpec:
             if self.placement != "volume" and "strain-placement" not in node_kind(self.kind).takes:
                 raise InputError(f'[nodes] placement = "{self.placement}" places frames; kind = "{self.kind}" '
                                  "does not take it (remove the key)")
-            if self.placement == "strain" and self.shape_function == "eigenmode":
+            if self.placement == "strain" and self.weights == "eigenmode":
                 raise InputError('[nodes] placement = "strain" does not apply to shape_function = "eigenmode": its '
                                  "frames are chosen from the modes (the weights' span does not depend on where "
                                  "they sit); remove placement")
+
+    @property
+    def weights(self) -> str | None:
+        """The shape-function family the nodes use: ``shape_function``, or the kind's default (None for
+        a kind that takes none).  Read this, not ``shape_function``, wherever the family matters."""
+        return self.shape_function or node_kind(self.kind).default_shape_function
 
 
 @dataclass(frozen=True)
@@ -982,7 +989,7 @@ def _nodes_text(scene) -> str:
     if not kind.reduced:
         return ""
     count = kind.count(scene.nodes.count or kind.default_count)
-    return f" ({count}, {scene.nodes.shape_function or kind.default_shape_function})"
+    return f" ({count}, {scene.nodes.weights})"
 
 
 def describe_scene(path) -> str:

@@ -29,6 +29,11 @@ PAD = 2
 #: radius (in voxels) of the ball around a seed whose distances are set exactly
 #: (straight line of sight inside uniform material) before marching; removes
 #: most of the error fast marching makes near a point source.
+BUCKET_TIE = 1e-7
+"""Added to ``distance / bucket width`` before the bucket queue floors it: distances on an integer number
+of widths (symmetric bodies have many) fall in the same bucket whatever the unit of length (in metres a
+1 mm beam filed them one bucket off the 1 m beam's, the acceptance order changed and so did the frames
+placed on it).  1e-7 of a width changes no distance."""
 BALL = 3
 
 
@@ -233,12 +238,12 @@ def _march(cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
         if live == 0:
             if pending >= ns:
                 break
-            cur = int(math.floor(seed_d[order[pending]] * inv_width))
+            cur = int(math.floor(seed_d[order[pending]] * inv_width + BUCKET_TIE))
         # apply the seeds whose bucket is reached
         while pending < ns:
             s = order[pending]
             d0 = seed_d[s]
-            bb = int(math.floor(d0 * inv_width))
+            bb = int(math.floor(d0 * inv_width + BUCKET_TIE))
             if bb > cur:
                 break
             pending += 1
@@ -289,7 +294,7 @@ def _march(cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
                     ntouched += 1
                     state[v] = 1
                     live += 1
-                bb = int(math.floor(cand * inv_width))
+                bb = int(math.floor(cand * inv_width + BUCKET_TIE))
                 if bb < cur:
                     bb = cur
                 _link(v, bb % nb, head, nxt, prv)

@@ -157,6 +157,41 @@ def voxels_touching_box(image, lo, hi) -> np.ndarray:
 
 def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="geodesic", compliance=None,
                  iterations=10, density=None):
+    """Frame positions spread evenly over the material in the geodesic metric (see :func:`_place_frames`
+    for the parameters).
+
+    The placement runs on the image in voxel units (spacing divided by the smallest edge, rounded to 12
+    digits; origin at 0), so that the same scene in any unit of length places the same frames: distances
+    in metres round differently at each unit, and the marches' bucket queue, the Lloyd centroids' voxels and
+    the ties between equidistant frames followed the rounding (a beam at 1 m and at 0.37 m or 1 mm got
+    frames a voxel apart).  The automatic frames come back at the voxel centres of ``image``.
+    """
+    import dataclasses
+
+    spacing = np.asarray(image.spacing, dtype=np.float64)
+    h = float(spacing.min())
+    origin = np.asarray(image.origin, dtype=np.float64)
+    unit = dataclasses.replace(image, spacing=np.round(spacing / h, 12), origin=np.zeros(3))
+
+    def to_unit(x):
+        return (np.asarray(x, dtype=np.float64) - origin) / h
+
+    pos_u = None if positions is None else to_unit(np.asarray(positions, dtype=np.float64).reshape(-1, 3))
+    fixed_u = [(to_unit(lo), to_unit(hi)) for lo, hi in fixed]
+    out = _place_frames(unit, count, positions=pos_u, fixed=fixed_u, seed=seed, distance=distance,
+                        compliance=compliance, iterations=iterations, density=density)
+    out = np.asarray(out, dtype=np.float64).reshape(-1, 3)
+    k = 0 if positions is None else len(pos_u)
+    res = np.empty_like(out)
+    if k:
+        res[:k] = np.asarray(positions, dtype=np.float64).reshape(-1, 3)  # user frames exactly as given
+    ijk = np.floor(unit.world_to_index(out[k:]) + 1e-6).astype(np.int64)  # automatic frames: voxel centres
+    res[k:] = image.index_to_world(ijk + 0.5)
+    return res
+
+
+def _place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="geodesic", compliance=None,
+                  iterations=10, density=None):
     """Frame positions spread evenly over the material in the geodesic metric.
 
     Parameters

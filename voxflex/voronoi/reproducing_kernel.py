@@ -85,6 +85,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._jit import njit, prange
+from .._ties import TIE
 from ..errors import InputError
 from ..image.grid import TrilinearGrid, trilinear_weights
 from . import _march as M
@@ -631,14 +632,17 @@ class ReproducingKernel:
         W = self.weights
         return {"rk_indptr": W.indptr, "rk_indices": W.indices, "rk_data": W.data, "rk_rho": self.rho,
                 "rk_spacing": self.spacing, "rk_support": np.float64(self.support),
-                "rk_stats": np.array([self.grown_frames, self.fallback_corners, self.min_condition, self.max_delta,
-                                      self.max_lebesgue])}
+                # statistics not measured (no fully corrected corner) are NaN; stored as -1 (a cache entry's
+                # floats must be finite: voxflex.cache checks them)
+                "rk_stats": np.nan_to_num(np.array([self.grown_frames, self.fallback_corners, self.min_condition,
+                                                    self.max_delta, self.max_lebesgue], dtype=float), nan=-1.0)}
 
     @classmethod
     def from_store(cls, image, frames, d) -> "ReproducingKernel":
         grid = TrilinearGrid.from_image(image)
         W = sp.csr_matrix((d["rk_data"], d["rk_indices"], d["rk_indptr"]), shape=(grid.n_nodes, len(frames)))
         st = np.asarray(d["rk_stats"], dtype=float)
+        st = np.where(st < 0, np.nan, st)  # -1: not measured (to_store)
         return cls(frames=np.asarray(frames, dtype=float), image=image, support=float(d["rk_support"]),
                    rho=np.asarray(d["rk_rho"]), spacing=np.asarray(d["rk_spacing"]), grid=grid, weights=W,
                    grown_frames=int(st[0]), fallback_corners=int(st[1]), min_condition=float(st[2]),
@@ -688,8 +692,13 @@ class _Marcher:
     """
 
     def __init__(self, mask, cost, pshape, spacing, grid, margin):
-        self.mask, self.cost, self.pshape, self.spacing = mask, cost, pshape, spacing
-        self.grid, self.margin = grid, margin
+        # the marches run in units of the smallest voxel edge: the bucket queue files distances by
+        # floor(d / width), and the same scene in other units must file them the same (in metres, 1 mm and
+        # 1 um beams gave kernels 0.26 apart: another acceptance order, other second-order updates)
+        spacing = np.asarray(spacing, dtype=np.float64)
+        self.unit = float(spacing.min())
+        self.mask, self.cost, self.pshape, self.spacing = mask, cost, pshape, spacing / self.unit
+        self.grid, self.margin = grid, margin / self.unit
         self.smin, self.smax = float(cost.min()), float(cost.max())
         N = mask.shape[0]
         self.elem_of = np.full(N, -1, dtype=np.int64)
@@ -720,6 +729,7 @@ class _Marcher:
     def one(self, seeds, rho, sc):
         """(corner indices, kernel values) of one frame from its seeds (:meth:`seeds`)."""
         si, sd, so = seeds
+        rho = rho / self.unit  # voxel units, as the march
         sc["bound"].fill(rho + self.margin)
         nt = M._march(self.cost, self.pshape, self.spacing, sc["dist"], sc["owner"], sc["state"], sc["nxt"],
                       sc["prv"], sc["bound"], True, si, sd, so, 2, sc["touched"], 0, self.smin, self.smax)
@@ -730,7 +740,9 @@ class _Marcher:
         touched = sc["touched"][:nt]
         M._reset(sc["state"], sc["touched"], nt)
         sc["dist"][touched] = np.inf
-        keep = dc < rho
+        # corners within 1e-9 of the radius are out (their kernel value is ~1e-36): corners at exactly the
+        # radius (symmetric bodies) fall on either side by round-off, which differs between units
+        keep = dc < rho * (1.0 - TIE)
         return nodes[keep], wendland(dc[keep] / rho)
 
     def kernels(self, jobs):
@@ -907,4 +919,5 @@ def reproducing_kernel(image, frames, d, own, mask, cost, pshape, *, support=DEF
         grown_frames=int(grown.sum()), fallback_corners=nfall,
         min_condition=float(lam[full].min()) if full.any() else float("nan"),
         max_delta=float(np.sqrt(max(delta2[full].max(), 0.0))) if full.any() else float("nan"),
-        max_lebesgue=float(lebesgue[anchor_of < 0].max()) if anchor_of is not None else float(lebesgue.max()))
+        max_lebesgue=float(lebesgue[anchor_of < 0].max(initial=1.0)) if anchor_of is not None
+        else float(lebesgue.max(initial=1.0)))  # every corner anchored (all clamped): the clamp's weights are 1

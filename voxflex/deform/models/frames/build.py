@@ -82,7 +82,7 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
         if bad:
             raise InputError(f'[nodes] distance = "compliance" needs a Young\'s modulus for label(s) {bad}; '
                              'give young (or use distance = "geodesic")')
-    kind = nodes.shape_function or "natural-neighbour"
+    kind = nodes.weights  # the scene's family or the node kind's default
     fixed = [(np.asarray(f.min, dtype=float), np.asarray(f.max, dtype=float)) for f in scene.fixed]
     count = nodes.count if nodes.count is not None else min(DEFAULT_FRAMES, int((image.labels > 0).sum()))
     quadrature = scene.elasticity.quadrature
@@ -606,11 +606,11 @@ def estimate(scene, size, material_class: str):
     nodes = int(scene.nodes.count or kind.default_count) + len(scene.nodes.positions or ()) + len(scene.fixed)
     dofs = kind.dofs_per_node * nodes
     parents = scene.nodes.parents
-    if scene.nodes.shape_function == "reproducing-kernel":  # never truncated: every kernel reaching a point;
+    if scene.nodes.weights == "reproducing-kernel":  # never truncated: every kernel reaching a point;
         # measured 29 / 50 parents with 40 / 80 frames at support 2.5 on the cantilever, 35 on the bunny
         support = scene.nodes.support or 2.5
         parents = min(nodes, int(np.ceil(2.5 * support ** 3)))
-    elif scene.nodes.shape_function == "eigenmode":  # global: every frame is a parent of every point
+    elif scene.nodes.weights == "eigenmode":  # global: every frame is a parent of every point
         parents = nodes
     model = (FRAME_BYTES_PER_VOXEL_PARENT * parents + 64.0) * voxels + FRAME_DENSE_COPIES * 8.0 * dofs**2
     iterations = 1 if material_class == "constant" else 5
