@@ -8,7 +8,7 @@ finer``), and the mesh voxelized at 0.5 mm (a finer shape), with the h^2 extrapo
 solver at the scene's tolerance.  Timings: the precompute (frames: weights, samples, checks; voxel:
 element tables), and the solve with the model built, warmed once, then ``--repeat`` times (min and
 median).  Every frame figure stands beside the same frames with exact integration (2x2x2 Gauss-Legendre
-points per voxel) and beside the old default (natural-neighbour weights, stabilised mid-point regions,
+points per voxel) and beside the library's default settings (natural-neighbour weights, stabilised mid-point regions,
 the volume ratio projected).
 
 Usage: python benchmarks/bench_default_scene.py [--repeat 3] [--quick]
@@ -66,11 +66,11 @@ def main():
         rows.append(("voxel 0.5 mm, F-bar (auto)", _scene(base, kind="voxel", h=0.0005)))
         rows.append(("voxel 1 mm image split 2x2x2, F-bar (auto)", _scene(base, kind="voxel")))
     for n in (20, 40, 80):
-        rows.append((f"{n} frames, RK + elastons (default)", _scene(base, sf="reproducing-kernel", count=n)))
+        rows.append((f"{n} frames, RK + elastons" + (" (the default scene)" if n == 40 else ""), _scene(base, sf="reproducing-kernel", count=n)))
     if not args.quick:
         rows.append(("40 frames, RK + Gauss-Legendre (exact)", _scene(base, sf="reproducing-kernel",
                                                                       q="gauss-legendre", count=40)))
-    rows.append(("40 frames, NN + stabilised mid-point (old default)",
+    rows.append(("40 frames, NN + stabilised mid-point (library defaults)",
                  _scene(base, sf="natural-neighbour", q="midpoint", count=40)))
     rows.append(("40 frames, NN + Gauss-Legendre, full", _scene(base, sf="natural-neighbour", q="gauss-legendre",
                                                                  count=40, volumetric="full")))

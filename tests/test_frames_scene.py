@@ -50,7 +50,7 @@ def test_affine_patch_test_through_frames_and_samples(tmp_path, quadrature):
 
 @pytest.mark.slow
 def test_sofa_frames_beam_against_the_voxel_model():
-    """Bar 0.4 x 0.4 x 2 (voxels 0.02: 40,000), clamped at z = 0, E = 1e5, nu = 0.3, 1 N at the tip, 40
+    """Natural-neighbour frames (the figures below are theirs). Bar 0.4 x 0.4 x 2 (voxels 0.02: 40,000), clamped at z = 0, E = 1e5, nu = 0.3, 1 N at the tip, 40
     frames.  Linear material, so the stabilised mid-point regions integrate exactly what Gauss-Legendre
     does (tests/test_frame_model.py): the frames' own (kinematic) error against the voxel model remains,
     measured +8.9 % stiff (it was +1.0 % with 1000 bare mid-point samples: under-integration cancelling
@@ -59,7 +59,7 @@ def test_sofa_frames_beam_against_the_voxel_model():
     scene = _bar(h=0.02, fixed=(FixedSpec(max=(1e9, 1e9, 1e-6)),),
                  loads=(LoadSpec(kind="force", vector=(1.0, 0.0, 0.0), min=(-1e9, -1e9, 2.0 - 1e-6)),))
     ref = vf.simulate(scene, progress=False).probe_displacements()["tip"][0]
-    frames = replace(scene, nodes=NodesSpec(kind="affine", count=40),
+    frames = replace(scene, nodes=NodesSpec(kind="affine", shape_function="natural-neighbour", count=40),
                      elasticity=ElasticitySpec(strain="linear", quadrature="midpoint", samples=1000))
     got = vf.simulate(frames, progress=False).probe_displacements()["tip"][0]
     el = replace(frames, elasticity=ElasticitySpec(strain="linear", quadrature="elaston"))
@@ -72,7 +72,7 @@ def test_sofa_frames_beam_against_the_voxel_model():
 def test_released_frame_beam_never_gains_energy():
     """Implicit Euler with frames: a bar clamped at one end, released from its bent static state,
     loses energy at every step (backward Euler dissipates)."""
-    base = _bar(h=0.1, fixed=(FixedSpec(max=(1e9, 1e9, 1e-6)),), nodes=NodesSpec(kind="affine", count=10),
+    base = _bar(h=0.1, fixed=(FixedSpec(max=(1e9, 1e9, 1e-6)),), nodes=NodesSpec(kind="affine", shape_function="natural-neighbour", count=10),
                 elasticity=ElasticitySpec(strain="linear", quadrature="midpoint", samples=200))
     # a sideways 0.5 m/s^2 bends the 2 m bar's tip by about 0.55 m (50 m/s^2 bent it to 28 times its size, a
     # linear-strain state the run now flags as implausible)
@@ -101,7 +101,7 @@ def test_a_static_frame_scene_with_zero_energy_modes_is_refused_before_solving()
     from voxflex.scene import Scene
 
     scene = Scene.from_toml(paths.ROOT / "examples" / "cantilever.toml")
-    scene = replace(scene, nodes=replace(scene.nodes, kind="affine"),
+    scene = replace(scene, nodes=replace(scene.nodes, kind="affine", shape_function="natural-neighbour"),
                     elasticity=replace(scene.elasticity, quadrature="midpoint", hourglass="none"))
     with pytest.raises(InputError, match=r"32 midpoint samples leave \d+ zero-energy mode.*samples.*gauss-legendre"):
         vf.model(scene, cache=False)
@@ -123,7 +123,7 @@ def test_a_default_count_that_leaves_a_soft_mode_is_doubled():
     from voxflex.scene import Scene
 
     scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "cantilever.toml")
-    scene = replace(scene, nodes=replace(scene.nodes, kind="affine", count=4),
+    scene = replace(scene, nodes=replace(scene.nodes, kind="affine", shape_function="natural-neighbour", count=4),
                     elasticity=replace(scene.elasticity, quadrature="midpoint", hourglass="none"))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -146,7 +146,7 @@ def test_a_static_frame_scene_with_a_near_zero_energy_mode_is_refused(tmp_path, 
 
     monkeypatch.setenv("VOXFLEX_CACHE_DIR", str(tmp_path))
     scene = Scene.from_toml(paths.ROOT / "examples" / "cantilever.toml")
-    scene = replace(scene, nodes=replace(scene.nodes, kind="affine", count=8),
+    scene = replace(scene, nodes=replace(scene.nodes, kind="affine", shape_function="natural-neighbour", count=8),
                     elasticity=replace(scene.elasticity, quadrature="elaston", samples=4))
     with pytest.raises(InputError, match=r"37 elaston samples leave a deformation mode \d+ times softer .*"
                                          r"near-zero-energy.*samples.*gauss-legendre"):
@@ -187,7 +187,7 @@ def test_soft_mode_verdicts_do_not_depend_on_the_unit(case):
 
     scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "cantilever.toml")
     el = scene.elasticity
-    scene = replace(scene, nodes=replace(scene.nodes, kind="affine", count={"mechanism": 20, "near-zero": 8,
+    scene = replace(scene, nodes=replace(scene.nodes, kind="affine", shape_function="natural-neighbour", count={"mechanism": 20, "near-zero": 8,
                                                                            "doubled": 4, "sound": 6}[case]),
                     elasticity={"mechanism": replace(el, quadrature="midpoint", hourglass="none"),
                                 "near-zero": replace(el, quadrature="elaston", samples=4),
@@ -222,14 +222,17 @@ def _frame_scenes():
 @pytest.mark.parametrize("path", _frame_scenes(), ids=lambda p: f"{p.parent.name}/{p.name}")
 def test_every_bundled_scene_as_frames_builds_with_default_samples(path):
     """Every scene of examples/, data/default.toml and docs/tradeoff/ as a frame scene ([nodes] kind =
-    "affine", the default region count, stabilised mid-point regions and elastons) builds without a
-    soft-mode refusal or warning, and the builder records a sound count.  Shapes and meshes at twice
-    their voxel size, images as they are at 4x coarser (the phantom has 128,000 voxels)."""
+    "affine", the default region count) builds without a soft-mode refusal or warning, and the builder
+    records a sound count: the default weights on elastons at the scene's own voxels, and natural-neighbour
+    frames on stabilised mid-point regions at twice the voxel size.  Images at 4x coarser (the phantom has
+    128,000 voxels)."""
     from pathlib import Path
 
     from voxflex.scene import Scene
+    from voxflex.voronoi.reproducing_kernel import ReproducingKernelWarning
 
     scene = Scene.from_toml(path)
+    coarse = scene
     if scene.object.image is not None:
         import tempfile
 
@@ -237,16 +240,18 @@ def test_every_bundled_scene_as_frames_builds_with_default_samples(path):
         small = vf.LabelImage(full.labels[2::4, 2::4, 2::4], spacing=full.spacing * 4, origin=full.origin)
         tmp = Path(tempfile.mkdtemp()) / "small.npz"
         small.save(tmp)
-        scene = replace(scene, object=replace(scene.object, image=str(tmp)))
+        scene = coarse = replace(scene, object=replace(scene.object, image=str(tmp)))
     else:
-        scene = replace(scene, object=replace(scene.object, voxel_size=2 * scene.object.voxel_size))
+        coarse = replace(scene, object=replace(scene.object, voxel_size=2 * scene.object.voxel_size))
     for quadrature in ("midpoint", "elaston"):
-        frames = replace(scene, nodes=replace(scene.nodes, kind="affine"),
-                         elasticity=replace(scene.elasticity, quadrature=quadrature, samples=None,
+        base, weights = (coarse, "natural-neighbour") if quadrature == "midpoint" else (scene, None)
+        frames = replace(base, nodes=replace(base.nodes, kind="affine", shape_function=weights),
+                         elasticity=replace(base.elasticity, quadrature=quadrature, samples=None,
                                             hourglass="stiffness"))
         if any(m.yield_strain is not None for m in scene.materials) and quadrature == "midpoint":
             continue  # plasticity refuses stabilised mid-point regions (tests/test_plastic_scene.py)
         with warnings.catch_warnings():
             warnings.simplefilter("error")
+            warnings.simplefilter("ignore", ReproducingKernelWarning)
             model = vf.model(frames, cache=False)
         assert model.info["samples_chosen"].endswith(": sound"), model.info["samples_chosen"]

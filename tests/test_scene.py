@@ -109,14 +109,11 @@ def test_every_spec_key_parses(tmp_path):
 
 def test_defaults_and_programmatic_construction():
     scene = Scene(ObjectSpec(shape="sphere", size=(0.5,), voxel_size=0.1), (MaterialSpec(),))
-    # defaults: affine frames with the node kind's own quadrature (elastons for frames,
-    # Gauss-Legendre for voxel nodes) and weights (reproducing kernels for frames), 6 parents,
+    # defaults: affine frames with the node kind's own quadrature (stabilised mid-point regions for
+    # frames, Gauss-Legendre for voxel nodes) and weights (natural neighbours for frames), 6 parents,
     # the frame count chosen at build time
-    assert scene.nodes.kind == "affine" and scene.elasticity.quadrature == "elaston"
-    from voxflex.deform.models.kinds import node_kind
-
-    assert node_kind("affine").default_shape_function == "reproducing-kernel"
-    assert node_kind("rigid").default_quadrature == "midpoint"
+    assert scene.nodes.kind == "affine" and scene.elasticity.quadrature == "midpoint"
+    assert scene.nodes.weights == "natural-neighbour"
     assert scene.nodes.parents == 6 and scene.nodes.count is None
     voxel = Scene(ObjectSpec(shape="sphere", size=(0.5,), voxel_size=0.1), (MaterialSpec(),), nodes=NodesSpec(kind="voxel"))
     assert voxel.elasticity.quadrature == "gauss-legendre"

@@ -310,7 +310,7 @@ def _fmt_err(e, below) -> str:
 # ---------------------------------------------------------------------------
 # the public function
 # ---------------------------------------------------------------------------
-def tradeoff(scene, *, frames=(5, 10, 20, 40), samples=(100, 400), shape_functions=("reproducing-kernel",),
+def tradeoff(scene, *, frames=(5, 10, 20, 40), samples=(100, 400), shape_functions=("natural-neighbour",),
              quadratures=("elaston", "gauss-legendre"), reference: str = "scene", voxel_levels: int = 1,
              max_error: float | None = None, workers: int | None = None, scheduler: str | None = None,
              progress: bool = True) -> TradeoffTable:
@@ -328,8 +328,8 @@ def tradeoff(scene, *, frames=(5, 10, 20, 40), samples=(100, 400), shape_functio
         Sample counts for the ``"midpoint"`` and ``"elaston"`` quadratures
         (``"gauss-legendre"`` uses 2x2x2 points in every voxel).
     shape_functions : sequence of str
-        Shape-function kinds (``reproducing-kernel``, the default, ``natural-neighbour``,
-        ``sibson``, ``laplace``, ``distance-ratio``, ``shepard``).
+        Shape-function kinds (``natural-neighbour``, the default, ``reproducing-kernel``,
+        ``eigenmode``, ``sibson``, ``laplace``, ``distance-ratio``, ``shepard``).
     quadratures : sequence of str
         ``"elaston"``, ``"gauss-legendre"`` (the default pair: the frames' default rule beside
         the exact one, so that a figure is never a cancellation of integration against kinematics)

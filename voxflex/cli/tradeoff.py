@@ -45,9 +45,9 @@ def register(sub) -> None:
     parser.add_argument("--frames", metavar="N,N,...", default="5,10,20,40", help="frame counts (default 5,10,20,40)")
     parser.add_argument("--samples", metavar="N,N,...", default="100,400",
                         help="sample counts for midpoint and elaston quadratures (default 100,400)")
-    parser.add_argument("--shape-functions", metavar="KIND,...", default="reproducing-kernel",
-                        help="shape-function kinds (default reproducing-kernel; also natural-neighbour, sibson, "
-                        "laplace, distance-ratio, shepard)")
+    parser.add_argument("--shape-functions", metavar="KIND,...", default="natural-neighbour",
+                        help="shape-function kinds (default natural-neighbour; also reproducing-kernel (linearly "
+                        "precise), eigenmode, sibson, laplace, distance-ratio, shepard)")
     parser.add_argument("--quadratures", metavar="KIND,...", default="elaston,gauss-legendre",
                         help="quadratures (default elaston,gauss-legendre: the default rule beside the exact one; "
                         "also midpoint)")

@@ -9,13 +9,15 @@ from __future__ import annotations
 
 __all__ = ["FRAME_SHAPE_FUNCTIONS", "VOXEL_SHAPE_FUNCTIONS", "SHAPE_FUNCTIONS", "ALIASES", "PLACEMENTS"]
 
-FRAME_SHAPE_FUNCTIONS = ("reproducing-kernel", "natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard",
+FRAME_SHAPE_FUNCTIONS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard", "reproducing-kernel",
                          "eigenmode")
-"""Weights of frames over the image (:func:`voxflex.voronoi.shape_function`).  Reproducing-kernel weights,
-the default, are linearly precise (:mod:`voxflex.voronoi.reproducing_kernel`): blended affine frames then
-bend without parasitic strain and converge to the voxel model from the stiff side; natural-neighbour
-(Sibson's) weights are interpolating and lock in bending (docs/scene.md, ``shape_function``); eigenmode
-weights are global, from the lowest modes of the elastic energy (:mod:`voxflex.voronoi.eigenmode`)."""
+"""Weights of frames over the image (:func:`voxflex.voronoi.shape_function`); the first is the default.
+Natural-neighbour (Sibson's) weights are interpolating and reproduce a linear field only inside the frames'
+hull, so blended affine frames lock in bending; reproducing-kernel weights are linearly precise
+(:mod:`voxflex.voronoi.reproducing_kernel`: the accurate choice, and the bundled default scene's, but on
+small or thin bodies with frames on a line they lose precision and can leave mechanisms, which are
+refused); eigenmode weights are global, from the lowest modes of the elastic energy
+(:mod:`voxflex.voronoi.eigenmode`)."""
 
 VOXEL_SHAPE_FUNCTIONS = ("trilinear",)
 """Weights of the voxel model's corner nodes (:mod:`voxflex.voronoi.trilinear`)."""

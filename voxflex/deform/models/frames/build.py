@@ -173,6 +173,12 @@ def _unit_stiffness(model) -> np.ndarray:
     return model.rest_stiffness({lab: unit for lab in model.materials})
 
 
+def _ratio(softest: float) -> str:
+    """How many times softer a mode is, as a message says it ("4833", "1e+100": never 300 digits)."""
+    r = 1.0 / max(float(softest), 1e-300)
+    return f"{r:.0f}" if r < 1e7 else f"{r:.3g}"
+
+
 def _static_frames(scene) -> bool:
     """A static affine scene without obstacles or cables: the scenes judged before solving by the
     frame quadrature's modes (those layers may hold the modes; dynamics has mass)."""
@@ -226,7 +232,7 @@ def _judge_soft_modes(scene, samples, softest: float) -> None:
 
     if softest >= SOFT_RATIO:
         return
-    what = (f"the {len(samples.volume)} {samples.kind} samples leave a deformation mode {1 / max(softest, 1e-300):.0f} "
+    what = (f"the {len(samples.volume)} {samples.kind} samples leave a deformation mode {_ratio(softest)} "
             f"times softer than one sample per voxel would (limit {1 / SOFT_RATIO:.0f}): a spurious near-zero-energy "
             "mode")
     fix = 'raise [elasticity] samples, use fewer frames, or quadrature = "gauss-legendre"'
@@ -404,7 +410,7 @@ def _check(scene, image, pre, occupancy, hourglass):
         return f"{zero - 6} zero-energy mode(s) in the free body", K, None
     softest = _softest(scene, image, model, pre["sf"], occupancy, K)
     if softest is not None and softest < SOFT_RATIO:
-        return f"a mode {1 / max(softest, 1e-300):.0f} times softer than one sample per voxel", K, softest
+        return f"a mode {_ratio(softest)} times softer than one sample per voxel", K, softest
     return "sound", K, softest
 
 

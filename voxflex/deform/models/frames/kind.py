@@ -33,7 +33,7 @@ AFFINE = NodeKind(
     noun="frame",
     plural="frames",
     dofs_per_node=12,
-    quadratures=("elaston", *(q for q in QUADRATURES if q != "elaston")),  # the first is the default
+    quadratures=("midpoint", *(q for q in QUADRATURES if q != "midpoint")),  # the first is the default
     shape_functions=FRAME_SHAPE_FUNCTIONS,
     description="affine frames (12 DOF each: the matrix A row-major, then t) skinned over the image",
     builder="voxflex.deform.models.frames.build:build",

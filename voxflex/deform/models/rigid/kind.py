@@ -45,7 +45,7 @@ RIGID = NodeKind(
     noun="rigid frame",
     plural="rigid frames",
     dofs_per_node=6,
-    quadratures=("midpoint", *(q for q in AFFINE.quadratures if q != "midpoint")),
+    quadratures=AFFINE.quadratures,
     # not reproducing kernels nor eigenmodes: a rigid frame's reference point is its mass centre, which
     # negative weights (both have them) do not define
     shape_functions=tuple(s for s in AFFINE.shape_functions if s not in ("reproducing-kernel", "eigenmode")),
