@@ -5,7 +5,8 @@ Two references: the voxel model on the scene's 1 mm image with every voxel split
 voxelized shape, so the converged answer on the image the frames see: ``voxflex tradeoff --reference
 finer``), and the mesh voxelized at 0.5 mm (a finer shape), with the h^2 extrapolation of the 1 mm and
 0.5 mm voxelizations as the converged answer for the mesh.  Every model is solved by the same Newton
-solver at the scene's tolerance.  Timings: the precompute (frames: weights, samples, checks; voxel:
+solver at the scene's tolerance (1e-8) with the scene's linear solver setting ("auto": a best-solver
+comparison — sparse direct or multigrid-CG for the voxel grids, dense Cholesky for the frames).  Timings: the precompute (frames: weights, samples, checks; voxel:
 element tables), and the solve with the model built, warmed once, then ``--repeat`` times (min and
 median).  Every frame figure stands beside the same frames with exact integration (2x2x2 Gauss-Legendre
 points per voxel) and beside the library's default settings (natural-neighbour weights, stabilised mid-point regions,
