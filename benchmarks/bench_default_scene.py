@@ -78,7 +78,7 @@ def main():
     out = {}
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
     from voxflex.build import build_image
-    from voxflex.sweep import _image_at_level
+    from voxflex.image.levels import image_at_level as _image_at_level
 
     split = _image_at_level(build_image(base), 1)
     for label, scene in rows:

@@ -500,12 +500,14 @@ def _warm_key(c: Configuration):
 def _check_levels(image, merges: int, voxel_levels: int) -> None:
     """InputError when merging 2x2x2 blocks ``merges`` times leaves no material (or less than a voxel along
     an axis) in the image; the message names the largest ``voxel_levels`` that works."""
+    from .image.levels import merge_blocks
+
     out, done = image, 0
     while done < merges:
         labels = np.asarray(out.labels)
         if min(labels.shape) < 2:
             break
-        merged = _merge(out)
+        merged = merge_blocks(out)
         if not np.any(np.asarray(merged.labels) > 0):
             break
         out, done = merged, done + 1
@@ -525,43 +527,10 @@ def _level_size(image, level) -> float:
 
 
 def _image_at_level(image, level: int):
-    """The scene's image on grid ``level``: 1 splits every voxel into 2x2x2 (same geometry), -1 merges
-    2x2x2 blocks (a block is material when at least half of it is; its label is its most common one)."""
-    out = image
-    for _ in range(abs(level)):
-        out = _split(out) if level > 0 else _merge(out)
-    return out
+    """The scene's image on grid ``level`` (:func:`voxflex.image.levels.image_at_level`)."""
+    from .image.levels import image_at_level
 
-
-def _split(image):
-    from .image import LabelImage
-
-    rep = lambda a: np.repeat(np.repeat(np.repeat(a, 2, 0), 2, 1), 2, 2)  # noqa: E731
-    occ = None if image.occupancy is None else rep(np.asarray(image.occupancy))
-    return LabelImage(rep(image.labels), spacing=np.asarray(image.spacing) / 2, origin=image.origin,
-                      direction=image.direction, occupancy=occ)
-
-
-def _merge(image):
-    from .image import LabelImage
-
-    labels = np.asarray(image.labels)
-    shape = tuple(-(-s // 2) * 2 for s in labels.shape)
-    pad = [(0, s - t) for s, t in zip(shape, labels.shape)]
-    lab = np.pad(labels, pad)
-    blocks = lab.reshape(shape[0] // 2, 2, shape[1] // 2, 2, shape[2] // 2, 2).transpose(0, 2, 4, 1, 3, 5)
-    blocks = blocks.reshape(*blocks.shape[:3], 8)
-    material = (blocks > 0).sum(-1) >= 4
-    present = np.unique(labels[labels > 0])
-    counts = np.stack([(blocks == v).sum(-1) for v in present], axis=-1)
-    coarse = np.where(material, present[np.argmax(counts, axis=-1)], 0).astype(labels.dtype)
-    occ = None
-    if image.occupancy is not None:
-        o = np.pad(np.asarray(image.occupancy, dtype=float), pad)
-        o = o.reshape(shape[0] // 2, 2, shape[1] // 2, 2, shape[2] // 2, 2).mean(axis=(1, 3, 5))
-        occ = np.where(material, o, 0.0)
-    return LabelImage(coarse, spacing=np.asarray(image.spacing) * 2, origin=image.origin,
-                      direction=image.direction, occupancy=occ)
+    return image_at_level(image, level)
 
 
 # -- running --------------------------------------------------------------------

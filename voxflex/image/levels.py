@@ -1,4 +1,4 @@
-"""Coarser voxel levels of a label image: 2x2x2 blocks merged into one voxel.
+"""Voxel levels of a label image: 2x2x2 blocks merged into one voxel, or every voxel split into 2x2x2.
 
 >>> import numpy as np
 >>> from voxflex.image.label_image import LabelImage
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["merge_blocks"]
+__all__ = ["merge_blocks", "split_voxels", "image_at_level"]
 
 
 def merge_blocks(image):
@@ -18,7 +18,7 @@ def merge_blocks(image):
 
     A block is material when at least half of its 8 voxels are (an odd size is padded with empty
     voxels); its label is the most common label among them (the smallest on ties); its occupancy the
-    mean of the block's.  The rule of ``voxflex tradeoff``'s coarser voxel levels (``sweep._merge``).
+    mean of the block's.  The rule of ``voxflex tradeoff``'s coarser voxel levels.
     """
     from .label_image import LabelImage
 
@@ -39,3 +39,23 @@ def merge_blocks(image):
         occ = np.where(material, o, 0.0)
     return LabelImage(coarse, spacing=np.asarray(image.spacing) * 2, origin=image.origin,
                       direction=image.direction, occupancy=occ)
+
+
+def split_voxels(image):
+    """The image with every voxel split into 2x2x2 (half the spacing, the same geometry, labels and
+    occupancy repeated)."""
+    from .label_image import LabelImage
+
+    rep = lambda a: np.repeat(np.repeat(np.repeat(a, 2, 0), 2, 1), 2, 2)  # noqa: E731
+    occ = None if image.occupancy is None else rep(np.asarray(image.occupancy))
+    return LabelImage(rep(image.labels), spacing=np.asarray(image.spacing) / 2, origin=image.origin,
+                      direction=image.direction, occupancy=occ)
+
+
+def image_at_level(image, level: int):
+    """The image on grid ``level``: each positive step splits every voxel into 2x2x2
+    (:func:`split_voxels`), each negative one merges 2x2x2 blocks (:func:`merge_blocks`)."""
+    out = image
+    for _ in range(abs(int(level))):
+        out = split_voxels(out) if level > 0 else merge_blocks(out)
+    return out
