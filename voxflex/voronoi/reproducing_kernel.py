@@ -907,4 +907,6 @@ def reproducing_kernel(image, frames, d, own, mask, cost, pshape, *, support=DEF
         grown_frames=int(grown.sum()), fallback_corners=nfall,
         min_condition=float(lam[full].min()) if full.any() else float("nan"),
         max_delta=float(np.sqrt(max(delta2[full].max(), 0.0))) if full.any() else float("nan"),
-        max_lebesgue=float(lebesgue[anchor_of < 0].max()) if anchor_of is not None else float(lebesgue.max()))
+        # an anchored corner carries its fixed frame's weight 1 alone: sum |w| = 1 (every corner may be anchored)
+        max_lebesgue=float(lebesgue.max()) if anchor_of is None else float(np.max(lebesgue[anchor_of < 0],
+                                                                                  initial=1.0)))
