@@ -255,3 +255,20 @@ def test_every_bundled_scene_as_frames_builds_with_default_samples(path):
             warnings.simplefilter("ignore", ReproducingKernelWarning)
             model = vf.model(frames, cache=False)
         assert model.info["samples_chosen"].endswith(": sound"), model.info["samples_chosen"]
+
+
+def test_reproducing_kernels_build_when_every_frame_is_fixed():
+    """A fixed region covering the whole body anchors every frame: the reproducing-kernel weights have no free
+    corner to take their Lebesgue constant over (it was a max over an empty array: ValueError); they build,
+    the frames follow the region's transform exactly, and the constant is 1 (each corner: its anchor alone)."""
+    T = np.array([[1.05, 0.1, 0.0, 0.02], [0.0, 0.97, 0.03, -0.01], [0.02, 0.0, 1.02, 0.03]])
+    scene = _bar(h=0.2, nodes=NodesSpec(kind="affine", count=4, shape_function="reproducing-kernel"),
+                 fixed=(FixedSpec(transform=tuple(map(tuple, T))),))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = vf.model(scene, cache=False)
+        result = vf.simulate(scene, model=model, progress=False)
+    assert model.shape_function.max_lebesgue == 1.0
+    expect = result.surface_rest @ T[:, :3].T + T[:, 3]
+    assert np.max(np.abs(result.surface_positions[-1] - expect)) < 1e-10
+

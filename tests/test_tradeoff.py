@@ -20,7 +20,9 @@ import voxflex as vf
 from voxflex.cli import main
 from voxflex.errors import InputError
 from voxflex.scene import Scene
-from voxflex.sweep import COLUMNS, METRICS, Configuration, TradeoffTable, _merge, _split, _surface_error, tradeoff
+from voxflex.image.levels import merge_blocks as _merge
+from voxflex.image.levels import split_voxels as _split
+from voxflex.sweep import COLUMNS, METRICS, Configuration, TradeoffTable, _surface_error, tradeoff
 
 EXAMPLES = paths.ROOT / "examples"
 SPEC_COLUMNS = ("kind, count, shape_function, quadrature, samples, dofs, precompute_seconds, solve_seconds, "
