@@ -83,7 +83,7 @@ import scipy.sparse as sp
 
 from ..errors import InputError
 from ..image.grid import TrilinearGrid, trilinear_weights
-from .shape_functions import ShapeValues
+from .reproducing_kernel import CornerWeights
 
 __all__ = ["EigenmodeWeights", "EigenmodeWarning", "eigenmode", "scalar_operators", "lowest_modes",
            "DENSE_MAX", "MODE_TOL", "CONDITION_MAX"]
@@ -347,7 +347,7 @@ def lowest_modes(K, M, count, *, tol=MODE_TOL, maxiter=MAX_ITERATIONS, seed=0, d
 
 # --------------------------------------------------------------------------- the shape function
 @dataclass(frozen=True, eq=False)
-class EigenmodeWeights:
+class EigenmodeWeights(CornerWeights):
     """Skinning-eigenmode weights of frames over the material of an image (see the module docstring).
 
     Attributes
@@ -385,70 +385,6 @@ class EigenmodeWeights:
         "auto" and gauge handling read it."""
         return bool(self.linear)
     _cache: dict = field(repr=False, default_factory=dict)
-
-    @property
-    def n_nodes(self) -> int:
-        return len(self.frames)
-
-    @property
-    def parents(self) -> int:
-        """The most parents a point has (the frames with a non-zero weight at its voxel's corners)."""
-        if "sizes" not in self._cache:
-            from .reproducing_kernel import _union_sizes
-
-            W = self.weights
-            self._cache["sizes"] = _union_sizes(self.grid.element_nodes, W.indptr.astype(np.int64),
-                                                W.indices.astype(np.int64), len(self.frames))
-        return int(self._cache["sizes"].max(initial=1))
-
-    def evaluate(self, elem, local, *, hessians=True) -> ShapeValues:
-        """Values at points given by their element (material voxel, C order) and local coordinates."""
-        from .reproducing_kernel import _interpolate
-
-        elem = np.ascontiguousarray(elem, dtype=np.int64)
-        local = np.ascontiguousarray(local, dtype=np.float64)
-        self.parents  # noqa: B018 - fills the per-element union sizes
-        sizes = self._cache["sizes"]
-        m = len(elem)
-        P = max(1, int(sizes[elem].max(initial=1)))
-        index = np.full((m, P), -1, dtype=np.int64)
-        w = np.zeros((m, P))
-        dw = np.zeros((m, P, 3))
-        ddw = np.zeros((m, P, 3, 3)) if hessians else np.zeros((1, 1, 3, 3))
-        W = self.weights
-        Dw = np.asarray(self.grid.direction, dtype=float) / np.asarray(self.grid.spacing, dtype=float)[None, :]
-        _interpolate(elem, local, self.grid.element_nodes, W.indptr.astype(np.int64), W.indices.astype(np.int64),
-                     W.data, Dw, bool(hessians), index, w, dw, ddw)
-        X = self.grid.index_to_world(self.grid.element_ijk[elem] + local)
-        return ShapeValues(index=index, w=w, dw=dw, ddw=ddw if hessians else None, rest=X, n_nodes=len(self.frames))
-
-    def __call__(self, points, *, hessians=True) -> ShapeValues:
-        try:
-            X = np.asarray(points, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError("points must be an (m, 3) array of world positions") from None
-        if X.ndim != 2 or X.shape[1] != 3 or not np.all(np.isfinite(X)):
-            raise InputError(f"points must be a finite (m, 3) array of world positions, got shape {X.shape}")
-        elem, local = self.grid.locate(X, tolerance=1e-6)
-        if np.any(elem < 0):
-            b = int(np.flatnonzero(elem < 0)[0])
-            raise InputError(f"point {b} at {X[b].tolist()} lies outside the material; evaluate shape functions "
-                             "inside the object")
-        sv = self.evaluate(elem, local, hessians=hessians)
-        return ShapeValues(index=sv.index, w=sv.w, dw=sv.dw, ddw=sv.ddw, rest=X, n_nodes=sv.n_nodes)
-
-    def voxel_values(self) -> ShapeValues:
-        """Values at every material voxel centre, in ``np.flatnonzero(image.labels > 0)`` order (cached)."""
-        if "voxels" not in self._cache:
-            V = self.grid.n_elements
-            self._cache["voxels"] = self.evaluate(np.arange(V), np.full((V, 3), 0.5))
-        return self._cache["voxels"]
-
-    centre_values = voxel_values
-
-    def pruned_mass(self) -> float:
-        """0: eigenmode weights are never pruned."""
-        return 0.0
 
     # -- storage (the precompute cache) ----------------------------------------
     def to_store(self) -> dict:

@@ -91,7 +91,7 @@ from ..image.grid import TrilinearGrid, trilinear_weights
 from . import _march as M
 from .shape_functions import ShapeValues
 
-__all__ = ["ReproducingKernel", "ReproducingKernelWarning", "reproducing_kernel", "DEFAULT_SUPPORT", "CONDITION",
+__all__ = ["CornerWeights", "ReproducingKernel", "ReproducingKernelWarning", "reproducing_kernel", "DEFAULT_SUPPORT", "CONDITION",
            "LEBESGUE_MAX", "GROWTH", "MAX_GROWTH_ROUNDS"]
 
 DEFAULT_SUPPORT = 2.5
@@ -523,47 +523,13 @@ def _interpolate_numpy(elem, local, element_nodes, W, Dw, hess):
 
 
 # --------------------------------------------------------------------------- the shape function
-@dataclass(frozen=True, eq=False)
-class ReproducingKernel:
-    """Reproducing-kernel weights of frames over the material of an image (see the module docstring).
-
-    Attributes
-    ----------
-    frames : (n, 3) float, metres
-    kind : str, ``"reproducing-kernel"``
-    support : float, kernel radius in local frame spacings
-    image : LabelImage
-    rho : (n,) float, the kernel radii (metres, or metres of the stiffest material with a compliance distance)
-    spacing : (n,) float, the local frame spacings h_i
-    grown_frames : int, frames whose kernel the regularity guard grew
-    fallback_corners : int, corners left with a lower-order correction
-    min_condition : float, smallest lambda_min(C) / l^2 over the corners that kept the full correction
-    max_delta : float, largest (c - Xbar)^T C^-1 (c - Xbar) over the corners, square-rooted (how far a
-        corner lies from its frames' centroid, in their kernel-weighted spread)
-    max_lebesgue : float, largest sum_i |w_i| over the corners (1 for non-negative weights)
-
-    Calling it with points (m, 3) (world, metres) inside (or on) the material returns
-    :class:`~voxflex.voronoi.shape_functions.ShapeValues` with every parent (no truncation) and
-    Hessians unless ``hessians=False``.
+class CornerWeights:
+    """Weights stored at the voxel corners and interpolated trilinearly inside each material voxel
+    (values, gradients and Hessians): the evaluation shared by the families that build their weights on
+    the voxel grid (:class:`ReproducingKernel`, :class:`~voxflex.voronoi.eigenmode.EigenmodeWeights`).
+    A subclass provides ``frames`` (n, 3), ``grid`` (:class:`~voxflex.image.grid.TrilinearGrid`),
+    ``weights`` (corners x frames, CSR) and a ``_cache`` dict; its weights are never pruned.
     """
-
-    linearly_precise = True
-    """Sums of w_a and of w_a X_a reproduce 1 and x at every point (frames' volumetric "auto" reads it)."""
-
-    frames: np.ndarray
-    image: object
-    support: float
-    rho: np.ndarray
-    spacing: np.ndarray
-    grid: TrilinearGrid = field(repr=False)
-    weights: sp.csr_matrix = field(repr=False)  # (corners, n)
-    grown_frames: int = 0
-    fallback_corners: int = 0
-    min_condition: float = float("nan")
-    max_delta: float = float("nan")
-    max_lebesgue: float = float("nan")
-    kind: str = "reproducing-kernel"
-    _cache: dict = field(repr=False, default_factory=dict)
 
     @property
     def n_nodes(self) -> int:
@@ -624,8 +590,52 @@ class ReproducingKernel:
     centre_values = voxel_values
 
     def pruned_mass(self) -> float:
-        """0: reproducing-kernel weights are never pruned."""
+        """0: weights at the corners are never pruned."""
         return 0.0
+
+
+
+@dataclass(frozen=True, eq=False)
+class ReproducingKernel(CornerWeights):
+    """Reproducing-kernel weights of frames over the material of an image (see the module docstring).
+
+    Attributes
+    ----------
+    frames : (n, 3) float, metres
+    kind : str, ``"reproducing-kernel"``
+    support : float, kernel radius in local frame spacings
+    image : LabelImage
+    rho : (n,) float, the kernel radii (metres, or metres of the stiffest material with a compliance distance)
+    spacing : (n,) float, the local frame spacings h_i
+    grown_frames : int, frames whose kernel the regularity guard grew
+    fallback_corners : int, corners left with a lower-order correction
+    min_condition : float, smallest lambda_min(C) / l^2 over the corners that kept the full correction
+    max_delta : float, largest (c - Xbar)^T C^-1 (c - Xbar) over the corners, square-rooted (how far a
+        corner lies from its frames' centroid, in their kernel-weighted spread)
+    max_lebesgue : float, largest sum_i |w_i| over the corners (1 for non-negative weights)
+
+    Calling it with points (m, 3) (world, metres) inside (or on) the material returns
+    :class:`~voxflex.voronoi.shape_functions.ShapeValues` with every parent (no truncation) and
+    Hessians unless ``hessians=False``.
+    """
+
+    linearly_precise = True
+    """Sums of w_a and of w_a X_a reproduce 1 and x at every point (frames' volumetric "auto" reads it)."""
+
+    frames: np.ndarray
+    image: object
+    support: float
+    rho: np.ndarray
+    spacing: np.ndarray
+    grid: TrilinearGrid = field(repr=False)
+    weights: sp.csr_matrix = field(repr=False)  # (corners, n)
+    grown_frames: int = 0
+    fallback_corners: int = 0
+    min_condition: float = float("nan")
+    max_delta: float = float("nan")
+    max_lebesgue: float = float("nan")
+    kind: str = "reproducing-kernel"
+    _cache: dict = field(repr=False, default_factory=dict)
 
     # -- storage (the precompute cache) ----------------------------------------
     def to_store(self) -> dict:
