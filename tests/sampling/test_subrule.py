@@ -127,3 +127,35 @@ def test_energy_error_is_third_order_for_every_material(label):
     errs = _energy_errors(make(label), [0.08, 0.04, 0.02, 0.01])
     orders = np.log2(errs[:-1] / errs[1:])
     assert np.all(np.abs(orders - 3.0) < 0.5), (errs, orders)
+
+
+def test_one_producer_of_per_voxel_points():
+    """The Gauss-Legendre sampler, the frames' voxel samples and the elastons' candidates read the same
+    points in the same order (voxflex.sampling.quadrature.voxel_rule_points), with occupancy weights."""
+    from voxflex.image import LabelImage
+    from voxflex.sampling.quadrature import voxel_rule_points
+    from voxflex.sampling.voxel import voxel_samples
+
+    rng = np.random.default_rng(3)
+    lab = (rng.random((4, 3, 3)) > 0.3).astype(np.uint8)
+    occ = np.where(lab > 0, rng.uniform(0.2, 1.0, lab.shape), 0.0)
+    image = LabelImage(lab, spacing=[0.1, 0.2, 0.15], origin=[0.3, -0.1, 0.2], occupancy=occ)
+    index, frac, voxel = voxel_rule_points(image, "gauss-legendre")
+    pts, vol, vox = gauss_points(image)
+    np.testing.assert_array_equal(pts, image.index_to_world(index))
+    np.testing.assert_allclose(vol, frac * image.voxel_volume, rtol=1e-15)
+    np.testing.assert_array_equal(vox, voxel)
+
+    class Flat:
+        def __call__(self, x):
+            from voxflex.voronoi.shape_functions import ShapeValues
+
+            m = len(x)
+            return ShapeValues(index=np.zeros((m, 1), np.int64), w=np.ones((m, 1)), dw=np.zeros((m, 1, 3)),
+                               ddw=None, rest=x, n_nodes=1)
+
+    s = voxel_samples(image, Flat(), rule="gauss-legendre")
+    np.testing.assert_array_equal(s.points, pts)
+    np.testing.assert_allclose(s.volume, vol, rtol=1e-15)
+    np.testing.assert_allclose(s.volume.sum(), float(np.asarray(image.occupancy, float).sum()) * image.voxel_volume,
+                               rtol=1e-12)  # the occupancy as the image stores it

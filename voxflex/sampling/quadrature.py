@@ -75,3 +75,28 @@ def unit_cube_rule(name: str) -> tuple[np.ndarray, np.ndarray]:
     if name == "gauss-legendre":
         return gauss_legendre_cube(2)
     return midpoint_cube()
+
+
+def voxel_rule_points(image, rule: str = "gauss-legendre", *, use_occupancy: bool = True):
+    """The points of a per-voxel rule over every material voxel of ``image``, in voxel units.
+
+    Returns
+    -------
+    index : (K, 3) float, continuous index coordinates, voxel by voxel in
+        ``np.argwhere(image.labels > 0)`` order, Q points each (the rule's order)
+    fraction : (K,) float, each point's weight as a fraction of a voxel's volume
+        (times the voxel's occupancy when ``use_occupancy`` and the image has one)
+    voxel : (K,) int64, the point's voxel in that order
+
+    The one producer of per-voxel Gauss-Legendre (and centre) points: the voxel
+    samples of frame models, the elastons' candidates and the Gauss-Legendre
+    sampler read it.  In voxel units the bits do not depend on the unit of length.
+    """
+    local, weights = unit_cube_rule(rule)
+    ijk = np.argwhere(np.asarray(image.labels) > 0)
+    index = (ijk[:, None, :] + local[None, :, :]).reshape(-1, 3)
+    frac = np.ones(len(ijk))
+    if use_occupancy and image.occupancy is not None:
+        frac = np.asarray(image.occupancy, dtype=float)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    fraction = (frac[:, None] * weights[None, :]).reshape(-1)
+    return index, fraction, np.repeat(np.arange(len(ijk), dtype=np.int64), len(weights))

@@ -48,7 +48,7 @@ from ..errors import InputError, check_choice
 from ..image import LabelImage
 from ..voronoi.shape_functions import ShapeValues
 from ._geodesic import VoxelGraph
-from .quadrature import gauss_legendre_cube
+from .quadrature import gauss_legendre_cube, voxel_rule_points
 from .samples import KINDS, Samples
 from .volume_moments import (
     EXPONENT_INDEX,
@@ -159,8 +159,7 @@ class _Context:
 def _gauss_impl(ctx, sf) -> Samples:
     image = ctx.image
     q, wq = gauss_legendre_cube(2)  # (8, 3) local, weights 1/8
-    ijk = ctx.graph.ijk
-    points = image.index_to_world((ijk[:, None, :] + q[None, :, :]).reshape(-1, 3))
+    points = image.index_to_world(voxel_rule_points(image, "gauss-legendre")[0])  # ctx.graph.ijk's order
     octant_centre = np.floor(q * 2.0) / 2.0 + 0.25
     d = ((octant_centre - q) * image.spacing) @ image.direction.T  # (8, 3) world offsets octant centre - point
     T = shift_table(box_moment_table(image.spacing / 2.0, image.direction))

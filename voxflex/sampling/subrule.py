@@ -39,7 +39,7 @@ from math import comb
 import numpy as np
 
 from ..errors import InputError
-from .quadrature import gauss_legendre_cube
+from .quadrature import voxel_rule_points
 from .volume_moments import EXPONENTS
 
 __all__ = ["gauss_points", "gauss_points_in_voxels", "moment_fitted_rule", "SUBRULE_DEGREE"]
@@ -71,16 +71,10 @@ def gauss_points(image, *, use_occupancy: bool = True):
 
 def gauss_points_in_voxels(image, *, use_occupancy: bool = True):
     """:func:`gauss_points` in voxel units: ``(index, fraction, voxel)`` with the points' continuous index
-    coordinates and their weights as fractions of a voxel's volume.  The same bits at any unit and spacing,
+    coordinates and their weights as fractions of a voxel's volume
+    (:func:`~voxflex.sampling.quadrature.voxel_rule_points`).  The same bits at any unit and spacing,
     so that a fit on them (:func:`moment_fitted_rule`) picks the same points for a scene in any unit."""
-    local, weights = gauss_legendre_cube(2)
-    ijk = np.argwhere(image.labels > 0)
-    index = (ijk[:, None, :] + local[None, :, :]).reshape(-1, 3)
-    frac = np.ones(len(ijk))
-    if use_occupancy and image.occupancy is not None:
-        frac = np.asarray(image.occupancy, dtype=float)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
-    fraction = (frac[:, None] * weights[None, :]).reshape(-1)
-    return index, fraction, np.repeat(np.arange(len(ijk), dtype=np.int64), len(weights))
+    return voxel_rule_points(image, "gauss-legendre", use_occupancy=use_occupancy)
 
 
 def _n_moments(degree: int) -> int:

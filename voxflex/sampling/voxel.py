@@ -8,7 +8,7 @@ from typing import Callable
 import numpy as np
 
 from ..voronoi.shape_functions import ShapeValues
-from .quadrature import unit_cube_rule
+from .quadrature import voxel_rule_points
 
 __all__ = ["VoxelSamples", "voxel_samples"]
 
@@ -44,12 +44,9 @@ def voxel_samples(image, shape_function: Callable, *, rule: str = "gauss-legendr
     sampling stage's reduced samplers (mid-point regions, elastons) produce
     the same attributes.
     """
-    local, weights = unit_cube_rule(rule)
-    ijk = np.argwhere(image.labels > 0)
-    pts = image.index_to_world((ijk[:, None, :] + local[None, :, :]).reshape(-1, 3))
-    vol = np.full(len(ijk), float(image.voxel_volume))
-    if use_occupancy and image.occupancy is not None:
-        vol = vol * np.asarray(image.occupancy, dtype=float)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
-    vol = (vol[:, None] * weights[None, :]).reshape(-1)
-    label = np.repeat(image.labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]].astype(np.int64), len(weights))
+    index, fraction, voxel = voxel_rule_points(image, rule, use_occupancy=use_occupancy)
+    pts = image.index_to_world(index)
+    vol = fraction * float(image.voxel_volume)
+    ijk = np.argwhere(image.labels > 0)[voxel]
+    label = image.labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]].astype(np.int64)
     return VoxelSamples(rule, pts, vol, label, shape_function(pts))
