@@ -36,6 +36,10 @@ from .._jit import njit, prange
 from . import _march as M
 from . import _sight as S
 
+STEAL = 1.0 - 1e-9
+"""A point steals a voxel when it is nearer than ``STEAL`` times the voxel's distance to its frame: a voxel
+at the same distance (symmetric bodies have many) is not stolen, whatever the unit of length rounds."""
+
 
 @njit
 def _stolen_sight(mask, table, shape, spacing, slow, d, p, nframes, dx, ox, src, state, nxt, prv, touched, spans):
@@ -197,13 +201,13 @@ def _span_steal(mask, table, shape, spacing, slow, d, p, state, spans, nspan_max
     top = 0  # runs [0, top) are done; runs [top, ns) wait (the stack is the tail of ``spans``)
     # the run through p's voxel
     ryz = ((fi + 0.5 - px) * sx) ** 2 + ((fj + 0.5 - py) * sy) ** 2
-    if not math.sqrt(ryz + ((fk + 0.5 - pz) * sz) ** 2) < d[v0]:
+    if not math.sqrt(ryz + ((fk + 0.5 - pz) * sz) ** 2) < d[v0] * STEAL:
         return 0
     a = v0
-    while state[a - 1] == 0 and math.sqrt(ryz + ((a - 1 - fi * s1 - fj * s2 + 0.5 - pz) * sz) ** 2) < d[a - 1]:
+    while state[a - 1] == 0 and math.sqrt(ryz + ((a - 1 - fi * s1 - fj * s2 + 0.5 - pz) * sz) ** 2) < d[a - 1] * STEAL:
         a -= 1
     b = v0
-    while state[b + 1] == 0 and math.sqrt(ryz + ((b + 1 - fi * s1 - fj * s2 + 0.5 - pz) * sz) ** 2) < d[b + 1]:
+    while state[b + 1] == 0 and math.sqrt(ryz + ((b + 1 - fi * s1 - fj * s2 + 0.5 - pz) * sz) ** 2) < d[b + 1] * STEAL:
         b += 1
     for v in range(a, b + 1):
         state[v] = 1
@@ -233,15 +237,15 @@ def _span_steal(mask, table, shape, spacing, slow, d, p, state, spans, nspan_max
                 k = ka - 1
                 while k <= kb + 1:
                     v = base + k
-                    if state[v] != 0 or not math.sqrt(ryz + ((k + 0.5 - pz) * sz) ** 2) < d[v]:
+                    if state[v] != 0 or not math.sqrt(ryz + ((k + 0.5 - pz) * sz) ** 2) < d[v] * STEAL:
                         k += 1
                         continue
                     # a new run through v: extend both ways
                     lo = k
-                    while state[base + lo - 1] == 0 and math.sqrt(ryz + ((lo - 1 + 0.5 - pz) * sz) ** 2) < d[base + lo - 1]:
+                    while state[base + lo - 1] == 0 and math.sqrt(ryz + ((lo - 1 + 0.5 - pz) * sz) ** 2) < d[base + lo - 1] * STEAL:
                         lo -= 1
                     hi = k
-                    while state[base + hi + 1] == 0 and math.sqrt(ryz + ((hi + 1 + 0.5 - pz) * sz) ** 2) < d[base + hi + 1]:
+                    while state[base + hi + 1] == 0 and math.sqrt(ryz + ((hi + 1 + 0.5 - pz) * sz) ** 2) < d[base + hi + 1] * STEAL:
                         hi += 1
                     if ns >= nspan_max:
                         return -(ns + 1)
@@ -349,7 +353,7 @@ def natural_naive(mask, cost, pshape, spacing, frame_points, point, *, laplace):
     n = len(frame_points)
     d, own = S.frame_distances(mask, cost, pshape, spacing, frame_points, np.arange(n))
     d2, _ = S.point_distances(mask, cost, pshape, spacing, np.asarray(point, dtype=np.float64)[None], [n])
-    stolen = (d2 < d) & (mask > 0)
+    stolen = (d2 < d * STEAL) & (mask > 0)
     acc = np.zeros(n)
     if int(laplace) == 0:
         np.add.at(acc, own[stolen], 1.0)
