@@ -270,17 +270,18 @@ def _gauge(model) -> np.ndarray:
     sf = model.shape_function
     if not getattr(sf, "linearly_precise", False):
         return np.zeros((12 * model.n_nodes, 0))
-    cached = getattr(sf, "_gauge_modes", None)  # the precompute and its check ask for the same weights
+    # the precompute and its check ask for the same weights: kept in the shape function's own cache (the
+    # weight families are frozen dataclasses with a _cache dict; without one, computed again)
+    store = getattr(sf, "_cache", None)
+    cached = store.get("gauge_modes") if isinstance(store, dict) else None
     if cached is not None and cached.shape[0] == 12 * model.n_nodes:
         return cached
     vv = sf.voxel_values() if hasattr(sf, "voxel_values") else None
     if vv is None:
         vv = sf(model.image.index_to_world(np.argwhere(model.image.labels > 0) + 0.5))
     modes = gauge_modes(model.frames, vv)
-    try:
-        sf._gauge_modes = modes
-    except AttributeError:  # a shape function with slots: compute again next time
-        pass
+    if isinstance(store, dict):
+        store["gauge_modes"] = modes
     return modes
 
 
