@@ -22,14 +22,21 @@ TIE = 1e-9
 def first_extreme(values, which: str) -> int:
     """Index of the first of ``values`` within :data:`TIE` (relative to the largest finite magnitude) of
     the largest (``which="max"``) or smallest (``"min"``); infinities compare as themselves."""
-    values = np.asarray(values, dtype=float)
-    finite = np.abs(values[np.isfinite(values)])
-    tol = TIE * (float(finite.max()) if finite.size else 0.0)
-    if which == "max":
-        top = float(values.max())
-        return int(np.flatnonzero(values >= top - tol)[0])
-    low = float(values.min())
-    return int(np.flatnonzero(values <= low + tol)[0])
+    v = np.asarray(values, dtype=float)
+    i = int(np.argmax(v) if which == "max" else np.argmin(v))
+    best = float(v[i])
+    if not np.isfinite(best) or i == 0:
+        return i  # the first infinity, or already the first index
+    other = float(v.min() if which == "max" else v.max())
+    if np.isfinite(other):
+        mag = max(abs(best), abs(other))
+    else:  # infinities at the other end: the largest finite magnitude by a masked pass
+        finite = np.abs(v[np.isfinite(v)])
+        mag = float(finite.max()) if finite.size else 0.0
+    tol = TIE * mag
+    head = v[:i]
+    near = np.flatnonzero(head >= best - tol) if which == "max" else np.flatnonzero(head <= best + tol)
+    return int(near[0]) if near.size else i
 
 
 def tie_key(values, scale: float) -> np.ndarray:
