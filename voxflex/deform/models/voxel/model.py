@@ -660,14 +660,8 @@ class VoxelModel:
         """
         from ...._linalg import free_block
 
-        if not self.constant_tangent:
-            raise InputError("constant_stiffness_block needs constant-tangent materials (linear Hooke); "
-                             "use hessian(q) for nonlinear ones")
+        free = self._constant_free(free, "constant_stiffness_block")
         N = 3 * self.n_nodes
-        free = np.asarray(free)
-        if free.ndim != 1 or free.dtype.kind not in "iu" or (len(free) and (free[0] < 0 or free[-1] >= N)) or \
-                np.any(np.diff(free) <= 0):
-            raise InputError(f"free must be sorted unique DOF indices in [0, {N}) (3 * node + component)")
         if self._constant is not None:
             data, _, _, _ = self._constant
             H = sp.csr_matrix((data, self._pattern[1], self._pattern[0]), shape=(N, N))
@@ -681,6 +675,19 @@ class VoxelModel:
         del pattern  # the block map goes before the compaction
         H = sp.csr_matrix((data, indices, indptr), shape=(N, N))
         return free_block(H, free, overwrite=True)
+
+    def _constant_free(self, free, what: str) -> np.ndarray:
+        """``free`` checked for the constant-stiffness accessors: a constant-tangent model and sorted unique
+        DOFs ``3 * node + component`` (InputError naming ``what`` otherwise)."""
+        if not self.constant_tangent:
+            raise InputError(f"{what} needs constant-tangent materials (linear Hooke); use hessian(q) for "
+                             "nonlinear ones")
+        N = 3 * self.n_nodes
+        free = np.asarray(free)
+        if free.ndim != 1 or free.dtype.kind not in "iu" or (len(free) and (free[0] < 0 or free[-1] >= N)) or \
+                np.any(np.diff(free) <= 0):
+            raise InputError(f"free must be sorted unique DOF indices in [0, {N}) (3 * node + component)")
+        return free
 
     def constant_stiffness_operator(self, free):
         """The free-DOF block ``K[free][:, free]`` of a constant-tangent model as a matrix-free operator.
@@ -702,14 +709,7 @@ class VoxelModel:
         """
         from .elements import FreeStiffness
 
-        if not self.constant_tangent:
-            raise InputError("constant_stiffness_operator needs constant-tangent materials (linear Hooke); "
-                             "use hessian(q) for nonlinear ones")
-        N = 3 * self.n_nodes
-        free = np.asarray(free)
-        if free.ndim != 1 or free.dtype.kind not in "iu" or (len(free) and (free[0] < 0 or free[-1] >= N)) or \
-                np.any(np.diff(free) <= 0):
-            raise InputError(f"free must be sorted unique DOF indices in [0, {N}) (3 * node + component)")
+        free = self._constant_free(free, "constant_stiffness_operator")
         return FreeStiffness(self.stiffness_elements(), self.grid.element_nodes, self.n_nodes, free)
 
     # -- points, mass, loads ---------------------------------------------------
