@@ -4,13 +4,15 @@ weight) as frames and as voxel grids: tip sag, error against the converged answe
 Two references: the voxel model on the scene's 1 mm image with every voxel split into 2x2x2 (the same
 voxelized shape, so the converged answer on the image the frames see: ``voxflex tradeoff --reference
 finer``), and the mesh voxelized at 0.5 mm (a finer shape), with the h^2 extrapolation of the 1 mm and
-0.5 mm voxelizations as the converged answer for the mesh.  Every model is solved by the same Newton
-solver at the scene's tolerance (1e-8) with the scene's linear solver setting ("auto": a best-solver
-comparison — sparse direct or multigrid-CG for the voxel grids, dense Cholesky for the frames).  Timings: the precompute (frames: weights, samples, checks; voxel:
-element tables), and the solve with the model built, warmed once, then ``--repeat`` times (min and
-median).  Every frame figure stands beside the same frames with exact integration (2x2x2 Gauss-Legendre
-points per voxel) and beside the library's default settings (natural-neighbour weights, stabilised mid-point regions,
-the volume ratio projected).
+0.5 mm voxelizations as the converged answer for the mesh.  Every model is solved by the same
+Newton solver at the scene's tolerance (1e-8) with the scene's linear solver setting ("auto": a
+best-solver comparison -- sparse direct or multigrid-CG for the voxel grids, dense Cholesky for the
+frames).  Timings: the precompute (frames: weights, samples, checks; voxel: element tables), and the
+solve with the model built, warmed once, then ``--repeat`` times (min and median; the slow rows,
+Gauss-Legendre frames and the split image, once: the ``runs`` column).  Every frame figure stands
+beside the same frames with exact integration (2x2x2 Gauss-Legendre points per voxel) and beside the
+library's default settings (natural-neighbour weights, stabilised mid-point regions, the volume ratio
+projected).
 
 Usage: python benchmarks/bench_default_scene.py [--repeat 3] [--quick]
 """
@@ -97,13 +99,13 @@ def main():
               f"the 1 mm image, converged (split 2x2x2): {-same * 1e3:.3f} mm")
     print()
     print("| model | DOF | tip sag [mm] | vs the 1 mm image split | vs the mesh converged | precompute [s] | "
-          "solve min / median [s] |")
-    print("|---|---|---|---|---|---|---|")
+          "solve min / median [s] | runs |")
+    print("|---|---|---|---|---|---|---|---|")
     for label, (tip, dofs, pre, times) in out.items():
         e1 = f"{(tip / same - 1) * 100:+.1f} %" if same is not None else "-"
         e2 = f"{(tip / conv - 1) * 100:+.1f} %" if conv is not None else "-"
         print(f"| {label} | {dofs:,} | {-tip * 1e3:.3f} | {e1} | {e2} | {pre:.2f} | "
-              f"{min(times):.2f} / {statistics.median(times):.2f} |")
+              f"{min(times):.2f} / {statistics.median(times):.2f} | {len(times)} |")
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ import warnings
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from precision import check_linear_precision
 
 from voxflex.deform.chain.mappings import DeformationGradientMapping, PointMapping
 from voxflex.deform.materials.constitutive import material
@@ -220,29 +221,7 @@ def test_patch_tests_affine_and_quadratic(beam_model):
     """An affine motion of every frame gives F = its matrix at every Gauss point (partition of unity);
     the frames' least motion of the quadratic field u = G X + X^T Hq X / 2 (A_a = I + G + Hq X_a / 2,
     t_a = A_a X_a + (X_a^T Hq X_a) / 2 - ... : see below) gives its exact gradient (linear precision)."""
-    m = beam_model
-    X = m.frames
-    rng = np.random.default_rng(0)
-    A = np.eye(3) + 0.1 * rng.standard_normal((3, 3))
-    b = rng.standard_normal(3)
-    F = m.deformation_gradients(m.moved_state(np.concatenate([A, b[:, None]], axis=1)))
-    assert np.abs(F - A).max() < 1e-12
-    # quadratic: x(X) = X + G X + 1/2 [X^T Hq_i X]_i; frame a carries A_a = I + G + 1/2 Hq X_a (row i: Hq_i X_a)
-    # and t_a = A_a X_a - 1/2 ... so that sum_a w_a (A_a X + c_a) with c_a = t_a - A_a X_a = 0
-    G = 0.05 * rng.standard_normal((3, 3))
-    Hq = 0.05 * rng.standard_normal((3, 3, 3))
-    Hq = 0.5 * (Hq + Hq.transpose(0, 2, 1))
-    q = np.zeros((len(X), 12))
-    for a in range(len(X)):
-        Aa = np.eye(3) + G + 0.5 * np.einsum("ijk,k->ij", Hq, X[a])
-        q[a, :9] = Aa.reshape(9)
-        q[a, 9:] = Aa @ X[a]
-    P = m.samples.points
-    F = m.deformation_gradients(q)
-    exact = np.eye(3) + G + np.einsum("ijk,mk->mij", Hq, P)
-    assert np.abs(F - exact).max() < 1e-11
-    x = PointMapping(m.nodes, m.samples.values).apply(q)
-    assert np.abs(x - (P + P @ G.T + 0.5 * np.einsum("mj,ijk,mk->mi", P, Hq, P))).max() < 1e-11 * 4
+    check_linear_precision(beam_model, x_tol=1e-11 * 4)
 
 
 def test_gauge_modes_move_nothing(beam_model):
