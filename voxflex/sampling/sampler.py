@@ -69,7 +69,8 @@ class SamplingCountWarning(UserWarning):
     """The requested sample count cannot be met (more initial regions than requested)."""
 
 
-def sample(image: LabelImage, sf, *, kind: str = "elaston", count: int = 200, seed: int = 0) -> Samples:
+def sample(image: LabelImage, sf, *, kind: str = "elaston", count: int = 200, seed: int = 0,
+           fit: bool = True) -> Samples:
     """Integration samples of the material of ``image`` for the shape function ``sf``.
 
     Parameters
@@ -91,6 +92,12 @@ def sample(image: LabelImage, sf, *, kind: str = "elaston", count: int = 200, se
     seed : int, keyword-only
         Seed of the farthest-point start (midpoint); results are deterministic
         for a given seed.
+    fit : bool, keyword-only
+        Midpoint and elaston: the regions' shape values fitted over their voxels
+        (the module docstring; default), or, with False, ``sf`` evaluated at the
+        region points, for callers that use only the partition and the moments
+        (the frames' elaston sub-rules: on the bunny at 2 mm, 9,430 regions of 40
+        reproducing-kernel frames, the fit took 4.1 s of a 28 s precompute).
 
     Returns
     -------
@@ -131,7 +138,7 @@ def sample(image: LabelImage, sf, *, kind: str = "elaston", count: int = 200, se
         region = _midpoint_regions(ctx, vv, int(count), int(seed))
     else:
         region = _elaston_regions(ctx, vv, int(count))
-    return _finish(kind, ctx, vv, region, n_frames)
+    return _finish(kind, ctx, vv, region, n_frames, None if fit else sf)
 
 
 class _Context:
@@ -412,7 +419,8 @@ def _split(ctx, vox, region, dist, owner, iterations=2):
 # ----------------------------------------------------------------------------------------------
 # finishing: points, moments, fitted values
 # ----------------------------------------------------------------------------------------------
-def _finish(kind, ctx, vv, region, n_frames) -> Samples:
+def _finish(kind, ctx, vv, region, n_frames, at_points=None) -> Samples:
+    """The regions' points, moments, labels and shape values (fitted; evaluated by ``at_points`` when given)."""
     m = int(region.max()) + 1
     vol = np.bincount(region, weights=ctx.occ, minlength=m)
     points = np.stack([np.bincount(region, weights=ctx.occ * ctx.centres[:, a], minlength=m) for a in range(3)], 1)
@@ -422,7 +430,7 @@ def _finish(kind, ctx, vv, region, n_frames) -> Samples:
     moments = _region_moments_impl(ctx.centres, ctx.occ, region, points, T, m)
     label = np.zeros(m, dtype=np.int64)
     label[region] = ctx.labels
-    values = fit_values(vv, region, points, ctx.occ, ctx.h, n_frames)
+    values = fit_values(vv, region, points, ctx.occ, ctx.h, n_frames) if at_points is None else at_points(points)
     return Samples(kind, points, moments[:, 0].copy(), moments, label, ctx.region_image(region), values)
 
 

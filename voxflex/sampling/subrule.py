@@ -91,6 +91,12 @@ def _monomials(d, nm) -> np.ndarray:
     return powers[:, e[:, 0], 0] * powers[:, e[:, 1], 1] * powers[:, e[:, 2], 2]
 
 
+def _close(a, b, rtol, atol) -> bool:
+    """``np.allclose(a, b, rtol, atol)`` for finite vectors without its overhead (called twice per region:
+    0.95 s of the bunny's 9,430 regions went to np.isclose's checks)."""
+    return bool(np.all(np.abs(a - b) <= atol + rtol * np.abs(b)))
+
+
 def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degree: int = SUBRULE_DEGREE):
     """Per region, a subset of ``points`` with non-negative weights reproducing its moments to ``degree``.
 
@@ -162,12 +168,13 @@ def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degr
         x, _ = nnls(A * scale[:, None], b * scale, maxiter=50 * len(ids))
         keep = np.flatnonzero(x > 1e-12 * x.max())
         # the support's weights re-solved to round-off (NNLS stops at its own tolerance)
-        xs, *_ = np.linalg.lstsq(A[:, keep] * scale[:, None], b * scale, rcond=None)
-        if np.all(xs > 0) and np.allclose(A[:, keep] @ xs, b, rtol=1e-10, atol=1e-13 * abs(b[0])):
+        Ak = A[:, keep]
+        xs, *_ = np.linalg.lstsq(Ak * scale[:, None], b * scale, rcond=None)
+        if np.all(xs > 0) and _close(Ak @ xs, b, 1e-10, 1e-13 * abs(b[0])):
             x_keep = xs
         else:
             x_keep = x[keep]
-        if not np.allclose(A[:, keep] @ x_keep, b, rtol=1e-8, atol=1e-11 * abs(b[0])):  # pragma: no cover
+        if not _close(Ak @ x_keep, b, 1e-8, 1e-11 * abs(b[0])):  # pragma: no cover
             selected.append(ids)  # cannot happen for Gauss candidates (the full rule is a solution); be safe
             weights.append(v)
             continue

@@ -290,6 +290,33 @@ def test_pair_tables_sort_parents_and_list_each_coupled_pair_once():
     assert np.allclose(K.frame_stiffness_dense(index, G, A, n), ref, rtol=0, atol=1e-12 * np.abs(ref).max())
 
 
+def test_sorted_tables_equal_the_tables_sorted_afterwards():
+    """sorted_tables (made in frame order at once) against frame_tables then frame_pairs' permutation, and the
+    compiled tables against their defining formula G = w I + r (x) dw, G[3] = dw, zero where padded."""
+    from voxflex.deform.models.frames import _kernels as K
+    from voxflex.voronoi.shape_functions import ShapeValues
+
+    rng = np.random.default_rng(3)
+    n, m, P = 7, 30, 4
+    frames = rng.standard_normal((n, 3))
+    index = np.array([rng.choice(n, size=P, replace=False) for _ in range(m)])
+    index[::4, 1] = -1
+    ok = index >= 0
+    values = ShapeValues(rest=rng.standard_normal((m, 3)), index=index, w=rng.random((m, P)) * ok,
+                         dw=rng.standard_normal((m, P, 3)) * ok[..., None], ddw=None)
+    G = K.frame_tables(values, frames)
+    r = values.rest[:, None, :] - frames[np.where(ok, index, 0)]
+    ref = np.zeros((m, P, 4, 3))
+    ref[..., :3, :] = values.w[..., None, None] * np.eye(3) + r[..., :, None] * values.dw[..., None, :]
+    ref[..., 3, :] = values.dw
+    ref *= ok[..., None, None]
+    assert np.allclose(G, ref, rtol=0, atol=1e-14)
+    idx_s, G_s, order = K.sorted_tables(values, frames)
+    idx_p, G_p, _, _ = K.frame_pairs(index, G, n)
+    assert np.array_equal(idx_s, idx_p) and np.array_equal(G_s, G_p)
+    assert np.array_equal(np.take_along_axis(index, order, axis=1), idx_s)
+
+
 def test_two_materials_assemble_like_the_generic_chain():
     """Two labels with different materials (the per-label gather / scatter path): energy, gradient
     and Hessian equal sum vol W, J^T (vol P) and J^T (vol A) J of the generic mapping, to 1e-12

@@ -116,9 +116,13 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
         except disk.CacheMismatch as exc:  # never trusted, never blamed on the scene: recomputed
             disk.discard("frames", key, f"does not fit this image ({exc})")
             stored = None
+    def make_model(pre):
+        return FrameModel(image, pre["frames"], pre["sf"], pre["samples"], materials, use_occupancy=occupancy,
+                          volumetric=scene.elasticity.volumetric, hourglass=hourglass, region_tables=pre.get("tables"))
+
     if stored is None:
         pre = _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass,
-                          weight_space=weight_space, density=density)
+                          weight_space=weight_space, density=density, make_model=make_model)
     sf = pre["sf"]
     info = {"shape_function": kind, "parents": int(sf.parents if untruncated else nodes.parents),
             "distance": nodes.distance, "precompute_cached": stored is not None,
@@ -131,9 +135,10 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
                     eigenmode_condition=float(sf.condition), eigenmode_lebesgue=float(sf.max_lebesgue))
     if pre.get("chosen"):
         info["samples_chosen"] = pre["chosen"]
-    model = FrameModel(image, pre["frames"], pre["sf"], pre["samples"], materials, info=info,
-                       use_occupancy=occupancy, volumetric=scene.elasticity.volumetric, hourglass=hourglass,
-                       region_tables=pre.get("tables"))
+    model = pre.pop("model", None)  # the one the sample-count check judged, when the precompute made one
+    if model is None:
+        model = make_model(pre)
+    model.info.update(info)
     if pre["regions"] is not None and model.regions is None:
         model.regions = pre["regions"]
     if quadrature != "gauss-legendre":
@@ -311,11 +316,12 @@ def _free_zero_modes(scene, model, K) -> int:
 
 
 def _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass, *,
-                weight_space=None, density=None):
+                weight_space=None, density=None, make_model=None):
     """Frames, blended shape functions and samples (pruned to ``parents``) of an image, with the sample
     count chosen (module docstring).  Returns a dict: frames, sf, samples (what the model integrates),
     regions (the sampler's, or None), tables and gauss (stabilised mid-point regions), chosen (str),
-    K and softest (the checks of the chosen samples).  ``weight_space``: the eigenmode weights' per-label
+    K and softest (the checks of the chosen samples) and model (the frame model the check judged, made by
+    ``make_model(pre)``: the caller's materials, so that it is built once).  ``weight_space``: the eigenmode weights' per-label
     stiffness and density (:func:`_weight_space`); ``density``: the relative frame density of
     ``[nodes] placement = "strain"``."""
     from ....voronoi import place_frames, shape_function
@@ -345,8 +351,8 @@ def _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature,
         pre = {"frames": frames, "sf": sf, **_samples(image, sf, frames, nodes, quadrature, n, occupancy, hourglass)}
         if requested is not None:
             return pre  # the scene's count: judged by the caller, not changed
-        verdict, K, softest = _check(scene, image, pre, occupancy, hourglass)
-        pre.update(K=K, softest=softest, judged=True)
+        verdict, K, softest, model = _check(scene, image, pre, occupancy, hourglass, make_model)
+        pre.update(K=K, softest=softest, judged=True, model=model)
         regions = len(pre["regions"].volume)
         log.append(f"{regions} regions: {verdict}")
         if verdict == "sound" or n >= voxels or attempt == MAX_DOUBLINGS:
@@ -384,7 +390,9 @@ def _samples(image, sf, frames, nodes, quadrature, n, occupancy, hourglass) -> d
         return {"samples": s, "regions": None, "tables": None, "gauss": None}
     # elastons and mid-point regions share the mid-point sampler's compact regions (farthest point + Lloyd);
     # the union of a region's voxels' parents is pruned to `parents` at its centre
-    regions = sample(image, sf, kind="midpoint", count=int(n), seed=nodes.seed)
+    # elastons read only the partition (their sub-rules evaluate the weights at their own points): the regions'
+    # weights are not fitted then, only evaluated at the region points
+    regions = sample(image, sf, kind="midpoint", count=int(n), seed=nodes.seed, fit=quadrature != "elaston")
     regions = dataclasses.replace(regions, values=prune(regions.values))
     if quadrature == "elaston":
         pts = elaston_samples(image, sf, regions, parents=parents, use_occupancy=occupancy)
@@ -395,24 +403,29 @@ def _samples(image, sf, frames, nodes, quadrature, n, occupancy, hourglass) -> d
     return {"samples": regions, "regions": regions, "tables": None, "gauss": None}
 
 
-def _check(scene, image, pre, occupancy, hourglass):
-    """('sound' or why not, unit stiffness K, softest ratio) of a precompute's samples for ``scene``."""
+def _check(scene, image, pre, occupancy, hourglass, make_model=None):
+    """('sound' or why not, unit stiffness K, softest ratio, the model judged) of a precompute's samples for
+    ``scene``.  The model is ``make_model(pre)`` (the scene's materials: the build keeps it) or, without one,
+    a model of unit materials; either way K is the unit stiffness (:func:`_unit_stiffness`)."""
     from ...materials.constitutive import material
     from .model import FrameModel
     from .modes import SOFT_RATIO, zero_energy_modes
 
-    unit = material("hooke", strain="linear", mu=1.0, lmbda=1.0)
-    labels = np.unique(image.labels[image.labels > 0]).astype(int)
-    model = FrameModel(image, pre["frames"], pre["sf"], pre["samples"], {int(lab): unit for lab in labels},
-                       use_occupancy=occupancy, hourglass=hourglass, region_tables=pre["tables"])
-    K = model.rest_stiffness()
+    if make_model is not None:
+        model = make_model(pre)
+    else:
+        unit = material("hooke", strain="linear", mu=1.0, lmbda=1.0)
+        labels = np.unique(image.labels[image.labels > 0]).astype(int)
+        model = FrameModel(image, pre["frames"], pre["sf"], pre["samples"], {int(lab): unit for lab in labels},
+                           use_occupancy=occupancy, hourglass=hourglass, region_tables=pre["tables"])
+    K = _unit_stiffness(model)
     zero = zero_energy_modes(pre["frames"], model.samples, stiffness=K, gauge=_gauge(model))
     if zero > 6:  # judged on the free body whatever the solver (the cache entry serves every solver kind)
-        return f"{zero - 6} zero-energy mode(s) in the free body", K, None
+        return f"{zero - 6} zero-energy mode(s) in the free body", K, None, model
     softest = _softest(scene, image, model, pre["sf"], occupancy, K)
     if softest is not None and softest < SOFT_RATIO:
-        return f"a mode {_ratio(softest)} times softer than one sample per voxel", K, softest
-    return "sound", K, softest
+        return f"a mode {_ratio(softest)} times softer than one sample per voxel", K, softest, model
+    return "sound", K, softest, model
 
 
 def _weight_space(scene, materials) -> dict:

@@ -122,7 +122,7 @@ from ...materials.fbar import VOLUMETRIC, bar_scalar, nearly_incompressible
 from ..protocol import OnePass, Part, SurfacePoints
 from ..voxel.kind import HOURGLASS
 from . import _kernels as K
-from ._kernels import frame_tables
+from ._kernels import sorted_tables
 from .kind import AFFINE
 
 __all__ = ["FrameModel"]
@@ -180,7 +180,8 @@ class FrameModel(OnePass):
             index, G, wtab = self.tables.index, self.tables.G, self.tables.w
         else:
             values = samples.values
-            index, G, wtab = values.index, frame_tables(values, self.frames), values.w
+            index, G, by_frame = sorted_tables(values, self.frames)  # what frame_pairs wants: no permuted copy
+            wtab = np.take_along_axis(values.w, by_frame, axis=1)
         # the structured kernels: F = (I3 (x) G) d, forces and stiffness per sample (_kernels); parents
         # sorted by frame and the coupled frame pairs, once
         self._index, self._G, self._pairs, self._pair_id = K.frame_pairs(index, G, len(self.frames))

@@ -204,8 +204,8 @@ def _point_stiffness(frames, values, volume, C) -> np.ndarray:
     from . import _kernels as K
 
     n = len(frames)
-    G = K.frame_tables(values, frames)
-    tables = K.frame_pairs(np.asarray(values.index), G, n)
+    index, G, _ = K.sorted_tables(values, frames)
+    tables = K.frame_pairs(index, G, n)
     A = np.ascontiguousarray(np.broadcast_to(C.reshape(3, 3, 3, 3), (len(volume), 3, 3, 3, 3)))
     return K.frame_stiffness_dense(tables[0], tables[1], A, n, volume, tables)
 
