@@ -61,6 +61,12 @@ RESIDUAL_REFUSE = 1e-2
 equilibrium: the run stops with an error (the round-off floor of a stiff layer, e.g. friction 1e12, once
 accepted steps at 1.0)."""
 
+ROUNDOFF_MOTION = 1e-11
+"""A step refused out of balance whose largest displacement is at most this fraction of the body's size is
+named as a motion below the forces' round-off (positions are known to eps |x|, so a strain of ~eps / h
+times the size is noise), not blamed on a stiff layer: a linear cantilever under 1e-12 of its gravity moves
+2e-14 of its size and stops at relative residual 0.98."""
+
 THIN_FRACTION = 0.5
 """A body is one voxel thick along an axis when at least this fraction of its voxels have no material
 neighbour on either side along that axis."""
@@ -381,13 +387,21 @@ class StateCheck:
         self.state(step, q, residual)
         self.size(step, surface)
 
-    def state(self, step: int, q, residual: float) -> None:
-        """ConvergenceError for a node state that is not finite, or accepted out of balance."""
+    def state(self, step: int, q, residual: float, displacement=None) -> None:
+        """ConvergenceError for a node state that is not finite, or accepted out of balance (``displacement``:
+        the solver's ``q - X``, which tells a motion below the positions' round-off from a stiff layer)."""
         if not np.all(np.isfinite(q)):
             raise ConvergenceError(
                 f"step {step} was accepted with a state that is not finite (NaN or inf): the loads or the material "
                 "constants are beyond what double precision solves; check the units")
         if step > 0 and residual > RESIDUAL_REFUSE:
+            moved = float(np.max(np.abs(displacement))) if displacement is not None and np.size(displacement) else None
+            if moved is not None and self.rest_size > 0 and moved <= ROUNDOFF_MOTION * self.rest_size:
+                raise ConvergenceError(
+                    f"step {step} stopped at relative residual {residual:.2e} (the limit is {RESIDUAL_REFUSE:g}): the "
+                    f"motion ({moved:.3g} m, {moved / self.rest_size:.2g} of the body's size) is below what the elastic "
+                    "forces resolve (they are computed from positions, known to about 1e-16 of the size); raise the "
+                    "loads (a linear answer scales with them) or simulate in dynamics, whose steps keep their digits")
             raise ConvergenceError(
                 f"step {step} stopped at relative residual {residual:.2e} (its forces are out of balance by that "
                 f"fraction; the limit is {RESIDUAL_REFUSE:g}), which is not an equilibrium: a layer far stiffer "

@@ -90,7 +90,8 @@ SERIES = (
 )
 """(Result attribute, file path) of every per-state dataset (T, ...) that is not a named group."""
 
-SERIES_GROUPS = (("probes", "probes/"), ("fields", "surface/fields/"), ("cell_fields", "fields/"))
+SERIES_GROUPS = (("probes", "probes/"), ("probe_displacement", "probe_displacements/"),
+                 ("fields", "surface/fields/"), ("cell_fields", "fields/"))
 """(Result attribute, path prefix) of the per-state datasets held in named groups (one per name)."""
 
 AUTO_KEEP_BYTES = 256 << 20
@@ -142,6 +143,11 @@ class Result:
         Time of each recorded state in s (static runs: the load factor, 0..1).
     probes : dict name -> (T, 3) float
         World positions of the probe points, metres.
+    probe_displacement : dict name -> (T, 3) float
+        The probes' displacements from rest, metres, from the solver's displacement state
+        (``/probe_displacements/NAME``): they keep the digits a position rounds away (a 1 m body
+        moved 1e-17 m).  Empty for files that predate it and models whose points are not linear in
+        their state (rigid frames); :meth:`probe_displacements` falls back on the positions.
     surface_rest : (V, 3) float; surface_faces : (F, 3) int; surface_positions : (T, V, 3) float
         The boundary surface (triangles) at rest and at every state.
     nodes_rest : (n, d) float; nodes_state : (T, n, d) float
@@ -247,6 +253,7 @@ class Result:
     problem: dict = field(default_factory=dict)
     node_points: np.ndarray | None = None
     fraction: np.ndarray | None = None
+    probe_displacement: dict = field(default_factory=dict)
 
     def __post_init__(self):
         s = object.__setattr__
@@ -262,6 +269,13 @@ class Result:
                 raise InputError(f"probe '{name}' must have shape ({T}, 3) and a name without '/', got {p.shape}")
             probes[str(name)] = p
         s(self, "probes", probes)
+        moved = {}
+        for name, d in dict(self.probe_displacement or {}).items():
+            a = _arr(f"probe_displacement['{name}']", d, 2, 3)
+            if a.shape[0] != T or str(name) not in probes:
+                raise InputError(f"probe_displacement '{name}' must have shape ({T}, 3) and name a probe, got {a.shape}")
+            moved[str(name)] = a
+        s(self, "probe_displacement", moved)
         s(self, "surface_rest", _arr("surface_rest", self.surface_rest, 2, 3))
         s(self, "surface_faces", _arr("surface_faces", self.surface_faces, 2, 3, dtype=np.int64))
         V = self.surface_rest.shape[0]
@@ -452,7 +466,10 @@ class Result:
     def probe_displacements(self, step: int = -1) -> dict:
         """{name: (3,) displacement of each probe at ``step``} in metres."""
         i = self.step_index(step)
-        return {k: v[i] - v[0] for k, v in self.probes.items()}
+        out = {k: v[i] - v[0] for k, v in self.probes.items()}
+        for k, d in self.probe_displacement.items():  # the solver's displacements: digits the positions lack
+            out[k] = d[i] - d[0]
+        return out
 
     # -- HDF5 -------------------------------------------------------------
     def save(self, path) -> Path:
@@ -539,6 +556,8 @@ class Result:
         return cls(
             time=f["time"][()],
             probes={k: v[()] for k, v in f["probes"].items()} if "probes" in f else {},
+            probe_displacement=({k: v[()] for k, v in f["probe_displacements"].items()}
+                                if "probe_displacements" in f else {}),
             surface_rest=f["surface/rest"][()],
             surface_faces=f["surface/faces"][()],
             surface_positions=f["surface/positions"][()],

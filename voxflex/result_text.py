@@ -29,8 +29,9 @@ def _describe(r, path) -> str:
         f"  energy at the end: elastic {r.energy_elastic[-1]:.6g} J, kinetic {r.energy_kinetic[-1]:.6g} J",
         f"  max surface displacement at the end: {np.linalg.norm(r.displacement(-1), axis=1).max():.6g} m",
     ]
+    moved = r.probe_displacements(-1)
     for name, pos in r.probes.items():
-        u = pos[-1] - pos[0]
+        u = moved[name]
         lines.append(
             f"  probe {name}: rest {_fmt(pos[0])} -> final {_fmt(pos[-1])} (displacement {_fmt(u)})"
         )

@@ -375,7 +375,7 @@ class _Recorder:
 
         k = self.count
         q = np.asarray(rec.q, dtype=float)
-        self.check.state(k, q, float(rec.residual) if k > 0 else 0.0)
+        self.check.state(k, q, float(rec.residual) if k > 0 else 0.0, rec.displacement)
         surface = self.surf_map.apply(q)
         self._surface = (rec.q, surface)
         self.check.size(k, surface)
@@ -440,13 +440,21 @@ class _Recorder:
 
     def _row(self, k, rec, prev, inversion) -> dict:
         from .deform.models.fields import model_fields
+        from .deform.models.protocol import DisplacementMap
 
         q = np.asarray(rec.q, dtype=float)
         row = {"time": float(rec.time)}
         if self.probe_map is not None:
             positions = self.probe_map.apply(q)
+            moved = None
+            if isinstance(self.probe_map, DisplacementMap) and self.probe_map.linear:
+                # the probes' displacement from the solver's q - X (its digits kept)
+                u = rec.displacement if rec.displacement is not None else q - np.asarray(self.model.rest, dtype=float)
+                moved = self.probe_map.jvp(self.model.rest, np.asarray(u, dtype=float))
             for i, (name, _) in enumerate(self.problem.probes):
                 row[f"probes/{name}"] = positions[i]
+                if moved is not None:
+                    row[f"probe_displacements/{name}"] = moved[i]
         drawn = self._surface
         row["surface/positions"] = drawn[1] if drawn is not None and drawn[0] is rec.q else self.surf_map.apply(q)
         row["nodes/state"] = q

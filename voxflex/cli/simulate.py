@@ -172,8 +172,9 @@ def summary(result, *, scene_path, output, wall, extras=()) -> str:
         f"model: {result.n_nodes} nodes, {result.n_dofs} DOF, {result.n_voxels} voxels",
         f"steps: {totals['steps']}, Newton iterations: {totals['newton_iterations']}, wall time: {wall:.2f} s",
     ]
+    moved = result.probe_displacements(-1)
     for name, pos in result.probes.items():
-        u = pos[-1] - pos[0]
+        u = moved[name]
         lines.append(
             f"probe {name}: final position [{', '.join(f'{x:.6g}' for x in pos[-1])}] "
             f"displacement [{', '.join(f'{x:.6g}' for x in u)}]"

@@ -228,6 +228,12 @@ class _Mapping:
         raise NotImplementedError
 
     # -- public API ----------------------------------------------------------
+    @property
+    def linear(self) -> bool:
+        """True when the children are linear in the node state (points, affine frames: ``jvp(X, q - X)`` is
+        the children's displacement, to the digits of ``q - X``); False for rigid frames (rotations)."""
+        return not isinstance(self.nodes, RigidFrames)
+
     def apply(self, state):
         """Children of the node state (see the class docstring for shapes)."""
         return self._to_children(self._forward(self._params(state)))

@@ -32,7 +32,7 @@ from typing import Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Model", "PointMap", "Part", "SurfacePoints", "OnePass", "end_step", "END_STEP_PASSES",
+__all__ = ["Model", "PointMap", "DisplacementMap", "Part", "SurfacePoints", "OnePass", "end_step", "END_STEP_PASSES",
            "OnVoxelGrid", "ConstantStiffness", "InternalVariables", "TangentProjection", "PointSamples"]
 
 
@@ -45,6 +45,18 @@ class PointMap(Protocol):
 
     def vjp(self, q, f) -> np.ndarray:
         """Node forces (n, d) of point forces f (m, 3): ``J^T f``."""
+
+
+@runtime_checkable
+class DisplacementMap(Protocol):
+    """A :class:`PointMap` that may also map a displacement of the state: when ``linear`` (points, affine
+    frames), ``jvp(X, u)`` is the points' displacement for the state ``X + u``, to the digits of ``u``
+    (results keep a probe's 1e-17 m on a 1 m body; ``apply(X + u) - apply(X)`` would give 0)."""
+
+    linear: bool
+
+    def jvp(self, q, dq) -> np.ndarray:
+        """Point velocities (m, 3) of the state velocity dq (n, d) at q."""
 
 
 @dataclass(frozen=True, eq=False)

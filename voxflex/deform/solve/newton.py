@@ -56,19 +56,28 @@ class _Problem:
     that swamp the physics.
     """
 
-    def __init__(self, model, f, base, M=None, h=None, xhat=None, xn=None, D=None, *, block=None, adder=None):
+    def __init__(self, model, f, base, M=None, h=None, xhat=None, xn=None, D=None, *, block=None, adder=None,
+                 u_base=None, uhat=None, un=None):
         self.model = model
         self.f = f
         self.M = M
         self.h = h
         self.base = base
-        self.off_hat = None if xhat is None else base - xhat
-        self.off_n = None if xn is None else base - xn
-        self.D = D
         self.rest = np.asarray(model.rest, dtype=float).ravel()
+        # the solver's state is the displacement from rest (q - X, its digits kept whatever |X|): given as
+        # u_base (and uhat, un: the inertial prediction and the previous state), the inertia, damping and
+        # work read differences of displacements; without it, of the positions (callers of the former form)
+        if u_base is not None:
+            self.off_hat = None if uhat is None else u_base - uhat
+            self.off_n = None if un is None else u_base - un
+            self.work0 = vdot(f, u_base)
+        else:
+            self.off_hat = None if xhat is None else base - xhat
+            self.off_n = None if xn is None else base - xn
+            self.work0 = vdot(f, base - self.rest)
+        self.D = D
         self.shape = np.shape(model.rest)
         self.constant = bool(model.constant_tangent)
-        self.work0 = vdot(f, base - self.rest)
         self.elastic_diagonal = None
         self.negative_curvature = False  # set by Newton when a direction of negative curvature was met
         self.on_iteration = None  # optional callable(dict) told about every Newton iterate (progress, logs)

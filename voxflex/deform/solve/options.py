@@ -113,7 +113,9 @@ class StepRecord:
     ``time`` is the load factor for statics, seconds for dynamics; ``q`` (n, d)
     the node state (positions in m for point nodes); ``v`` (n, d) its velocity or None (statics);
     energies in J; ``residual`` the final relative residual; ``linear_iterations``
-    summed over the step's Newton iterations (0 for direct solvers).
+    summed over the step's Newton iterations (0 for direct solvers); ``displacement`` (n, d) ``q - X``
+    as the solver carries it (its digits kept where ``q`` rounds them away: a step below eps |X|), or None
+    from solvers that do not.
     """
 
     time: float
@@ -128,3 +130,4 @@ class StepRecord:
     linear_solver: str = ""
     line_search_halvings: int = 0
     load_cuts: int = 0
+    displacement: np.ndarray | None = None

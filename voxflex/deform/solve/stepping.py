@@ -76,25 +76,30 @@ turns by linear updates; cutting the increment does not lower that count, so cut
 where continuing converges."""
 
 
-def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, options, near_null, reduce, label,
+def _static_increment(model, f_full, u, s0, s1, free, dofs, owner, fixed, options, near_null, reduce, label,
                       on_iteration=None, block=None):
-    """Equilibrium at load factor ``s1`` from the converged state ``x`` at ``s0``, cutting the increment.
+    """Equilibrium at load factor ``s1`` from the converged displacement ``u`` (q - X) at ``s0``, cutting the
+    increment.
 
     A failed Newton solve (no convergence, a failed line search, a non-finite
     state) is retried from the last converged state with half the increment,
     at most :data:`MAX_CUTS` times; after a success the increment grows back.
-    Returns the state, Newton iterations, relative residual, linear
+    Returns the displacement, Newton iterations, relative residual, linear
     iterations, linear solver, halvings and the number of cuts.
     """
-    N = x.size
+    N = u.size
+    X = np.asarray(model.rest, dtype=float).ravel()
     s, h = s0, s1 - s0
     its_total = lin_total = halv_total = cuts = 0
     rel, solver_used = 0.0, ""
     while s < s1:
         s_next = s1 if s + h >= s1 - 1e-12 * (s1 - s0) else s + h
-        x_start = model.begin_step(s_next, x, x.copy())
-        x_fixed = prescribed_positions(model, fixed, dofs, owner, s_next) if len(dofs) else np.zeros(0)
-        problem = _Problem(model, s_next * f_full, x_start, block=block)
+        x = X + u
+        proposed = x.copy()
+        x_start = model.begin_step(s_next, x, proposed)
+        u_start = u.copy() if x_start is proposed else x_start - X
+        u_fixed = prescribed_positions(model, fixed, dofs, owner, s_next) - X[dofs] if len(dofs) else np.zeros(0)
+        problem = _Problem(model, s_next * f_full, x_start, block=block, u_base=u_start)
         problem.on_iteration = on_iteration
         sub = label if s_next == s1 and s == s0 else f"{label}, sub-step to load factor {s_next:.4g}"
         try:
@@ -102,7 +107,7 @@ def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, option
             while True:
                 try:
                     delta, its, rel, lin_its, solver_used, halvings = _newton(
-                        problem, delta, free, dofs, x_fixed - x_start[dofs], options, near_null, sub, reduce,
+                        problem, delta, free, dofs, u_fixed - u_start[dofs], options, near_null, sub, reduce,
                         scale0=scale0)
                     break
                 except ConvergenceError as exc:
@@ -112,8 +117,8 @@ def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, option
                     delta, scale0 = exc.iterate, exc.scale
                     spent = tuple(a + b for a, b in zip(spent, exc.effort))
             its, lin_its, halvings = its + spent[0], lin_its + spent[1], halvings + spent[2]
-            x_new = x_start + delta
-            if not np.all(np.isfinite(x_new)):
+            u_new = u_start + delta
+            if not np.all(np.isfinite(u_new)):
                 raise ConvergenceError(f"{sub}: the state is not finite after {its} Newton iterations")
         except ConvergenceError as exc:
             cuts += 1
@@ -127,9 +132,9 @@ def _static_increment(model, f_full, x, s0, s1, free, dofs, owner, fixed, option
         its_total += its
         lin_total += lin_its
         halv_total += halvings
-        x, s = x_new, s_next
+        u, s = u_new, s_next
         h = min(2.0 * h, s1 - s0)
-    return x, its_total, rel, lin_total, solver_used, halv_total, cuts, getattr(problem, "solution_energy", None)
+    return u, its_total, rel, lin_total, solver_used, halv_total, cuts, getattr(problem, "solution_energy", None)
 
 
 INERTIA_MAX = DIRECT_FALLBACK_MAX
@@ -391,11 +396,11 @@ def solve(
         v = v0.ravel().copy()
     kin0 = 0.5 * vdot(v, M @ v) if dynamic else 0.0
     records = [StepRecord(0.0, x.reshape(shape).copy(), None if v is None else v.reshape(shape).copy(), 0, 0.0,
-                          float(model.energy(x.reshape(shape))), kin0, 0.0)]
+                          float(model.energy(x.reshape(shape))), kin0, 0.0, displacement=(x - X).reshape(shape))]
     if sink is not None:
         sink(records[0])
     try:
-        _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
+        _steps(model, options, records, x - X, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
                callback, newton_callback, block, sink)
     except ConvergenceError as exc:
         exc.records = records  # the converged steps survive a later failure (partial results)
@@ -403,13 +408,20 @@ def solve(
     return records
 
 
-def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
+def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, near_null, reduce, shape,
            callback, newton_callback, block=None, sink=None):
     """The loop over the steps of :func:`solve`, appending a StepRecord per converged step
-    (with a ``sink``: handing it each record and keeping only the rest state and the latest)."""
+    (with a ``sink``: handing it each record and keeping only the rest state and the latest).
+
+    The state is the displacement ``u = q - X`` from rest: the positions the model reads are ``X + u``,
+    but the inertial prediction, the increments and the records' displacements are sums of displacements,
+    so a step far below the round-off of the positions (eps |X|: a 1 m body at dt = 1e-9 s falls 5e-17 m
+    per step) still moves the body."""
     dynamic = options.kind == "implicit-euler"
     adder = _PatternAdd()  # H + M/h^2 + D/h positions found once for all steps
-    N = x.size
+    X = np.asarray(model.rest, dtype=float).ravel()
+    N = u.size
+    x = X + u
     for k in range(1, options.steps + 1):
         t0 = time.perf_counter()
         if dynamic:
@@ -421,33 +433,37 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
                 D = options.rayleigh_mass * M
                 if options.rayleigh_stiffness:
                     D = D + options.rayleigh_stiffness * model.hessian(x.reshape(shape))
-            xhat = x + options.dt * v
-            x_start = xhat.copy()
+            uhat = u + options.dt * v
+            u_start = uhat.copy()
         else:
             t = k / options.steps
             label = f"static step {k}/{options.steps} (load factor {t:.4g})"
-            x_new, its, rel, lin_its, solver_used, halvings, cuts, E_new = _static_increment(
-                model, f_full, x, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
+            u_new, its, rel, lin_its, solver_used, halvings, cuts, E_new = _static_increment(
+                model, f_full, u, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
                 reduce, label, newton_callback, block)
         if dynamic:
-            x_fixed = prescribed_positions(model, fixed, dofs, owner, factor) if len(dofs) else np.zeros(0)
-            x_start[dofs] = x[dofs]  # fixed DOFs start from their previous values so the predictor sees their motion
+            u_fixed = prescribed_positions(model, fixed, dofs, owner, factor) - X[dofs] if len(dofs) else np.zeros(0)
+            u_start[dofs] = u[dofs]  # fixed DOFs start from their previous values so the predictor sees their motion
+            x_start = X + u_start
             moved = model.begin_step(factor, x, x_start)  # e.g. contact: a start the barrier admits
             if moved is not x_start:
-                v = (moved - x) / options.dt  # so that the new velocity stays (x_new - x) / h
+                u_start = moved - X
+                v = (u_start - u) / options.dt  # so that the new velocity stays (u_new - u) / h
                 x_start = moved
-            problem = _Problem(model, f_full, x_start, M=M, h=options.dt, xhat=xhat, xn=x, D=D, adder=adder)
+            problem = _Problem(model, f_full, x_start, M=M, h=options.dt, D=D, adder=adder, u_base=u_start,
+                               uhat=uhat, un=u)
             problem.on_iteration = newton_callback
             delta, its, rel, lin_its, solver_used, halvings = _newton(
-                problem, np.zeros(N), free, dofs, x_fixed - x_start[dofs], options, near_null, label, reduce
+                problem, np.zeros(N), free, dofs, u_fixed - u_start[dofs], options, near_null, label, reduce
             )
             cuts, E_new = 0, None
-            x_new = x_start + delta
-            if not np.all(np.isfinite(x_new)):
+            u_new = u_start + delta
+            if not np.all(np.isfinite(u_new)):
                 raise ConvergenceError(f"{label}: the state is not finite after {its} Newton iterations")
             if problem.negative_curvature or options.check_stability:
-                _check_stable(problem, x_new - x_start, free, reduce, label)
+                _check_stable(problem, delta, free, reduce, label)
         passes = 0
+        x_new = X + u_new
         while end_step(model, x_new.reshape(shape)):  # internal variables (plasticity) changed: solve again
             passes += 1
             if passes > END_STEP_PASSES:
@@ -455,13 +471,14 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
                                        "re-solves of the step; use more, smaller steps")
             if dynamic:
                 delta, its_p, rel, lin_p, solver_used, halv_p = _newton(
-                    problem, delta, free, dofs, x_fixed - x_start[dofs], options, near_null, label, reduce)
-                x_new = x_start + delta
+                    problem, delta, free, dofs, u_fixed - u_start[dofs], options, near_null, label, reduce)
+                u_new = u_start + delta
                 cuts_p = 0
             else:
-                x_new, its_p, rel, lin_p, solver_used, halv_p, cuts_p, E_new = _static_increment(
-                    model, f_full, x_new, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
+                u_new, its_p, rel, lin_p, solver_used, halv_p, cuts_p, E_new = _static_increment(
+                    model, f_full, u_new, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
                     reduce, label, newton_callback, block)
+            x_new = X + u_new
             if not np.all(np.isfinite(x_new)):
                 raise ConvergenceError(f"{label}: the state is not finite after re-solving the step")
             its, lin_its, halvings, cuts = its + its_p, lin_its + lin_p, halvings + halv_p, cuts + cuts_p
@@ -471,16 +488,17 @@ def _steps(model, options, records, x, v, M, f_full, free, dofs, owner, fixed, n
             E = float(E_new)  # Newton's own evaluation at the answer (a pass over the voxels saved)
         kin = 0.0
         if dynamic:
-            # x_new - x = h v + delta on the free DOFs (x_start = x + h v there) and delta on the fixed
+            # u_new - u = h v + delta on the free DOFs (u_start = u + h v there) and delta on the fixed
             # ones: the velocity from the increment keeps its precision for any h
             v_start = v.copy()
             v_start[dofs] = 0.0
             v = v_start + delta / options.dt
             kin = 0.5 * vdot(v, M @ v)
-        x = x_new
+        x, u = x_new, u_new
         rec = StepRecord(
             float(t), x.reshape(shape).copy(), None if v is None else v.reshape(shape).copy(), int(its),
             time.perf_counter() - t0, E, kin, float(rel), int(lin_its), solver_used, int(halvings), int(cuts),
+            displacement=u.reshape(shape).copy(),
         )
         if sink is not None:
             sink(rec)

@@ -1,0 +1,81 @@
+"""Steps below the round-off of the positions keep their digits (issue 27, item 7).
+
+The solvers carry the displacement from rest ``u = q - X``, not the positions: a 1 m body at
+dt = 1e-9 s falls 2.9e-17 m in two implicit-Euler steps, which ``X + u`` rounds away (eps |X| = 2.2e-16 m)
+but ``u`` and the probes' displacements (``/probe_displacements``) keep to round-off.  Before, both
+models returned exactly 0 for a neo-Hookean ball (the voxel model's linear path kept it only where the
+probe sat at the origin).  The elastic forces still come from the positions (the materials read F): a static
+motion below their round-off is refused with a message that says so.  The tolerance 1e-6 is a digit count
+(float64 keeps 15-16).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from robust import beam
+
+import voxflex as vf
+from voxflex.result import Result
+from voxflex.scene import Scene
+
+DROP = Path(__file__).resolve().parents[1] / "examples" / "drop.toml"
+
+
+def _drop(kind: str, model: str, dt: float) -> Scene:
+    text = DROP.read_text().replace("dt = 0.01", f"dt = {dt!r}").replace("steps = 10", "steps = 2")
+    text = text.replace('"neo-hookean"', f'"{model}"')
+    if kind == "affine":
+        text = text.replace('kind = "voxel"', 'kind = "affine"\ncount = 8')
+    return Scene.from_toml_text(text)
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
+@pytest.mark.parametrize("model", ["neo-hookean", "hooke"])
+def test_a_free_fall_at_dt_1e_9_moves_by_the_exact_discrete_fall(kind, model, tmp_path):
+    """Backward Euler, 2 steps: the fall is g dt^2 (1 + 2) exactly (a rigid translation, no strain)."""
+    dt = 1e-9
+    r = vf.simulate(_drop(kind, model, dt), progress=False, cache=False)
+    exact = -9.81 * dt**2 * 3
+    u = r.probe_displacements()["centre"]
+    assert u[2] == pytest.approx(exact, rel=1e-6)
+    assert abs(u[0]) < 1e-6 * abs(exact) and abs(u[1]) < 1e-6 * abs(exact)
+    # the positions cannot hold it (the ball's centre is at z = 1.5 m): the displacement group does
+    assert r.probes["centre"][-1][2] == pytest.approx(1.5, abs=1e-15)
+    # and the file keeps it
+    back = Result.load(r.save(tmp_path / "fall.h5"))
+    assert back.probe_displacements()["centre"][2] == pytest.approx(exact, rel=1e-6)
+
+
+def _tip(kind, g):
+    text = beam(kind, gravity=f"[0.0, 0.0, {-g!r}]", nodes="count = 6" if kind == "affine" else "")
+    return vf.simulate(Scene.from_toml_text(text), progress=False, cache=False).probe_displacements()["tip"]
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
+def test_a_static_motion_below_the_forces_round_off_is_refused_and_named(kind):
+    """Forces still come from positions (the materials read F, not F - I): a linear cantilever under 1e-12
+    of its gravity (tip about 1e-13 m on a 4 m body) stops at relative residual ~1; the refusal names the
+    round-off of the forces and a fix that works (raise the loads), not a stiff layer.  Down to 1e-6 of the
+    load the answer still scales (to 1e-6)."""
+    ref = _tip(kind, 9.81)
+    assert ref[2] < -1e-2
+    np.testing.assert_allclose(_tip(kind, 9.81e-6), 1e-6 * ref, rtol=1e-6, atol=1e-6 * 1e-6 * abs(ref[2]))
+    with pytest.raises(vf.ConvergenceError, match=r"below what the elastic forces resolve .* raise the loads"):
+        _tip(kind, 9.81e-12)
+
+
+def test_results_without_the_displacement_group_read_the_positions():
+    """Files that predate ``/probe_displacements`` (and rigid frames) answer from the positions."""
+    T = 2
+    r = Result(time=np.arange(T, dtype=float), probes={"p": np.array([[0.0, 0, 1], [0.0, 0, 0.5]])},
+               surface_rest=np.zeros((1, 3)), surface_faces=np.zeros((0, 3), dtype=np.int64),
+               surface_positions=np.zeros((T, 1, 3)), nodes_rest=np.zeros((1, 3)), nodes_state=np.zeros((T, 1, 3)),
+               energy_elastic=np.zeros(T), energy_kinetic=np.zeros(T), newton_iterations=np.zeros(T, np.int64),
+               step_seconds=np.zeros(T), image_labels=np.ones((1, 1, 1), np.uint8), image_spacing=np.ones(3),
+               image_origin=np.zeros(3))
+    np.testing.assert_allclose(r.probe_displacements()["p"], [0, 0, -0.5])
+    with pytest.raises(vf.InputError, match="name a probe"):
+        Result(**{**r.__dict__, "probe_displacement": {"q": np.zeros((T, 3))}})
