@@ -57,7 +57,7 @@ from .boundary import (
     region_forces,
 )
 from .linear import DIRECT_FALLBACK_MAX
-from .newton import _FreeBlock, _grid_of, _newton, _PatternAdd, _Problem
+from .newton import _Chord, _FreeBlock, _grid_of, _newton, _PatternAdd, _Problem
 from .options import SolverOptions, StepRecord
 from .supports import check_supports
 
@@ -419,6 +419,7 @@ def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, n
     per step) still moves the body."""
     dynamic = options.kind == "implicit-euler"
     adder = _PatternAdd()  # H + M/h^2 + D/h positions found once for all steps
+    chord = _Chord()  # implicit Euler: a dense tangent factorised once serves later iterations while it contracts
     X = np.asarray(model.rest, dtype=float).ravel()
     N = u.size
     x = X + u
@@ -453,6 +454,7 @@ def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, n
             problem = _Problem(model, f_full, x_start, M=M, h=options.dt, D=D, adder=adder, u_base=u_start,
                                uhat=uhat, un=u)
             problem.on_iteration = newton_callback
+            problem.chord = chord
             delta, its, rel, lin_its, solver_used, halvings = _newton(
                 problem, np.zeros(N), free, dofs, u_fixed - u_start[dofs], options, near_null, label, reduce
             )

@@ -270,24 +270,15 @@ def _gauge(model) -> np.ndarray:
     centre and deform none (:func:`~voxflex.deform.models.frames.modes.gauge_modes`); empty unless the weights
     are linearly precise (reproducing kernels; eigenmode weights of a body without fixed regions).  Read at every voxel centre, not at the samples: a stabilised
     mid-point region integrates Gauss points its centre does not show."""
-    from .modes import gauge_modes
+    from .modes import weights_gauge_modes
 
     sf = model.shape_function
     if not getattr(sf, "linearly_precise", False):
         return np.zeros((12 * model.n_nodes, 0))
-    # the precompute and its check ask for the same weights: kept in the shape function's own cache (the
-    # weight families are frozen dataclasses with a _cache dict; without one, computed again)
-    store = getattr(sf, "_cache", None)
-    cached = store.get("gauge_modes") if isinstance(store, dict) else None
-    if cached is not None and cached.shape[0] == 12 * model.n_nodes:
-        return cached
     vv = sf.voxel_values() if hasattr(sf, "voxel_values") else None
     if vv is None:
         vv = sf(model.image.index_to_world(np.argwhere(model.image.labels > 0) + 0.5))
-    modes = gauge_modes(model.frames, vv)
-    if isinstance(store, dict):
-        store["gauge_modes"] = modes
-    return modes
+    return weights_gauge_modes(sf, model.frames, vv)  # cached in the weights: the mass matrix asks again
 
 
 def _free_zero_modes(scene, model, K) -> int:

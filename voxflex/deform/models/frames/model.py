@@ -613,7 +613,7 @@ class FrameModel(OnePass):
         matrix ``sum_p m_p b_p b_p^T`` (``b_p`` the point's ``w_a [r_a; 1]`` in the frames' slots, dense
         by chunks of points) is the same for the three components (the sparse J of the bunny's 94k
         voxel centres with 35 parents would hold 10 million entries)."""
-        from .modes import gauge_modes
+        from .modes import weights_gauge_modes
 
         n = self.n_nodes
         G4 = np.zeros((4 * n, 4 * n))
@@ -636,7 +636,7 @@ class FrameModel(OnePass):
             d = np.array([3 * i, 3 * i + 1, 3 * i + 2, 9 + i])
             M[:, d[:, None], :, d[None, :]] = G4.transpose(1, 3, 0, 2)
         M = M.reshape(12 * n, 12 * n)
-        G = gauge_modes(self.frames, values)
+        G = weights_gauge_modes(self.shape_function, self.frames, values)
         if G.shape[1]:
             a_ = (np.arange(12 * n) % 12) < 9
             M += float(np.diagonal(M)[a_].mean()) * (G @ G.T)

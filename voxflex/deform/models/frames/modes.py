@@ -24,7 +24,7 @@ from ...chain.mappings import DeformationGradientWithGradientMapping
 from ...chain.nodes import AffineFrames
 
 __all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness", "softest_mode",
-           "SOFT_RATIO", "gauge_modes", "dimensionless"]
+           "SOFT_RATIO", "gauge_modes", "weights_gauge_modes", "dimensionless"]
 
 GAUGE_TOL = 1e-8
 """A gauge candidate (:meth:`AffineFrames.gauge_modes`) whose deformation gradient and motion at the
@@ -68,6 +68,25 @@ def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 1024) ->
     _, sv, Vt = np.linalg.svd(R, full_matrices=False)
     ref = np.sqrt(max(values.m, 1) / n)  # |F| over the samples of the unit dilation A_a = I / sqrt(3n)
     return Z @ Vt[sv <= tol * ref].T
+
+
+def weights_gauge_modes(sf, frames, values) -> np.ndarray:
+    """:func:`gauge_modes` of the weights ``sf`` at the points of ``values``, kept in the shape function's own
+    cache (the weight families are frozen dataclasses with a ``_cache`` dict) for the points of
+    ``sf.voxel_values()``: the precompute's checks and the mass matrix ask for the same ones (1.2-2.3 s on the
+    bunny); without a cache, or at other points, computed."""
+    store = getattr(sf, "_cache", None)
+    vv = sf.voxel_values() if hasattr(sf, "voxel_values") and isinstance(store, dict) else None
+    same = vv is not None and (values is vv or (vv.rest.shape == values.rest.shape
+                                                and np.array_equal(vv.rest, values.rest)))
+    if same:
+        cached = store.get("gauge_modes")
+        if cached is not None and cached.shape[0] == 12 * len(frames):
+            return cached
+    modes = gauge_modes(frames, values)
+    if same:
+        store["gauge_modes"] = modes
+    return modes
 
 
 class SpuriousModesWarning(UserWarning):
