@@ -236,6 +236,26 @@ def test_gauge_modes_move_nothing(beam_model):
     assert zero_energy_modes(m.frames, m.samples) == 6
 
 
+def test_gauge_modes_are_the_null_space_of_the_sampled_map(beam_model):
+    """gauge_modes (four sums per sample over its parents, ``AffineFrames.gauge_basis``) against the
+    assembled Jacobians: the candidates' images under (F, x / L) at the samples, by the mappings' sparse
+    Jacobians, have exactly the returned span as their (numerical) null space; chunking changes nothing."""
+    m = beam_model
+    v = m.samples.values
+    Z = m.nodes.gauge_modes()
+    L = float(np.ptp(m.frames, axis=0).max())
+    JF = DeformationGradientMapping(m.nodes, v).jacobian(m.rest)
+    Jx = PointMapping(m.nodes, v).jacobian(m.rest)
+    rows = np.vstack([JF @ Z, (Jx @ Z) / L])
+    _, sv, Vt = np.linalg.svd(rows, full_matrices=False)
+    ref = np.sqrt(v.m / len(m.frames))
+    null = Z @ Vt[sv <= 1e-8 * ref].T
+    G = gauge_modes(m.frames, v)
+    assert G.shape == null.shape == (12 * len(m.frames), 18)
+    assert np.abs(G @ G.T - null @ null.T).max() < 1e-10
+    assert np.abs(gauge_modes(m.frames, v, chunk=37) @ G.T @ G - gauge_modes(m.frames, v, chunk=37)).max() < 1e-10
+
+
 def test_lumped_mass_positive_exact_total_and_free_fall(beam_model):
     """Negative weights would lump indefinite per-frame blocks (measured here); the model's lumped mass
     (then J^T diag(m) J at the voxel centres, where gravity acts) is positive definite, carries the

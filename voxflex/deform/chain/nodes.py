@@ -186,21 +186,36 @@ class AffineFrames(_NodeType):
         (``Q = sum_a w_a X_a X_a^T`` symmetric), and the deformation gradient is 0 too.  With weights
         that are linearly precise only in part of the material they are ordinary (soft) motions.
         """
+        Q, _ = np.linalg.qr(self.gauge_candidates())
+        return Q
+
+    def gauge_basis(self):
+        """The 18 gauge candidates as ``dA_a = sum_m C[k, m] phi_a[m]``: ``phi`` (n, 4) = (1, (X_a - c) / L)
+        and ``C`` (18, 4, 3, 3) (E for k < 9 in the first slot; T's antisymmetric pairs after), so that a
+        sample's response to each candidate follows from four sums over its parents
+        (:func:`voxflex.deform.models.frames.modes.gauge_modes`)."""
         X = np.asarray(self.rest_positions, dtype=float)
         c = X.mean(axis=0)
         L = float(np.ptp(X, axis=0).max()) if self.n > 1 else 1.0
-        R = (X - c) / (L if L > 0 else 1.0)
-        B = np.zeros((self.n, 12, 18))
+        phi = np.concatenate([np.ones((self.n, 1)), (X - c) / (L if L > 0 else 1.0)], axis=1)
+        C = np.zeros((18, 4, 3, 3))
         for p in range(9):
-            B[:, p, p] = 1.0
+            C[p, 0, p // 3, p % 3] = 1.0
         col = 9
         for i in range(3):
             for j, k in ((0, 1), (0, 2), (1, 2)):
-                B[:, 3 * i + j, col] = R[:, k]
-                B[:, 3 * i + k, col] = -R[:, j]
+                C[col, 1 + k, i, j] = 1.0
+                C[col, 1 + j, i, k] = -1.0
                 col += 1
-        Q, _ = np.linalg.qr(B.reshape(12 * self.n, 18))
-        return Q
+        return phi, C
+
+    def gauge_candidates(self) -> np.ndarray:
+        """(12n, 18) the candidates of :meth:`gauge_modes` before orthonormalisation (A row by row, t = 0)."""
+        phi, C = self.gauge_basis()
+        A = np.einsum("kmij,am->aijk", C, phi)  # (n, 3, 3, 18)
+        B = np.zeros((self.n, 12, 18))
+        B[:, :9] = A.reshape(self.n, 9, 18)
+        return B.reshape(12 * self.n, 18)
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ GAUGE_TOL = 1e-8
 samples are below this fraction of those of a unit dilation is exact (moves nothing)."""
 
 
-def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 1024) -> np.ndarray:
+def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 8192) -> np.ndarray:
     """(12n, g) orthonormal basis of the affine frames' motions that move no sample and deform none.
 
     With weights that reproduce linear fields at every sample (reproducing kernels) ``g = 18``
@@ -47,8 +47,11 @@ def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 1024) ->
 
     X = np.asarray(frames, dtype=np.float64)
     n = len(X)
-    Z = AffineFrames(X).gauge_modes()
-    A = Z.reshape(n, 12, 18)[:, :9, :].reshape(n, 3, 3, 18)  # the candidates move no translation
+    nodes = AffineFrames(X)
+    B = nodes.gauge_candidates()
+    Z, Rz = np.linalg.qr(B)  # Z = B Rz^-1: the responses of Z are those of B times Rz^-1
+    phi, Cb = nodes.gauge_basis()  # dA_a of candidate k = sum_m Cb[k, m] phi_a[m]
+    C2 = Cb.transpose(0, 2, 1, 3).reshape(18 * 3, 12)  # rows (k, i), columns (m, j)
     L = float(np.ptp(X, axis=0).max()) if n > 1 else 1.0
     L = L if L > 0 else 1.0
     R = np.zeros((0, 18))
@@ -59,11 +62,17 @@ def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 1024) ->
         ii = np.where(ok, idx, 0)
         w = np.where(ok, values.w[a:b], 0.0)
         dw = np.where(ok[..., None], values.dw[a:b], 0.0)
-        Aa = A[ii]  # (c, P, 3, 3, 18)
-        u = np.einsum("cpijk,cpj->cpik", Aa, values.rest[a:b, None, :] - X[ii])  # dA_a (X - X_a)
-        x = np.einsum("cp,cpik->cik", w, u)
-        F = np.einsum("cp,cpijk->cijk", w, Aa) + np.einsum("cpik,cpj->cijk", u, dw)
-        rows = np.concatenate([F.reshape(-1, 18), x.reshape(-1, 18) / L])
+        ph = phi[ii] * ok[..., None]  # (c, P, 4)
+        r = values.rest[a:b, None, :] - X[ii]  # (c, P, 3)
+        # per sample, over its parents: S[m, j] = sum w phi_m r_j (the motion), T[m, j, l] = sum phi_m (w I + r (x) dw)
+        S = np.einsum("cpm,cpj->cmj", ph * w[..., None], r)
+        T = np.einsum("cpm,cpj,cpl->cmjl", ph, r, dw, optimize=True)
+        T += np.einsum("cpm,cp->cm", ph, w)[:, :, None, None] * np.eye(3)
+        F = np.matmul(C2, T.reshape(-1, 12, 3))  # (c, (k, i), l): candidate k's F[i, l]
+        x = np.matmul(C2, S.reshape(-1, 12, 1))  # (c, (k, i), 1): candidate k's motion x_i
+        F = F.reshape(-1, 18, 9).transpose(0, 2, 1).reshape(-1, 18)
+        x = x.reshape(-1, 18, 3).transpose(0, 2, 1).reshape(-1, 18)
+        rows = sla.solve_triangular(Rz, np.concatenate([F, x / L]).T, trans="T", check_finite=False).T  # @ Rz^-1
         R = sla.qr(np.concatenate([R, rows]), mode="r", check_finite=False)[0][:18]
     _, sv, Vt = np.linalg.svd(R, full_matrices=False)
     ref = np.sqrt(max(values.m, 1) / n)  # |F| over the samples of the unit dilation A_a = I / sqrt(3n)
