@@ -77,7 +77,7 @@ where continuing converges."""
 
 
 def _static_increment(model, f_full, u, s0, s1, free, dofs, owner, fixed, options, near_null, reduce, label,
-                      on_iteration=None, block=None):
+                      on_iteration=None, block=None, chord=None):
     """Equilibrium at load factor ``s1`` from the converged displacement ``u`` (q - X) at ``s0``, cutting the
     increment.
 
@@ -101,6 +101,7 @@ def _static_increment(model, f_full, u, s0, s1, free, dofs, owner, fixed, option
         u_fixed = prescribed_positions(model, fixed, dofs, owner, s_next) - X[dofs] if len(dofs) else np.zeros(0)
         problem = _Problem(model, s_next * f_full, x_start, block=block, u_base=u_start)
         problem.on_iteration = on_iteration
+        problem.chord = chord
         sub = label if s_next == s1 and s == s0 else f"{label}, sub-step to load factor {s_next:.4g}"
         try:
             delta, scale0, spent, continued = np.zeros(N), 0.0, (0, 0, 0), 0
@@ -419,7 +420,7 @@ def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, n
     per step) still moves the body."""
     dynamic = options.kind == "implicit-euler"
     adder = _PatternAdd()  # H + M/h^2 + D/h positions found once for all steps
-    chord = _Chord()  # implicit Euler: a dense tangent factorised once serves later iterations while it contracts
+    chord = _Chord()  # a dense tangent factorised once serves later iterations and steps while it contracts
     X = np.asarray(model.rest, dtype=float).ravel()
     N = u.size
     x = X + u
@@ -441,7 +442,7 @@ def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, n
             label = f"static step {k}/{options.steps} (load factor {t:.4g})"
             u_new, its, rel, lin_its, solver_used, halvings, cuts, E_new = _static_increment(
                 model, f_full, u, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
-                reduce, label, newton_callback, block)
+                reduce, label, newton_callback, block, chord)
         if dynamic:
             u_fixed = prescribed_positions(model, fixed, dofs, owner, factor) - X[dofs] if len(dofs) else np.zeros(0)
             u_start[dofs] = u[dofs]  # fixed DOFs start from their previous values so the predictor sees their motion
@@ -479,7 +480,7 @@ def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, n
             else:
                 u_new, its_p, rel, lin_p, solver_used, halv_p, cuts_p, E_new = _static_increment(
                     model, f_full, u_new, (k - 1) / options.steps, t, free, dofs, owner, fixed, options, near_null,
-                    reduce, label, newton_callback, block)
+                    reduce, label, newton_callback, block, chord)
             x_new = X + u_new
             if not np.all(np.isfinite(x_new)):
                 raise ConvergenceError(f"{label}: the state is not finite after re-solving the step")
