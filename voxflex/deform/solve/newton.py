@@ -543,6 +543,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
     floor = 0.0  # the round-off floor of the residual, set from the first iterate's Hessian
     chord = problem.chord if not lean else None
     chorded = False  # the last step was a chord step
+    secant = None  # (free residual, step taken) of the last chord step: its curvature, measured by the next residual
     for it in range(options.max_iterations + 1):
         use_chord = chord is not None and not moving and chord.good and chord.ready(len(free)) and (
             it == 0 or step_length == 1.0) and 2 * it < options.max_iterations
@@ -565,6 +566,13 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         history.append(rn)
         if chorded and use_chord and rn > CHORD_RATE * history[-2]:
             chord.good = use_chord = False  # the earlier Hessian no longer contracts fast enough: a fresh one here
+        if secant is not None and vdot(r - secant[0], secant[1]) <= 0.0:
+            # the true tangent's curvature along the chord step (the secant of the residuals) is not positive,
+            # which the chord's positive definite factor cannot show: as a fresh Hessian would, report it (the
+            # stability check runs after the step) and build a fresh one here
+            problem.negative_curvature = indefinite = True
+            chord.good = use_chord = False
+        secant = None
         if it == 0:
             scale = max(scale, rn)
             # round-off floor: the elastic forces come from absolute positions, known to eps |x|, so
@@ -680,6 +688,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             x = x.copy()
             x[free] += d
             step_length = 1.0
+            secant = (r, d) if chorded else None
             continue
         H = Hff = None  # release them before the next Hessian is built (peak memory)
         alpha = 1.0
@@ -717,6 +726,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             )
         x = x_try
         step_length = alpha
+        secant = (r, alpha * d) if chorded else None
     exc = ConvergenceError(
         f"{label}: Newton did not converge in {options.max_iterations} iterations: relative residual {rel:.2e} "
         f"(tolerance {tol:.1e}), {halvings_total} line-search halvings, linear solver {solver_used} "
