@@ -32,8 +32,11 @@ from voxflex.scene import Scene, default_scene_path
 
 
 def _scene(base, *, kind="affine", h=None, sf=None, q=None, count=None, volumetric=None):
-    nodes = replace(base.nodes, kind=kind, **({"shape_function": sf} if sf else {}),
-                    **({"count": count} if count else {}))
+    if kind == "voxel":  # the default scene's frame keys (count, shape_function) do not apply to voxels
+        nodes = replace(base.nodes, kind=kind, shape_function=None, count=None)
+    else:
+        nodes = replace(base.nodes, kind=kind, **({"shape_function": sf} if sf else {}),
+                        **({"count": count} if count else {}))
     el = replace(base.elasticity, quadrature=q or ("gauss-legendre" if kind == "voxel" else "elaston"),
                  **({"volumetric": volumetric} if volumetric else {}))
     obj = replace(base.object, voxel_size=h) if h else base.object
