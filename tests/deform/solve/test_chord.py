@@ -69,8 +69,8 @@ def test_chord_steps_give_full_newtons_static_answer_with_fewer_hessians(monkeyp
 def test_an_indefinite_tangent_is_never_kept():
     """cho_factor refuses it: no chord steps with it (Newton's own remedies handle the iterate)."""
     c = newton._Chord()
-    c.store(np.diag([1.0, -1.0]))
+    c.store(np.diag([1.0, -1.0]), np.ones(2))
     assert not c.ready(2)
-    c.store(np.diag([2.0, 4.0]))
+    c.store(np.diag([2.0, 4.0]), np.ones(2))
     assert c.ready(2) and c.good
     np.testing.assert_allclose(c.solve(np.array([2.0, 4.0])), [1.0, 1.0])

@@ -74,13 +74,12 @@ class _Chord:
         self.Hff = None
         self.n = -1
         self.good = False
-        self.uses = 0
-        self.elastic = None
+        self.elastic = None  # the elastic diagonal of the free DOFs where it was built (Newton's round-off floor)
 
     def ready(self, n: int) -> bool:
         return self.factor is not None and self.n == n
 
-    def store(self, Hff) -> None:
+    def store(self, Hff, elastic) -> None:
         import scipy.linalg as sla
 
         try:
@@ -88,13 +87,11 @@ class _Chord:
         except np.linalg.LinAlgError:  # indefinite: no chord steps with it (Newton's remedies take over)
             self.factor = None
             return
-        self.Hff, self.n, self.good = Hff, Hff.shape[0], True
-        self.elastic = None  # the elastic diagonal of the free DOFs where it was built (Newton's round-off floor)
+        self.Hff, self.n, self.good, self.elastic = Hff, Hff.shape[0], True, elastic
 
     def solve(self, rhs) -> np.ndarray:
         import scipy.linalg as sla
 
-        self.uses += 1
         return sla.cho_solve(self.factor, rhs, check_finite=False)
 
 
@@ -154,7 +151,7 @@ class _Problem:
         self.solves = 0
         self.hessian_misses = 0
         self.projected = 0  # Hessians built from projected tangents
-        self.chord = None  # a _Chord kept over the steps (implicit Euler, dense tangents), or None
+        self.chord = None  # a _Chord kept over the load or time steps (dense tangents), or None
 
     def __call__(self, delta, hessian=True, gradient=True, project=False):
         q = (self.base + delta).reshape(self.shape)
@@ -629,8 +626,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             d, info, Hff = _solve_free(H, rhs, free, reduce, options, eta, near_null, _grid_of(problem.model),
                                        block=problem.block, elements=problem.elements)
             if chord is not None and isinstance(Hff, np.ndarray) and not moving:  # dense (what Cholesky solved)
-                chord.store(Hff)
-                chord.elastic = problem.elastic_diagonal[free]
+                chord.store(Hff, problem.elastic_diagonal[free])
         lin_its += info.iterations
         last_lin = info.iterations
         problem.solves += 1

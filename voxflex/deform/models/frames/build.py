@@ -307,7 +307,7 @@ def _free_zero_modes(scene, model, K) -> int:
 
 
 def _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass, *,
-                weight_space=None, density=None, make_model=None):
+                make_model, weight_space=None, density=None):
     """Frames, blended shape functions and samples (pruned to ``parents``) of an image, with the sample
     count chosen (module docstring).  Returns a dict: frames, sf, samples (what the model integrates),
     regions (the sampler's, or None), tables and gauss (stabilised mid-point regions), chosen (str),
@@ -342,7 +342,7 @@ def _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature,
         pre = {"frames": frames, "sf": sf, **_samples(image, sf, frames, nodes, quadrature, n, occupancy, hourglass)}
         if requested is not None:
             return pre  # the scene's count: judged by the caller, not changed
-        verdict, K, softest, model = _check(scene, image, pre, occupancy, hourglass, make_model)
+        verdict, K, softest, model = _check(scene, image, pre, occupancy, make_model)
         pre.update(K=K, softest=softest, judged=True, model=model)
         regions = len(pre["regions"].volume)
         log.append(f"{regions} regions: {verdict}")
@@ -394,21 +394,13 @@ def _samples(image, sf, frames, nodes, quadrature, n, occupancy, hourglass) -> d
     return {"samples": regions, "regions": regions, "tables": None, "gauss": None}
 
 
-def _check(scene, image, pre, occupancy, hourglass, make_model=None):
+def _check(scene, image, pre, occupancy, make_model):
     """('sound' or why not, unit stiffness K, softest ratio, the model judged) of a precompute's samples for
-    ``scene``.  The model is ``make_model(pre)`` (the scene's materials: the build keeps it) or, without one,
-    a model of unit materials; either way K is the unit stiffness (:func:`_unit_stiffness`)."""
-    from ...materials.constitutive import material
-    from .model import FrameModel
+    ``scene``.  The model is ``make_model(pre)`` (the scene's materials: the build keeps it); K is its unit
+    stiffness (:func:`_unit_stiffness`)."""
     from .modes import SOFT_RATIO, zero_energy_modes
 
-    if make_model is not None:
-        model = make_model(pre)
-    else:
-        unit = material("hooke", strain="linear", mu=1.0, lmbda=1.0)
-        labels = np.unique(image.labels[image.labels > 0]).astype(int)
-        model = FrameModel(image, pre["frames"], pre["sf"], pre["samples"], {int(lab): unit for lab in labels},
-                           use_occupancy=occupancy, hourglass=hourglass, region_tables=pre["tables"])
+    model = make_model(pre)
     K = _unit_stiffness(model)
     zero = zero_energy_modes(pre["frames"], model.samples, stiffness=K, gauge=_gauge(model))
     if zero > 6:  # judged on the free body whatever the solver (the cache entry serves every solver kind)
