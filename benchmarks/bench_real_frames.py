@@ -50,7 +50,9 @@ At 2 mm the bunny's rows with many parents per point reach 8.4 GB together (Gaus
 parents^2 pair tables: 754k points x 35^2 at 40 frames; 160 RK frames have 89 parents): run those in a
 process of their own (``--counts "" --exact-counts 40 --nn-counts ""`` etc.) under a memory limit.
 
-Times.  BLAS, OpenMP and numba pinned to one thread (as ``voxflex tradeoff`` does: figures of one core,
+Times.  Every model is solved by the same Newton solver at the scene's tolerance, each with its own
+``linear_solver = "auto"`` (a best-solver comparison: multigrid-CG or sparse direct for the voxel grids,
+dense Cholesky for the frames).  BLAS, OpenMP and numba pinned to one thread (as ``voxflex tradeoff`` does: figures of one core,
 comparable on a shared machine).  Every kernel is warmed by an untimed run of each configuration's family
 on the 4x coarser grid first.  ``precompute`` = ``vf.model(scene, cache=False)`` (placement, weights,
 samples, checks; voxel: element tables), ``solve`` = ``vf.simulate``; min / median over ``--repeat``
