@@ -373,3 +373,30 @@ def test_gauss_moment_kernel_equals_its_numpy_twin():
     _gauss_moments(region, slot, Gq, vol, offset, size, a)
     _gauss_moments_numpy(region, slot, Gq, vol, offset, size, b)
     assert np.abs(b).max() > 0 and np.max(np.abs(a - b)) <= 1e-13 * np.abs(b).max()
+
+
+def test_a_state_evaluated_for_its_energy_gives_its_gradient_from_the_kept_stress():
+    """The energy pass keeps the state's stress (a line search's accepted trial then needs only the forces):
+    the gradient after it equals a cold model's bit for bit; replacing a material or evaluating a plastic
+    one is never answered from the kept stress."""
+    mat = material("neo-hookean", young=1e3, poisson=0.3)
+    model, cold = _model(mat), _model(mat)
+    q = _perturbed(model, 0.05)
+    E = model.energy(q)
+    assert model._last_P is not None and model._last_P[0] is model._gradients_at(q)
+    E2, g, _ = model.energy_gradient_hessian(q, hessian=False)
+    Ec, gc, _ = cold.energy_gradient_hessian(q, hessian=False)
+    assert E == E2 == Ec
+    np.testing.assert_array_equal(g, gc)
+    # another material at the same state: evaluated afresh, not read from the kept stress
+    model.materials = {1: material("neo-hookean", young=2e3, poisson=0.3)}
+    E3, g3, _ = model.energy_gradient_hessian(q, hessian=False)
+    assert E3 == pytest.approx(2 * E, rel=1e-12)
+    np.testing.assert_allclose(g3, 2 * g, rtol=0, atol=1e-12 * np.abs(g).max())
+    # a material with state (plasticity) is never kept
+    from voxflex.deform.layers.plasticity import PlasticMaterial
+
+    model.materials = {1: PlasticMaterial(material("stvk", young=1e3, poisson=0.3), model.n_samples,
+                                          yield_strain=0.01)}
+    model.energy(q)
+    assert model._last_P is None

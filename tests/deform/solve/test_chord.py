@@ -74,3 +74,56 @@ def test_an_indefinite_tangent_is_never_kept():
     c.store(np.diag([2.0, 4.0]), np.ones(2))
     assert c.ready(2) and c.good
     np.testing.assert_allclose(c.solve(np.array([2.0, 4.0])), [1.0, 1.0])
+
+
+def test_the_secants_correct_the_kept_factor():
+    """Limited-memory BFGS on top of the factor: after a pair (s, y) the chord maps y to s (the secant
+    equation), stays symmetric positive definite, and a pair of non-positive curvature is refused."""
+    rng = np.random.default_rng(3)
+    n = 6
+    B = rng.normal(size=(n, n))
+    H0 = B @ B.T + n * np.eye(n)  # the kept (old) tangent
+    Ht = H0 + np.diag(np.linspace(0.0, 5.0, n))  # the true tangent has moved on
+    c = newton._Chord()
+    c.store(H0, np.ones(n))
+    for _ in range(3):
+        s = rng.normal(size=n)
+        assert c.secant(s, Ht @ s)
+        np.testing.assert_allclose(c.solve(Ht @ s), s, rtol=1e-12, atol=1e-12)
+    Hinv = np.column_stack([c.solve(e) for e in np.eye(n)])
+    np.testing.assert_allclose(Hinv, Hinv.T, rtol=0, atol=1e-12 * np.abs(Hinv).max())
+    assert np.linalg.eigvalsh(0.5 * (Hinv + Hinv.T)).min() > 0
+    kept = list(c.pairs)
+    assert not c.secant(np.ones(n), -np.ones(n))  # y . s < 0: negative curvature, nothing kept
+    assert c.pairs == kept
+    assert len(c.pairs) <= newton.CHORD_MEMORY
+    c.store(H0, np.ones(n))  # a fresh tangent forgets the secants
+    assert c.pairs == []
+
+
+def test_the_extrapolated_start_leaves_the_trajectory_as_it_was(monkeypatch):
+    """Newton starts a step from u + h (2 v - v_prev): the states equal those from the inertial prediction
+    u + h v to 1e-6 of the largest displacement (the residual test's reach), in fewer model passes."""
+    def run(predictor):
+        monkeypatch.setattr(stepping, "PREDICTOR", predictor)
+        text = beam("affine", model="neo-hookean", young="2.0e3", density="100.0",
+                    nodes='count = 8\nshape_function = "reproducing-kernel"', elasticity='quadrature = "elaston"',
+                    solver="").replace('kind = "static"', 'kind = "implicit-euler"\ndt = 0.02\nsteps = 8')
+        model = vf.model(Scene.from_toml_text(text), cache=False)
+        passes = {"n": 0}
+        inner = model.energy_gradient_hessian
+
+        def counted(q, *, gradient=True, hessian=True):
+            passes["n"] += 1
+            return inner(q, gradient=gradient, hessian=hessian)
+
+        monkeypatch.setattr(model, "energy_gradient_hessian", counted)
+        r = vf.simulate(Scene.from_toml_text(text), model=model, progress=False)
+        return r.surface_positions - r.surface_rest, passes["n"]
+
+    u_plain, n_plain = run(False)
+    u_extra, n_extra = run(True)
+    scale = np.abs(u_plain).max()
+    assert scale > 1e-2
+    np.testing.assert_allclose(u_extra, u_plain, rtol=0, atol=1e-6 * scale)
+    assert n_extra <= n_plain, (n_extra, n_plain)

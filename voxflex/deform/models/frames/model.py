@@ -117,7 +117,7 @@ from ....image.surface import boundary_quads, face_points, triangulate
 from ....sampling.voxel import voxel_samples
 from ...chain.mappings import DeformationGradientMapping, PointMapping
 from ...chain.nodes import AffineFrames
-from ...materials.constitutive import project_psd
+from ...materials.constitutive import Material, project_psd
 from ...materials.fbar import VOLUMETRIC, bar_scalar, nearly_incompressible
 from ..protocol import OnePass, Part, SurfacePoints
 from ..voxel.kind import HOURGLASS
@@ -207,6 +207,7 @@ class FrameModel(OnePass):
         self._mass_points_cache = None
         self._project = False  # per-sample tangents projected to PSD in the Hessians (set_tangent_projection)
         self._last_F = None  # (q, F) of the last state evaluated
+        self._last_P = None  # (F, materials, energy, P) of the last point pass: see _point_pass
 
     # -- construction -------------------------------------------------------
     @classmethod
@@ -393,7 +394,26 @@ class FrameModel(OnePass):
         return float(energy), grad, H
 
     def _point_pass(self, F, gradient, hessian):
-        """``sum_s v_s W(F_s)`` with its gradient and Hessian by the compiled kernels."""
+        """``sum_s v_s W(F_s)`` with its gradient and Hessian by the compiled kernels.
+
+        The materials give the stress with the energy, so a pass without the Hessian keeps both for
+        the state's F (the read-only array :meth:`_gradients_at` hands out for that state): a line
+        search's accepted trial, evaluated for its energy, then needs only the forces (the strains and
+        the law are not evaluated again; 2.5 of a 60-frame step iteration's 7.5 ms).  Only while every
+        material is a plain :class:`~voxflex.deform.materials.constitutive.Material` (frozen: no state
+        that a step could change, unlike plastic materials)."""
+        mats = tuple(self.materials.values())
+        last = self._last_P
+        if not hessian and last is not None and last[0] is F and len(last[1]) == len(mats) and all(
+                a is b for a, b in zip(last[1], mats)):
+            return last[2], self._forces(last[3]) if gradient else None, None
+        energy, P, A = self._constitutive(F, hessian)
+        stateless = all(type(mat) is Material for mat in mats)
+        self._last_P = (F, mats, energy, P) if stateless and not F.flags.writeable else None
+        return energy, self._forces(P) if gradient else None, self._stiffness(A) if hessian else None
+
+    def _constitutive(self, F, hessian):
+        """(energy, P (m, 3, 3), A or None) of every sample at F."""
         vol = self._volume
         m = len(vol)
         if len(self._groups) == 1:  # one material: its arrays as they come, no gather or scatter
@@ -411,7 +431,7 @@ class FrameModel(OnePass):
                 energy += vdot(vol[ids], Wg)
                 if hessian:
                     A[ids] = project_psd(Ag) if self._project and not self.materials[label].constant_tangent else Ag
-        return energy, self._forces(P) if gradient else None, self._stiffness(A) if hessian else None
+        return energy, P, A
 
     def _forces(self, P) -> np.ndarray:
         grad = np.zeros((self.n_nodes, 12))
@@ -598,12 +618,14 @@ class FrameModel(OnePass):
         n = self.n_nodes
         X = v.rest
         ok = v.index >= 0
-        blocks = np.zeros((n, 4, 4))  # per frame: sum m w [r; 1][r; 1]^T with r = X - X_a
-        idx = np.where(ok, v.index, 0)
-        r = np.concatenate([X[:, None, :] - self.frames[idx], np.ones(idx.shape + (1,))], axis=2)  # (m, P, 4)
-        mw = np.where(ok, v.w, 0.0) * mp[:, None]
-        contrib = mw[..., None, None] * r[..., :, None] * r[..., None, :]
-        np.add.at(blocks, idx[ok], contrib[ok])
+        blocks = np.empty((n, 4, 4))  # per frame: sum m w [r; 1][r; 1]^T with r = X - X_a
+        idx = v.index[ok]
+        r = np.ones((len(idx), 4))
+        r[:, :3] = np.broadcast_to(X[:, None, :], ok.shape + (3,))[ok] - self.frames[idx]  # (entries, 4)
+        mr = (v.w * mp[:, None])[ok][:, None] * r
+        for i in range(4):
+            for j in range(i, 4):
+                blocks[:, i, j] = blocks[:, j, i] = np.bincount(idx, mr[:, i] * r[:, j], minlength=n)
         # DOF layout: A row i (3 entries) then t_i; x_i = sum_j A_ij r_j + t_i couples A_i. with t_i
         full = np.zeros((n, 12, 12))
         for i in range(3):
