@@ -265,6 +265,33 @@ def test_structured_kernels_equal_their_numpy_twins_and_the_generic_chain():
     assert np.array_equal(Kd, Kd.T)  # both triangles written from the same pair block
 
 
+@pytest.mark.parametrize("quadrature", ["midpoint", "gauss-legendre", "elaston"])
+def test_point_samples_take_f_and_forces_from_weights_and_gradients(quadrature):
+    """Point samples carry (w, dw, X) per parent instead of G's 12 numbers: F and the forces from them equal
+    the G kernels' and the generic chain's to 1e-12 relative (a wrong sign or index gives O(1) errors);
+    stabilised regions (averages over their Gauss points) keep G."""
+    from voxflex.deform.chain.mappings import DeformationGradientMapping
+    from voxflex.deform.models.frames import _kernels as K
+
+    model = _model(material("neo-hookean", young=1e3, poisson=0.3), quadrature=quadrature, count=12)
+    assert model._points is not None
+    q = _perturbed(model, 0.05)
+    F = model.deformation_gradients(q)
+    Fg = np.empty_like(F)
+    K.frame_F(model._index, model._G, q, Fg)
+    np.testing.assert_allclose(F, Fg, rtol=0, atol=1e-12)
+    chain = DeformationGradientMapping(model.nodes, model.samples.values).apply(q)
+    np.testing.assert_allclose(F, chain, rtol=0, atol=1e-12)
+    P = np.random.default_rng(5).standard_normal(F.shape)
+    g = model._forces(P)
+    gg = np.zeros_like(g)
+    K.frame_forces(model._index, model._G, P, model._volume, gg)
+    np.testing.assert_allclose(g, gg, rtol=0, atol=1e-12 * np.abs(gg).max())
+    regions = _model(material("neo-hookean", young=1e3, poisson=0.3), quadrature="midpoint", hourglass="stiffness",
+                     count=12)
+    assert regions._points is None
+
+
 def test_pair_tables_sort_parents_and_list_each_coupled_pair_once():
     """frame_pairs against a brute-force set of the frame pairs sharing a sample; parents given in
     any order (and padded) give the same stiffness as sorted ones (to round-off)."""

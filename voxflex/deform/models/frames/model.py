@@ -185,6 +185,17 @@ class FrameModel(OnePass):
         # the structured kernels: F = (I3 (x) G) d, forces and stiffness per sample (_kernels); parents
         # sorted by frame and the coupled frame pairs, once
         self._index, self._G, self._pairs, self._pair_id = K.frame_pairs(index, G, len(self.frames))
+        # point samples: F and the forces from the weights and their gradients (4 numbers per parent, not
+        # G's 12: the hot loops of every Newton iteration stream a third of the memory); regions' tables
+        # are averages over their Gauss points and keep G
+        self._points = None
+        if self.tables is None and (self._index is index or np.array_equal(self._index, index)):
+            ok = index >= 0
+            self._points = (np.ascontiguousarray(np.where(ok, wtab, 0.0)),
+                            np.ascontiguousarray(np.where(ok[..., None], np.take_along_axis(
+                                values.dw, by_frame[..., None], axis=1), 0.0)),
+                            np.ascontiguousarray(values.rest, dtype=np.float64),
+                            np.ascontiguousarray(self.frames, dtype=np.float64))
         order = np.argsort(np.where(np.asarray(index) >= 0, index, np.iinfo(np.int64).max), axis=1, kind="stable")
         self._w = np.take_along_axis(np.where(np.asarray(index) >= 0, wtab, 0.0), order, axis=1)
         self.volumetric_option = volumetric
@@ -324,7 +335,10 @@ class FrameModel(OnePass):
         if last is not None and last[0].shape == q.shape and np.array_equal(last[0], q):
             return last[1]
         F = np.empty((self.n_samples, 3, 3))
-        K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
+        if self._points is not None:
+            K.frame_F_points(self._index, *self._points, np.ascontiguousarray(q, dtype=np.float64), F)
+        else:
+            K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
         F.setflags(write=False)
         self._last_F = (np.array(q, copy=True), F)
         return F
@@ -435,7 +449,11 @@ class FrameModel(OnePass):
 
     def _forces(self, P) -> np.ndarray:
         grad = np.zeros((self.n_nodes, 12))
-        K.frame_forces(self._index, self._G, np.ascontiguousarray(P), self._volume, grad)
+        if self._points is not None:
+            K.frame_forces_points(self._index, *self._points, np.ascontiguousarray(P, dtype=np.float64), self._volume,
+                                  grad)
+        else:
+            K.frame_forces(self._index, self._G, np.ascontiguousarray(P), self._volume, grad)
         return grad
 
     def _stiffness(self, A) -> np.ndarray:
