@@ -427,3 +427,48 @@ def test_a_state_evaluated_for_its_energy_gives_its_gradient_from_the_kept_stres
                                           yield_strain=0.01)}
     model.energy(q)
     assert model._last_P is None
+
+
+def test_parallel_frame_kernels_give_the_same_bits_for_any_thread_count(monkeypatch):
+    """The stiffness and the point kernels cut the samples into fixed chunks summed in chunk order: 1 or 2
+    threads give the same bits, and the chunked sums equal the serial ones to round-off (1e-12)."""
+    import numba
+
+    from voxflex.deform.models.frames import _kernels as K
+
+    monkeypatch.setattr(K, "POINT_CHUNK_ENTRIES", 1)  # chunk even this small model (the default would not)
+    model = _model(material("neo-hookean", young=1e3, poisson=0.3), quadrature="gauss-legendre")
+    q = _perturbed(model, 0.05)
+    m = model.n_samples
+    assert K.point_chunks(*model._index.shape) > 1
+    rng = np.random.default_rng(6)
+    A = rng.standard_normal((m, 9, 9))
+    A = (A + A.transpose(0, 2, 1)).reshape(-1, 3, 3, 3, 3)
+    P = rng.standard_normal((m, 3, 3))
+    tables = (model._index, model._G, model._pairs, model._pair_id)
+    monkeypatch.setattr(K, "STIFFNESS_CHUNKS", 3)
+    monkeypatch.setattr(K, "STIFFNESS_CHUNK_SAMPLES", 1)
+    threads = numba.get_num_threads()
+    out = []
+    try:
+        for t in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(t)
+            model._last_F = None
+            out.append((model.deformation_gradients(q), model._forces(P),
+                        K.frame_stiffness_dense(model._index, model._G, A, model.n_nodes, model._volume, tables)))
+    finally:
+        numba.set_num_threads(threads)
+    for a, b in zip(out[0], out[-1]):
+        assert np.array_equal(a, b)
+    F, g, H = out[0]
+    Fs = np.empty_like(F)
+    K.frame_F(model._index, model._G, q, Fs)
+    gs = np.zeros_like(g)
+    K.frame_forces(model._index, model._G, P, model._volume, gs)
+    Bs = np.zeros((len(model._pairs), 4, K.PAD))
+    K._stiffness_range(model._index, model._G, A, model._volume, model._pair_id, Bs, 0, m)
+    Hs = np.zeros_like(H)
+    K.frame_pairs_to_dense(model._pairs, Bs, Hs)
+    np.testing.assert_allclose(F, Fs, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(g, gs, rtol=0, atol=1e-12 * np.abs(gs).max())
+    np.testing.assert_allclose(H, Hs, rtol=0, atol=1e-12 * np.abs(Hs).max())
