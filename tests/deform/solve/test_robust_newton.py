@@ -338,3 +338,21 @@ linear_solver = "direct"
     model = _two_part_beam(1e6)
     with pytest.warns(RoundoffWarning, match="round-off floor"):
         vf.simulate(scene2, progress=False, model=model)
+
+
+def test_the_chunked_projection_equals_the_serial_one(monkeypatch):
+    """Large batches are projected in chunks on numba's threads: the same bits as one serial pass, the same
+    count of changed samples."""
+    from voxflex.deform.materials import constitutive as C
+
+    rng = np.random.default_rng(8)
+    B = rng.standard_normal((301, 9, 9))
+    A = B + B.transpose(0, 2, 1)
+    A[::3] = np.einsum("nij,nkj->nik", B[::3], B[::3]) + 1e-3 * np.eye(9)
+    serial = np.ascontiguousarray(A.copy())
+    n_serial = C._project_psd_range(serial, 0, len(A))
+    monkeypatch.setattr(C, "PSD_CHUNK_SAMPLES", 16)
+    chunked = np.ascontiguousarray(A.copy())
+    assert min(64, len(A) // C.PSD_CHUNK_SAMPLES) >= 2
+    assert C._project_psd_kernel(chunked) == n_serial == 200
+    assert np.array_equal(chunked, serial)

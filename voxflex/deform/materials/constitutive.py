@@ -27,7 +27,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..._jit import njit
+from ..._jit import njit, prange
 from ...errors import InputError, check_choice
 from . import laws as _laws
 from .catalogue import _ORTHO, MODEL_CONSTANTS, POISSON_RANGE, check_constants
@@ -111,17 +111,41 @@ def _chain_numpy(jac, s, K, geo, with_tangent):
 # ----------------------------------------------------------------------------------------------
 # projection of per-sample tangents to positive semi-definite, and its numpy twin
 # ----------------------------------------------------------------------------------------------
-@njit
-def _project_psd_kernel(A):  # pragma: no cover - compiled
+PSD_CHUNK_SAMPLES = 4096
+"""Samples per parallel chunk of :func:`_project_psd_kernel` at least (each sample is independent: the
+same bits for any thread count).  A voxel bunny's 754k Gauss points: 0.9 s a call on one thread."""
+
+
+def _project_psd_kernel(A) -> int:
     """Clamp the negative eigenvalues of each symmetric A[q] (n, 9, 9) to 0, in place; returns how many changed.
 
     A Cholesky attempt first (81 multiply-adds, no LAPACK call): a tangent it factors is
     positive definite and stays exactly as it is; the others get ``V max(lambda, 0) V^T``.
+    Large batches run in chunks on numba's threads (:data:`PSD_CHUNK_SAMPLES`).
     """
     n = A.shape[0]
+    chunks = min(64, n // PSD_CHUNK_SAMPLES)
+    if chunks < 2:
+        return int(_project_psd_range(A, 0, n))
+    return int(_project_psd_chunks(A, chunks))
+
+
+@njit(parallel=True)
+def _project_psd_chunks(A, chunks):  # pragma: no cover - compiled
+    n = A.shape[0]
+    step = (n + chunks - 1) // chunks
+    counts = np.zeros(chunks, dtype=np.int64)
+    for c in prange(chunks):
+        counts[c] = _project_psd_range(A, c * step, min(n, (c + 1) * step))
+    return counts.sum()
+
+
+@njit
+def _project_psd_range(A, s0, s1):  # pragma: no cover - compiled
+    """:func:`_project_psd_kernel` on samples s0 <= q < s1."""
     L = np.empty((9, 9))
     changed = 0
-    for q in range(n):
+    for q in range(s0, s1):
         pd = True
         for i in range(9):
             for j in range(i + 1):
