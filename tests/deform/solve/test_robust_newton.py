@@ -356,3 +356,36 @@ def test_the_chunked_projection_equals_the_serial_one(monkeypatch):
     assert min(64, len(A) // C.PSD_CHUNK_SAMPLES) >= 2
     assert C._project_psd_kernel(chunked) == n_serial == 200
     assert np.array_equal(chunked, serial)
+
+
+def test_the_large_stability_check_stops_when_its_ritz_pair_has_converged(monkeypatch):
+    """Above the inertia limit the check bounds the smallest eigenvalue by LOBPCG in stages: on a clamped
+    Hooke beam's free stiffness it returns the smallest eigenvalue to 1 % (eigsh's, shift-invert) before
+    its iteration limit; shifted below zero it returns a value under the instability threshold."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    import voxflex.deform.solve.stepping as S
+    from voxflex.deform.solve.boundary import fixed_dofs
+
+    model = VoxelModel.from_image(LabelImage(np.ones((24, 6, 6), dtype=np.uint8), spacing=(4.0 / 24,) * 3),
+                                  {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
+    dofs, _ = fixed_dofs(model, [FixedRegion([-1, -1, -1], [1e-9, 9, 9])])
+    free = np.setdiff1d(np.arange(3 * model.n_nodes), dofs)
+    K = model.constant_stiffness_block(free).tocsr()
+    exact = float(spla.eigsh(K.tocsc(), k=1, sigma=0.0, which="LM")[0][0])
+    stages = []
+    inner = spla.lobpcg
+
+    def counted(*args, **kw):
+        stages.append(kw["maxiter"])
+        return inner(*args, **kw)
+
+    monkeypatch.setattr(spla, "lobpcg", counted)
+    theta = S._smallest_rayleigh(K, model.dof_grid, free)
+    assert exact > 0 and theta == pytest.approx(exact, rel=1e-2)
+    assert sum(stages) < S.EIGEN_MAXITER, stages
+    stages.clear()
+    shifted = (K - 2.0 * exact * sp.identity(len(free))).tocsr()
+    theta = S._smallest_rayleigh(shifted, model.dof_grid, free)
+    assert theta < -1e-8 * np.abs(shifted.diagonal()).max()

@@ -46,7 +46,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from ..._linalg import vdot
+from ..._linalg import vdot, vnorm
 from ...errors import ConvergenceError, InputError
 from ..models.protocol import END_STEP_PASSES, ConstantStiffness, end_step
 from .boundary import (
@@ -156,13 +156,27 @@ unknowns).  No larger tangent is factorised (see
 EIGEN_MAXITER = 60
 
 
-"""LOBPCG iterations of the stability check above :data:`INERTIA_MAX` unknowns."""
+"""LOBPCG iterations of the stability check above :data:`INERTIA_MAX` unknowns, at most."""
+
+EIGEN_STAGE = 10
+"""The check's LOBPCG runs in stages of this many iterations, each from the last one's vectors, and stops
+once its smallest Ritz pair has converged (:data:`EIGEN_CONVERGED`) or its value lies below the
+threshold (a proof of a saddle)."""
+
+EIGEN_CONVERGED = 1e-2
+"""The check's smallest Ritz pair (theta, x) counts as converged when ``|H x - theta x| <= EIGEN_CONVERGED
+|theta|`` (|x| = 1): an eigenvalue lies within 1 % of theta, so its sign is known.  Measured on the voxel
+bunny at 2 mm (306k unknowns, after the third load step): theta = 7.1740e-4 after 15, 20, 30 and 60
+iterations, residual / theta 1.06 / 0.059 / 0.0097 / 9e-5 / 2.7e-6 after 10 / 15 / 20 / 30 / 60;
+60 iterations took 10.2 s, 20 took 5.1 s."""
 
 
 def _smallest_rayleigh(Hff, grid, free):
     """An upper bound of the smallest eigenvalue of the large sparse symmetric ``Hff``: the smallest
-    Ritz value of :data:`EIGEN_MAXITER` LOBPCG iterations (2 vectors, seeded), preconditioned by the
-    voxel multigrid V-cycle of Hff when there is a grid and Hff's diagonal is positive.
+    Ritz value of at most :data:`EIGEN_MAXITER` LOBPCG iterations (2 vectors, seeded; in stages of
+    :data:`EIGEN_STAGE` that stop at convergence, :data:`EIGEN_CONVERGED`, or below the instability
+    threshold), preconditioned by the voxel multigrid V-cycle of Hff when there is a grid and Hff's
+    diagonal is positive.
 
     A Ritz value is never below the smallest eigenvalue, so a negative one proves the tangent
     indefinite whether or not LOBPCG converged; a non-negative one proves nothing.  Cost: the
@@ -182,12 +196,22 @@ def _smallest_rayleigh(Hff, grid, free):
         M = spla.LinearOperator((n, n), matvec=apply, dtype=float)
         release = hierarchy(grid, free).release
     X = np.random.default_rng(20240601).standard_normal((n, 2))
+    threshold = -1e-8 * float(np.abs(Hff.diagonal()).max())
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # LOBPCG warns when it stops at maxiter: the Ritz value still bounds
             op = Hff if sp.issparse(Hff) else spla.LinearOperator((n, n), matvec=Hff.matvec, dtype=float)
-            lam = spla.lobpcg(op, X, M=M, largest=False, maxiter=EIGEN_MAXITER, tol=1e-8)[0]
-        return float(np.min(lam))
+            done, theta = 0, np.inf
+            while done < EIGEN_MAXITER:
+                its = min(EIGEN_STAGE, EIGEN_MAXITER - done)
+                lam, X = spla.lobpcg(op, X, M=M, largest=False, maxiter=its, tol=1e-8)[:2]
+                done += its
+                k = int(np.argmin(lam))
+                theta = min(theta, float(lam[k]))  # every Ritz value bounds the smallest eigenvalue from above
+                x = X[:, k] / np.linalg.norm(X[:, k])
+                if theta < threshold or vnorm(op @ x - lam[k] * x) <= EIGEN_CONVERGED * abs(float(lam[k])):
+                    break
+        return theta
     except (np.linalg.LinAlgError, ValueError):
         return None
     finally:
