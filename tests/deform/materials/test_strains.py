@@ -302,3 +302,18 @@ def test_stretch_geometric_with_law_tangent(sig):
         assert np.abs(np.einsum("ijkl,kl->ij", A0, v) - fd).max() > 1e-2 * np.abs(fd).max()
     with pytest.raises(InputError, match="law_tangent"):
         st.geometric(F, s, law_tangent=np.eye(2))
+
+
+@pytest.mark.parametrize("name", sorted(vs.STRAINS))
+def test_large_batches_run_in_chunks_with_the_serial_bits(name, monkeypatch):
+    """Batches of at least two chunks run on numba's threads (``chunked_strain``): values, Jacobians and
+    geometric terms equal one serial pass bit for bit (every sample is independent)."""
+    st = vs.STRAINS[name]
+    rng = np.random.default_rng(11)
+    F = np.eye(3) + 0.2 * rng.standard_normal((257, 3, 3))
+    s = rng.standard_normal((257, st.size))
+    serial = st.evaluate(F, s)
+    monkeypatch.setattr(vs, "CHUNK_SAMPLES", 16)
+    chunked = st.evaluate(F, s)
+    for a, b in zip(serial, chunked):
+        assert np.array_equal(a, b)

@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from voxflex._jit import njit
+from voxflex._jit import njit, prange
 
 from ._svd3 import _svd3
 
@@ -591,6 +591,33 @@ def _stretch_kernel(F, s, gap, want_j, want_g, E, J, G, K):
                             for k in range(3):
                                 for l in range(3):
                                     G[e, i, j, k, l] += x * (dg * u[k, p] * vh[q, l] + od * u[k, q] * vh[p, l])
+
+
+# ----------------------------------------------------------------------------- large batches
+TENSOR, COROT, INVARIANT, STRETCH = 0, 1, 2, 3
+
+
+@njit(parallel=True)
+def chunked_strain(family, F, s, switch, gap, want_j, want_g, E, J, G, K, chunks):  # pragma: no cover
+    """The kernel of ``family`` (``TENSOR`` ... ``STRETCH``) over ``chunks`` slices of the samples on numba's
+    threads: every sample is independent, so the bits equal one serial pass.  ``switch`` is the int switch
+    of the first three, ``gap`` the stretch kernel's; arrays a flag leaves out stay empty."""
+    n = F.shape[0]
+    step = (n + chunks - 1) // chunks
+    for c in prange(chunks):
+        a = c * step
+        b = min(n, a + step)
+        sc = s[a:b] if want_g else s[0:0]
+        Jc = J[a:b] if want_j else J[0:0]
+        Gc = G[a:b] if want_g else G[0:0]
+        if family == TENSOR:
+            _tensor_kernel(F[a:b], sc, switch, want_j, want_g, E[a:b], Jc, Gc)
+        elif family == COROT:
+            _corot_kernel(F[a:b], sc, switch, want_j, want_g, E[a:b], Jc, Gc)
+        elif family == INVARIANT:
+            _invariant_kernel(F[a:b], sc, switch, want_j, want_g, E[a:b], Jc, Gc)
+        else:
+            _stretch_kernel(F[a:b], sc, gap, want_j, want_g, E[a:b], Jc, Gc, K[a:b] if K.shape[0] > 0 else K[0:0])
 
 
 # ============================================================================= numpy twins
