@@ -317,9 +317,10 @@ def test_pair_tables_sort_parents_and_list_each_coupled_pair_once():
     assert np.allclose(K.frame_stiffness_dense(index, G, A, n), ref, rtol=0, atol=1e-12 * np.abs(ref).max())
 
 
-def test_sorted_tables_equal_the_tables_sorted_afterwards():
-    """sorted_tables (made in frame order at once) against frame_tables then frame_pairs' permutation, and the
-    compiled tables against their defining formula G = w I + r (x) dw, G[3] = dw, zero where padded."""
+def test_sorted_point_tables_equal_the_tables_sorted_afterwards():
+    """The point arrays in frame order (sorted_parents, point_arrays) and the tables made from them against
+    frame_tables then frame_pairs' permutation, and the compiled tables against their defining formula
+    G = w I + r (x) dw, G[3] = dw, zero where padded."""
     from voxflex.deform.models.frames import _kernels as K
     from voxflex.voronoi.shape_functions import ShapeValues
 
@@ -338,7 +339,8 @@ def test_sorted_tables_equal_the_tables_sorted_afterwards():
     ref[..., 3, :] = values.dw
     ref *= ok[..., None, None]
     assert np.allclose(G, ref, rtol=0, atol=1e-14)
-    idx_s, G_s, order = K.sorted_tables(values, frames)
+    idx_s, order = K.sorted_parents(values)
+    G_s = K.tables_from_points(idx_s, K.point_arrays(values, frames, order))
     idx_p, G_p, _, _ = K.frame_pairs(index, G, n)
     assert np.array_equal(idx_s, idx_p) and np.array_equal(G_s, G_p)
     assert np.array_equal(np.take_along_axis(index, order, axis=1), idx_s)
@@ -445,7 +447,6 @@ def test_parallel_frame_kernels_give_the_same_bits_for_any_thread_count(monkeypa
     A = rng.standard_normal((m, 9, 9))
     A = (A + A.transpose(0, 2, 1)).reshape(-1, 3, 3, 3, 3)
     P = rng.standard_normal((m, 3, 3))
-    tables = (model._index, model._G, model._pairs, model._pair_id)
     monkeypatch.setattr(K, "STIFFNESS_CHUNKS", 3)
     monkeypatch.setattr(K, "STIFFNESS_CHUNK_SAMPLES", 1)
     threads = numba.get_num_threads()
@@ -455,7 +456,8 @@ def test_parallel_frame_kernels_give_the_same_bits_for_any_thread_count(monkeypa
             numba.set_num_threads(t)
             model._last_F = None
             out.append((model.deformation_gradients(q), model._forces(P),
-                        K.frame_stiffness_dense(model._index, model._G, A, model.n_nodes, model._volume, tables)))
+                        K.frame_stiffness_dense(model._index, None, A, model.n_nodes, model._volume,
+                                                (model._index, None, model._pairs, model._pair_id), model._points)))
     finally:
         numba.set_num_threads(threads)
     for a, b in zip(out[0], out[-1]):
@@ -466,7 +468,8 @@ def test_parallel_frame_kernels_give_the_same_bits_for_any_thread_count(monkeypa
     gs = np.zeros_like(g)
     K.frame_forces(model._index, model._G, P, model._volume, gs)
     Bs = np.zeros((len(model._pairs), 4, K.PAD))
-    K._stiffness_range(model._index, model._G, A, model._volume, model._pair_id, Bs, 0, m)
+    K._stiffness_range(model._index, model._G, *(np.zeros((0,) + d) for d in ((model._index.shape[1],), (model._index.shape[1], 3), (3,), (3,))),
+                       A, model._volume, model._pair_id, Bs, 0, m)
     Hs = np.zeros_like(H)
     K.frame_pairs_to_dense(model._pairs, Bs, Hs)
     np.testing.assert_allclose(F, Fs, rtol=0, atol=1e-12)

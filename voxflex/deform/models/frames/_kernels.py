@@ -59,17 +59,6 @@ def frame_tables(values, frames, order=None) -> np.ndarray:
     return G
 
 
-def sorted_tables(values, frames):
-    """(index, G, order): the samples' parents in increasing frame order (padding last), their tables made
-    in that order at once (what :func:`frame_pairs` wants; no permuted copy of G) and the order (m, P)
-    (parent p is the values' parent ``order[s, p]``)."""
-    index = np.asarray(values.index)
-    key = np.where(index >= 0, index, np.iinfo(np.int64).max)
-    order = np.ascontiguousarray(np.argsort(key, axis=1, kind="stable"), dtype=np.int64)
-    return (np.ascontiguousarray(np.take_along_axis(index, order, axis=1), dtype=np.int64),
-            frame_tables(values, frames, order), order)
-
-
 @njit
 def _fill_tables(index, order, w, dw, rest, frames, G):  # pragma: no cover - compiled
     """G[s, p, c, j] = w delta_cj + r_c dw_j (c < 3, r = X_s - X_a), G[s, p, 3, j] = dw_j of the values'
@@ -265,12 +254,65 @@ def frame_pairs(index, G, n):
         Gs = np.empty_like(G, dtype=np.float64)
         _permute_tables(np.ascontiguousarray(G, dtype=np.float64), order, Gs)
         G = Gs
+    return (index, G) + pair_list(index, n)
+
+
+def sorted_parents(values):
+    """(index, order): the samples' parents in increasing frame order (padding last) and the order (m, P)
+    (parent p is the values' parent ``order[s, p]``), without tables."""
+    index = np.asarray(values.index)
+    key = np.where(index >= 0, index, np.iinfo(np.int64).max)
+    order = np.ascontiguousarray(np.argsort(key, axis=1, kind="stable"), dtype=np.int64)
+    return np.ascontiguousarray(np.take_along_axis(index, order, axis=1), dtype=np.int64), order
+
+
+def point_arrays(values, frames, order):
+    """(w, dw, rest, frames) of point samples in the parents' ``order`` (0 where padded): what the point
+    kernels read instead of the tables (4 numbers per parent instead of 12)."""
+    index = np.ascontiguousarray(values.index, dtype=np.int64)
+    w = np.empty(index.shape)
+    dw = np.empty(index.shape + (3,))
+    _gather_points(index, np.ascontiguousarray(order, dtype=np.int64), np.ascontiguousarray(values.w, dtype=np.float64),
+                   np.ascontiguousarray(values.dw, dtype=np.float64), w, dw)
+    return w, dw, np.ascontiguousarray(values.rest, dtype=np.float64), np.ascontiguousarray(frames, dtype=np.float64)
+
+
+@njit
+def _gather_points(index, order, w_in, dw_in, w, dw):  # pragma: no cover - compiled
+    """w[s, p], dw[s, p] = the values' parent ``order[s, p]`` (0 where padded): one pass, no temporaries
+    (numpy's take_along_axis and where took 1.0 s for the bunny's 93k points with 35 parents)."""
+    m, P = index.shape
+    for s in range(m):
+        for p in range(P):
+            o = order[s, p]
+            if index[s, o] < 0:
+                w[s, p] = 0.0
+                for j in range(3):
+                    dw[s, p, j] = 0.0
+            else:
+                w[s, p] = w_in[s, o]
+                for j in range(3):
+                    dw[s, p, j] = dw_in[s, o, j]
+
+
+def tables_from_points(index, points):
+    """The tables G (m, P, 4, 3) of point samples from their (w, dw, rest, frames), parents as given."""
+    w, dw, rest, frames = points
+    G = np.empty(index.shape + (4, 3))
+    order = np.ascontiguousarray(np.broadcast_to(np.arange(index.shape[1], dtype=np.int64), index.shape))
+    _fill_tables(np.ascontiguousarray(index, dtype=np.int64), order, w, dw, rest, frames, G)
+    return G
+
+
+def pair_list(index, n):
+    """(pairs (npairs, 2) int64, the frame pairs a <= b that share a sample, sorted; pair_id (n, n), the row
+    of ``pairs`` of (a, b) for a <= b, -1 elsewhere) of parents sorted by frame, padding last."""
     coupled = np.zeros((n, n), dtype=np.bool_)
-    _couple(index, coupled)
+    _couple(np.ascontiguousarray(index, dtype=np.int64), coupled)
     pairs = np.argwhere(coupled).astype(np.int64)  # row-major: sorted by a, then b
     pair_id = np.full((n, n), -1, dtype=np.int64)
     pair_id[pairs[:, 0], pairs[:, 1]] = np.arange(len(pairs))
-    return index, G, pairs, pair_id
+    return pairs, pair_id
 
 
 def _rows_sorted(key) -> bool:
@@ -317,7 +359,7 @@ STIFFNESS_CHUNK_SAMPLES = 512
 """Samples per chunk of :func:`frame_stiffness_pairs` at least (a smaller model runs in one)."""
 
 
-def frame_stiffness_pairs(index, G, A, weight, pair_id, B):
+def frame_stiffness_pairs(index, G, A, weight, pair_id, B, points=None):
     """B (npairs, 4, PAD) += the blocks of sum_s weight_s J_s^T A_s J_s of each coupled frame pair.
 
     ``index`` and ``G`` as :func:`frame_pairs` returns them (parents in increasing frame order, so
@@ -328,34 +370,60 @@ def frame_stiffness_pairs(index, G, A, weight, pair_id, B):
     contiguous loop the compiler vectorises).  Fused multiply-adds (``contract``) change results
     only at round-off (tested against the numpy twin to 1e-12).  The samples are cut into
     :data:`STIFFNESS_CHUNKS` chunks run in parallel, each into blocks of its own, summed in order.
+    ``points`` = (w, dw, rest, frames) of point samples (as :func:`frame_F_points` reads them): each
+    sample's tables are made on the fly from them (G may then be None: no (m, P, 4, 3) array at all).
     """
-    m = index.shape[0]
+    m, P = index.shape
+    if points is None:
+        points = (np.zeros((0, P)), np.zeros((0, P, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
+    else:
+        G = np.zeros((0, P, 4, 3))
     chunks = int(min(STIFFNESS_CHUNKS, max(1, m // STIFFNESS_CHUNK_SAMPLES),
                      max(1, STIFFNESS_CHUNK_BYTES // max(B.nbytes, 1))))
     if chunks == 1:
-        _stiffness_range(index, G, A, weight, pair_id, B, 0, m)
+        _stiffness_range(index, G, *points, A, weight, pair_id, B, 0, m)
     else:
-        _stiffness_chunks(index, G, A, weight, pair_id, B, chunks)
+        _stiffness_chunks(index, G, *points, A, weight, pair_id, B, chunks)
 
 
 @njit(parallel=True)
-def _stiffness_chunks(index, G, A, weight, pair_id, B, chunks):  # pragma: no cover - compiled
+def _stiffness_chunks(index, G, pw, pdw, prest, pframes, A, weight, pair_id, B, chunks):  # pragma: no cover
     m = index.shape[0]
     step = (m + chunks - 1) // chunks
     part = np.zeros((chunks,) + B.shape)
     for c in prange(chunks):
-        _stiffness_range(index, G, A, weight, pair_id, part[c], c * step, min(m, (c + 1) * step))
+        _stiffness_range(index, G, pw, pdw, prest, pframes, A, weight, pair_id, part[c], c * step,
+                         min(m, (c + 1) * step))
     for c in range(chunks):
         B += part[c]
 
 
 @njit(fastmath={"contract"})
-def _stiffness_range(index, G, A, weight, pair_id, B, s0, s1):  # pragma: no cover - compiled
-    """The blocks of samples s0 <= s < s1 (see :func:`frame_stiffness_pairs`)."""
+def _stiffness_range(index, G, pw, pdw, prest, pframes, A, weight, pair_id, B, s0, s1):  # pragma: no cover
+    """The blocks of samples s0 <= s < s1 (see :func:`frame_stiffness_pairs`), from the tables G, or when G
+    is empty from the point samples' (w, dw, rest) and the frames (each sample's tables made in a buffer,
+    as :func:`_fill_tables` makes them)."""
     P = index.shape[1]
+    points = G.shape[0] == 0
     AV = np.empty((3, 3, 9))  # l, j, (i, k)
     Y = np.zeros((P, 3, PAD))  # p, l, (c, i, k); entries 36 ... PAD - 1 stay zero (a constant trip count)
+    Gp = np.zeros((P, 4, 3))
     for s in range(s0, s1):
+        if points:
+            for p in range(P):
+                a = index[s, p]
+                if a < 0:
+                    continue
+                wp = pw[s, p]
+                for c in range(3):
+                    r = prest[s, c] - pframes[a, c]
+                    for j in range(3):
+                        Gp[p, c, j] = r * pdw[s, p, j] + (wp if c == j else 0.0)
+                for j in range(3):
+                    Gp[p, 3, j] = pdw[s, p, j]
+            Gs = Gp
+        else:
+            Gs = G[s]
         w = weight[s]
         for i in range(3):
             for j in range(3):
@@ -367,9 +435,9 @@ def _stiffness_range(index, G, A, weight, pair_id, B, s0, s1):  # pragma: no cov
                 continue
             for l in range(3):
                 for c in range(4):
-                    g0 = G[s, p, c, 0]
-                    g1 = G[s, p, c, 1]
-                    g2 = G[s, p, c, 2]
+                    g0 = Gs[p, c, 0]
+                    g1 = Gs[p, c, 1]
+                    g2 = Gs[p, c, 2]
                     for x in range(9):
                         Y[p, l, 9 * c + x] = g0 * AV[l, 0, x] + g1 * AV[l, 1, x] + g2 * AV[l, 2, x]
         for p in range(P):
@@ -382,9 +450,9 @@ def _stiffness_range(index, G, A, weight, pair_id, B, s0, s1):  # pragma: no cov
                     continue
                 t = pair_id[a, b]
                 for d in range(4):
-                    h0 = G[s, q, d, 0]
-                    h1 = G[s, q, d, 1]
-                    h2 = G[s, q, d, 2]
+                    h0 = Gs[q, d, 0]
+                    h1 = Gs[q, d, 1]
+                    h2 = Gs[q, d, 2]
                     for x in range(PAD):
                         B[t, d, x] += h0 * Y[p, 0, x] + h1 * Y[p, 1, x] + h2 * Y[p, 2, x]
 
@@ -418,13 +486,14 @@ def frame_pairs_to_dense(pairs, B, H):  # pragma: no cover - compiled
                             H[row, a + (3 * i + c if c < 3 else 9 + i)] = B[t, d, 9 * c + 3 * i + k]
 
 
-def frame_stiffness_dense(index, G, A, n, weight=None, tables=None) -> np.ndarray:
+def frame_stiffness_dense(index, G, A, n, weight=None, tables=None, points=None) -> np.ndarray:
     """The dense stiffness (12n, 12n) ``sum_s weight_s J_s^T A_s J_s``, with A of major symmetry.
 
     ``tables``: the result of :func:`frame_pairs` for these samples (computed when omitted; a
     model computes it once).  Each coupled frame pair's 12x12 block is accumulated once in a
     compact array (pairs with a <= b: about half the blocks of a 50-frame sphere, 0.8 MB, cache
-    resident), then written into both triangles of H.
+    resident), then written into both triangles of H.  ``points``: see :func:`frame_stiffness_pairs`
+    (``index`` then in frame order, padding last, and ``tables`` given).
     """
     if tables is None:
         tables = frame_pairs(index, G, n)
@@ -432,7 +501,7 @@ def frame_stiffness_dense(index, G, A, n, weight=None, tables=None) -> np.ndarra
     if weight is None:
         weight = np.ones(len(index))
     B = np.zeros((len(pairs), 4, PAD))
-    frame_stiffness_pairs(index, G, A, weight, pair_id, B)
+    frame_stiffness_pairs(index, G, A, weight, pair_id, B, points)
     H = np.zeros((12 * n, 12 * n))
     frame_pairs_to_dense(pairs, B, H)
     return H

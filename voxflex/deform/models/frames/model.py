@@ -122,7 +122,6 @@ from ...materials.fbar import VOLUMETRIC, bar_scalar, nearly_incompressible
 from ..protocol import OnePass, Part, SurfacePoints
 from ..voxel.kind import HOURGLASS
 from . import _kernels as K
-from ._kernels import sorted_tables
 from .kind import AFFINE
 
 __all__ = ["FrameModel"]
@@ -180,24 +179,22 @@ class FrameModel(OnePass):
             index, G, wtab = self.tables.index, self.tables.G, self.tables.w
         else:
             values = samples.values
-            index, G, by_frame = sorted_tables(values, self.frames)  # what frame_pairs wants: no permuted copy
-            wtab = np.take_along_axis(values.w, by_frame, axis=1)
+            index, by_frame = K.sorted_parents(values)  # what the pair tables want: parents in frame order
+            G = None
         # the structured kernels: F = (I3 (x) G) d, forces and stiffness per sample (_kernels); parents
-        # sorted by frame and the coupled frame pairs, once
-        self._index, self._G, self._pairs, self._pair_id = K.frame_pairs(index, G, len(self.frames))
-        # point samples: F and the forces from the weights and their gradients (4 numbers per parent, not
-        # G's 12: the hot loops of every Newton iteration stream a third of the memory); regions' tables
-        # are averages over their Gauss points and keep G
+        # sorted by frame and the coupled frame pairs, once.  Point samples keep (w, dw, X) per parent
+        # instead of G's 12 numbers (F, the forces and the stiffness read them: a third of the memory;
+        # G is made only if asked for, :attr:`_G`); regions' tables are averages over their Gauss points
         self._points = None
-        if self.tables is None and (self._index is index or np.array_equal(self._index, index)):
-            ok = index >= 0
-            self._points = (np.ascontiguousarray(np.where(ok, wtab, 0.0)),
-                            np.ascontiguousarray(np.where(ok[..., None], np.take_along_axis(
-                                values.dw, by_frame[..., None], axis=1), 0.0)),
-                            np.ascontiguousarray(values.rest, dtype=np.float64),
-                            np.ascontiguousarray(self.frames, dtype=np.float64))
-        order = np.argsort(np.where(np.asarray(index) >= 0, index, np.iinfo(np.int64).max), axis=1, kind="stable")
-        self._w = np.take_along_axis(np.where(np.asarray(index) >= 0, wtab, 0.0), order, axis=1)
+        if G is None:
+            self._index, self._Gtab = index, None
+            self._pairs, self._pair_id = K.pair_list(index, len(self.frames))
+            self._points = K.point_arrays(values, self.frames, by_frame)
+            self._w = self._points[0]  # the weights in frame order, 0 where padded
+        else:
+            self._index, self._Gtab, self._pairs, self._pair_id = K.frame_pairs(index, G, len(self.frames))
+            order = np.argsort(np.where(np.asarray(index) >= 0, index, np.iinfo(np.int64).max), axis=1, kind="stable")
+            self._w = np.take_along_axis(np.where(np.asarray(index) >= 0, wtab, 0.0), order, axis=1)
         self.volumetric_option = volumetric
         # auto: project for nearly incompressible labels unless the weights are linearly precise (module docstring)
         precise = bool(getattr(shape_function, "linearly_precise", False))
@@ -278,6 +275,13 @@ class FrameModel(OnePass):
         return cls(image, frames, shape_function, samples, {int(k): materials[int(k)] for k in present},
                    info=info, use_occupancy=use_occupancy, volumetric=volumetric, hourglass=hourglass,
                    region_tables=region_tables)
+
+    @property
+    def _G(self) -> np.ndarray:
+        """The tables G (m, P, 4, 3) of the samples (made from the point arrays when first asked for)."""
+        if self._Gtab is None:
+            self._Gtab = K.tables_from_points(self._index, self._points)
+        return self._Gtab
 
     # -- sizes -----------------------------------------------------------------
     @property
@@ -381,8 +385,8 @@ class FrameModel(OnePass):
         A = np.empty((m, 3, 3, 3, 3))
         for label, ids in self._groups:
             A[ids] = mats[label].evaluate(np.broadcast_to(np.eye(3), (len(ids), 3, 3)).copy(), tangent=True)[2]
-        H = K.frame_stiffness_dense(self._index, self._G, A, self.n_nodes, self._volume,
-                                    (self._index, self._G, self._pairs, self._pair_id))
+        H = K.frame_stiffness_dense(self._index, self._Gtab, A, self.n_nodes, self._volume,
+                                    (self._index, self._Gtab, self._pairs, self._pair_id), self._points)
         if self.tables is not None:
             from .stabilise import Fluctuation
 
@@ -459,8 +463,8 @@ class FrameModel(OnePass):
 
     def _stiffness(self, A) -> np.ndarray:
         # a dense Hessian: frames sharing material couple (the solver takes it as is)
-        return K.frame_stiffness_dense(self._index, self._G, np.ascontiguousarray(A), self.n_nodes, self._volume,
-                                       (self._index, self._G, self._pairs, self._pair_id))
+        return K.frame_stiffness_dense(self._index, self._Gtab, np.ascontiguousarray(A), self.n_nodes, self._volume,
+                                       (self._index, self._Gtab, self._pairs, self._pair_id), self._points)
 
     # -- the volumetric term projected onto the frames' weights --------------------
     def _projection(self):

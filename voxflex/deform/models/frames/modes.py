@@ -232,10 +232,10 @@ def _point_stiffness(frames, values, volume, C) -> np.ndarray:
     from . import _kernels as K
 
     n = len(frames)
-    index, G, _ = K.sorted_tables(values, frames)
-    tables = K.frame_pairs(index, G, n)
+    index, order = K.sorted_parents(values)
+    points = K.point_arrays(values, frames, order)  # each sample's tables made on the fly, no (m, P, 4, 3) array
     A = np.ascontiguousarray(np.broadcast_to(C.reshape(3, 3, 3, 3), (len(volume), 3, 3, 3, 3)))
-    return K.frame_stiffness_dense(tables[0], tables[1], A, n, volume, tables)
+    return K.frame_stiffness_dense(index, None, A, n, volume, (index, None) + K.pair_list(index, n), points)
 
 
 SOFT_RATIO = 0.02
