@@ -236,7 +236,8 @@ def model_fields(model, q, names, *, sample=None):
     if s.get("triangle_cell") is not None:
         surface = {k: v[s["triangle_cell"]] for k, v in cells.items()}
     else:
-        at = point_fields(s["surface_F"], s["surface_label"], s["materials"], names)
+        sF = s["surface_F"]
+        at = point_fields(sF() if callable(sF) else sF, s["surface_label"], s["materials"], names)
         surface = {k: v[s["triangle_point"]] for k, v in at.items()}
     return cells, surface
 

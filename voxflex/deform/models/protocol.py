@@ -210,8 +210,9 @@ class Model(Protocol):
         ``F`` (s, 3, 3) at the energy's samples, their ``volume`` (s,) m^3 and ``label`` (s,), the
         ``cell`` (s,) each belongs to (``n_cells`` cells, ``cell_kind`` "voxels" or "samples"),
         ``materials`` {label: Material}; on the surface either ``triangle_cell`` (F,) (the cell
-        behind each triangle of :meth:`boundary_surface`) or ``surface_F`` (k, 3, 3),
-        ``surface_label`` (k,) and ``triangle_point`` (F,) into them."""
+        behind each triangle of :meth:`boundary_surface`) or ``surface_F`` (k, 3, 3) (or a callable
+        returning it, evaluated only when a field is asked for), ``surface_label`` (k,) and
+        ``triangle_point`` (F,) into them.  Arrays may be read-only."""
 
     def parts(self) -> list:
         """The :class:`Part` s a static solve must hold separately (material components)."""

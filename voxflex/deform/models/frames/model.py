@@ -360,9 +360,13 @@ class FrameModel(OnePass):
                                   self.image.labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]].astype(np.int64))
         nf = len(self._surface["quads"][0])
         s = self.samples
-        return {"F": self.deformation_gradients(q), "volume": s.volume, "label": s.label,
+        q = self._check_q(q)
+        fmap = self._surface_fmap[0]
+        # F read-only as the model keeps it (no copy); the surface layer's F only when a field asks for it
+        # (every recorded step checks the samples' det F, few scenes record fields)
+        return {"F": self._gradients_at(q), "volume": s.volume, "label": s.label,
                 "cell": np.arange(len(s.volume)), "n_cells": len(s.volume), "cell_kind": "samples",
-                "materials": self.materials, "surface_F": self._surface_fmap[0].apply(self._check_q(q)),
+                "materials": self.materials, "surface_F": lambda: fmap.apply(q),
                 "surface_label": self._surface_fmap[1], "triangle_point": np.tile(np.arange(nf), 2)}
 
     def set_tangent_projection(self, on: bool) -> bool:
