@@ -192,15 +192,23 @@ def test_inverted_samples_of_any_material_are_warned_about():
         _warn_inversion(_Model(), _Rec())
 
 
-def test_friction_1e12_is_not_accepted_at_relative_residual_1(folder, capfd):
+def test_friction_1e12_is_not_accepted_at_relative_residual_1(folder, capfd, monkeypatch):
     """A sliding ball on a plane with friction 1e12: the round-off floor of the friction stiffness let Newton
-    accept residual 1.0; the run now stops at that step with the reason (earlier steps kept, marked)."""
+    accept residual 1.0.  The scene refuses it (no Coulomb coefficient, a one-line message naming the
+    range); past that check (the bound lifted), the run stops at that step with the reason (earlier steps
+    kept, marked)."""
     import pathlib
+
+    import voxflex.scene as scene_module
 
     text = pathlib.Path(robust.__file__).resolve().parents[2].joinpath("examples", "ball_on_plane.toml").read_text()
     text = text.replace("normal = [0.0, 0.0, 1.0]", "normal = [0.0, 0.0, 1.0]\nfriction = 1e12")
     text = text.replace("vector = [0.0, 0.0, -9.81]", "vector = [3.0, 0.0, -9.81]").replace("steps = 50", "steps = 6")
     (folder / "f.toml").write_text(text)
+    status = main(["simulate", "f.toml", "-o", "r.h5", "--quiet"])
+    assert_refused(status, capfd.readouterr().err, "simulate", ["friction = 1e+12", "no Coulomb coefficient", "[0, 100]"])
+    assert not (folder / "r.h5").exists()
+    monkeypatch.setattr(scene_module, "FRICTION_MAX", float("inf"))
     status = main(["simulate", "f.toml", "-o", "r.h5", "--quiet"])
     line = assert_refused(status, capfd.readouterr().err, "simulate", ["relative residual", "not an equilibrium"])
     assert "marked incomplete" in line

@@ -83,6 +83,11 @@ NODE_KINDS = tuple(node_kinds())
 LOAD_KINDS = ("gravity", *FORCE_KINDS, *(k for kind in node_kinds().values() for k in kind.load_kinds))
 DISTANCES = ("geodesic", "compliance")
 MIN_PARENTS = 4
+FRICTION_MAX = 100.0
+"""The largest Coulomb coefficient a scene takes (dimensionless).  Dry rubber on rough surfaces stays below
+about 2; far beyond, the friction spring below the slip threshold (stiffness ~ mu N / eps) outgrows
+the material by so much that Newton's residual cannot fall below its round-off (friction 1e12 on a
+sliding ball: steps stopped at relative residual 1.0)."""
 """Fewest ``[nodes] parents`` a frame model takes: weights pruned to fewer frames per point jump between
 frames, and the samples do not see the jumps (measured, benchmarks/bench_robustness.py: the 16x4x4 linear
 cantilever with 20 frames sags 0.536 m with 2 parents and 0.439 m with 3, against a converged 0.393 m;
@@ -580,6 +585,10 @@ class ObstacleSpec:
         if self.file is not None:
             _string(t, "file", self.file)
         object.__setattr__(self, "friction", _number(t, "friction", self.friction, nonnegative=True))
+        if self.friction > FRICTION_MAX:
+            raise InputError(f"[obstacle] friction = {self.friction:g} is no Coulomb coefficient: give one in "
+                             f"[0, {FRICTION_MAX:g}] (friction = 10 already holds a body under tangential loads ten "
+                             "times its normal force)")
         if self.motion is not None:
             rows = self.motion
             if isinstance(rows, (str, bytes)) or not hasattr(rows, "__len__") or len(rows) != 3:
