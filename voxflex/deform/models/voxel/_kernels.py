@@ -105,26 +105,44 @@ def element_stiffness_numpy(G, A, vol):
 
 
 @njit
-def _scatter_kernel(Ke, scale, conn, blockmap, indptr_b, data):
-    shared = Ke.shape[0] == 1
+def _scatter_one(Ke, scale, conn, blockmap, indptr_b, data, e):  # pragma: no cover - compiled
+    """Element e's ``scale[e] Ke[e]`` (or the shared ``Ke[0]``) into the CSR data: rows of its own nodes only."""
+    ke = 0 if Ke.shape[0] == 1 else e
+    s = scale[e]
+    for a in range(8):
+        i = conn[e, a]
+        start = indptr_b[i]
+        deg = indptr_b[i + 1] - start
+        for b in range(8):
+            blk = blockmap[e, 8 * a + b]
+            p = blk - start
+            base = 9 * start + 3 * p
+            for c in range(3):
+                off = base + c * 3 * deg
+                for d in range(3):
+                    data[off + d] += s * Ke[ke, 3 * a + c, 3 * b + d]
+
+
+@njit
+def _scatter_kernel(Ke, scale, conn, blockmap, indptr_b, data):  # pragma: no cover - compiled
     for e in range(conn.shape[0]):
-        ke = 0 if shared else e
-        s = scale[e]
-        for a in range(8):
-            i = conn[e, a]
-            start = indptr_b[i]
-            deg = indptr_b[i + 1] - start
-            for b in range(8):
-                blk = blockmap[e, 8 * a + b]
-                p = blk - start
-                base = 9 * start + 3 * p
-                for c in range(3):
-                    off = base + c * 3 * deg
-                    for d in range(3):
-                        data[off + d] += s * Ke[ke, 3 * a + c, 3 * b + d]
+        _scatter_one(Ke, scale, conn, blockmap, indptr_b, data, e)
 
 
-def scatter_blocks(Ke, conn, blockmap, indptr_b, data, scale=None):
+@njit(parallel=True)
+def _scatter_colored(Ke, scale, conn, blockmap, indptr_b, data, order, starts):  # pragma: no cover - compiled
+    """The elements colour by colour (``order[starts[c]:starts[c + 1]]``), each colour's on numba's threads:
+    two voxels of one parity colour share no node, so no two threads write one entry."""
+    for c in range(starts.shape[0] - 1):
+        for t in prange(starts[c], starts[c + 1]):
+            _scatter_one(Ke, scale, conn, blockmap, indptr_b, data, order[t])
+
+
+SCATTER_PARALLEL_MIN = 4096
+"""Elements from which :func:`scatter_blocks` runs colour by colour on numba's threads (given ``ijk``)."""
+
+
+def scatter_blocks(Ke, conn, blockmap, indptr_b, data, scale=None, ijk=None):
     """Add element matrices ``scale[e] * Ke[e]`` into CSR ``data`` in place.
 
     Parameters
@@ -141,18 +159,24 @@ def scatter_blocks(Ke, conn, blockmap, indptr_b, data, scale=None):
     data : (nnz,) float, updated in place
     scale : (k,) float, optional
         Factor of each element (default 1; multiplying by 1.0 is exact).
+    ijk : (k, 3) int, optional
+        The elements' voxel indices: from :data:`SCATTER_PARALLEL_MIN` elements on, the elements are
+        added by parity colour (8 colours, each on numba's threads; an entry's terms are then summed in
+        colour order: the same bits for any thread count).
     """
     conn = np.ascontiguousarray(conn, dtype=np.int64)
     if scale is None:
         scale = np.ones(len(conn))
-    _scatter_kernel(
-        np.ascontiguousarray(Ke, dtype=np.float64),
-        np.ascontiguousarray(scale, dtype=np.float64),
-        conn,
-        np.ascontiguousarray(blockmap),
-        indptr_b,
-        data,
-    )
+    args = (np.ascontiguousarray(Ke, dtype=np.float64), np.ascontiguousarray(scale, dtype=np.float64), conn,
+            np.ascontiguousarray(blockmap), indptr_b, data)
+    if ijk is not None and len(conn) >= SCATTER_PARALLEL_MIN:
+        ijk = np.asarray(ijk)
+        colour = (ijk[:, 0] & 1) * 4 + (ijk[:, 1] & 1) * 2 + (ijk[:, 2] & 1)
+        order = np.argsort(colour, kind="stable").astype(np.int64)
+        starts = np.searchsorted(colour[order], np.arange(9)).astype(np.int64)
+        _scatter_colored(*args, order, starts)
+    else:
+        _scatter_kernel(*args)
 
 
 def scatter_blocks_numpy(Ke, conn, blockmap, indptr_b, data, scale=None):

@@ -442,7 +442,8 @@ class VoxelModel:
                 indptr_b, blockmap = self._pattern[2:]
                 if Ke is None:
                     Ke = kern.element_stiffness(self._G, A, vol)
-                kern.scatter_blocks(Ke, conn[elements], blockmap[elements], indptr_b, data)
+                kern.scatter_blocks(Ke, conn[elements], blockmap[elements], indptr_b, data,
+                                    ijk=self.grid.element_ijk[elements])
         return energy
 
     def _constant_quadratic_energy(self, u, units) -> float:
