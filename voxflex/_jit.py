@@ -45,3 +45,11 @@ def njit(*args, parallel: bool = False, **kwargs):
 
 
 prange = numba.prange
+
+
+@njit
+def chunk_bounds(n, chunks, c):  # pragma: no cover - compiled
+    """(start, stop) of chunk ``c`` of ``chunks`` near-equal slices of ``range(n)``: the cut every parallel
+    kernel uses (fixed by ``n`` and ``chunks`` alone, so results do not depend on the thread count)."""
+    step = (n + chunks - 1) // chunks
+    return min(n, c * step), min(n, (c + 1) * step)

@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from voxflex._jit import njit, prange
+from voxflex._jit import chunk_bounds, njit, prange
 
 from ._svd3 import _svd3
 
@@ -602,11 +602,8 @@ def chunked_strain(family, F, s, switch, gap, want_j, want_g, E, J, G, K, chunks
     """The kernel of ``family`` (``TENSOR`` ... ``STRETCH``) over ``chunks`` slices of the samples on numba's
     threads: every sample is independent, so the bits equal one serial pass.  ``switch`` is the int switch
     of the first three, ``gap`` the stretch kernel's; arrays a flag leaves out stay empty."""
-    n = F.shape[0]
-    step = (n + chunks - 1) // chunks
     for c in prange(chunks):
-        a = c * step
-        b = min(n, a + step)
+        a, b = chunk_bounds(F.shape[0], chunks, c)
         sc = s[a:b] if want_g else s[0:0]
         Jc = J[a:b] if want_j else J[0:0]
         Gc = G[a:b] if want_g else G[0:0]

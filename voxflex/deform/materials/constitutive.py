@@ -27,7 +27,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..._jit import njit, prange
+from ..._jit import chunk_bounds, njit, prange
 from ...errors import InputError, check_choice
 from . import laws as _laws
 from .catalogue import _ORTHO, MODEL_CONSTANTS, POISSON_RANGE, check_constants
@@ -132,11 +132,10 @@ def _project_psd_kernel(A) -> int:
 
 @njit(parallel=True)
 def _project_psd_chunks(A, chunks):  # pragma: no cover - compiled
-    n = A.shape[0]
-    step = (n + chunks - 1) // chunks
     counts = np.zeros(chunks, dtype=np.int64)
     for c in prange(chunks):
-        counts[c] = _project_psd_range(A, c * step, min(n, (c + 1) * step))
+        s0, s1 = chunk_bounds(A.shape[0], chunks, c)
+        counts[c] = _project_psd_range(A, s0, s1)
     return counts.sum()
 
 

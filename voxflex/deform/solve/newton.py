@@ -104,7 +104,7 @@ class _Chord:
         ys = vdot(y, s)
         if not ys > 0.0:
             return False
-        self.pairs = [*self.pairs[1 - CHORD_MEMORY:], (s, y, 1.0 / ys)] if CHORD_MEMORY > 1 else [(s, y, 1.0 / ys)]
+        self.pairs = [*self.pairs, (s, y, 1.0 / ys)][-CHORD_MEMORY:]
         return True
 
     def solve(self, rhs) -> np.ndarray:

@@ -66,7 +66,8 @@ __all__ = ["solve"]
 PREDICTOR = True
 """Implicit Euler's Newton starts each step from the extrapolated motion ``u + h (2 v - v_prev)`` (False: from
 the inertial prediction ``u + h v``).  Only the start changes, not the answer (judged by the same residual
-test)."""
+test).  Measured: the 60-frame NN bunny's first relative residuals 1.2e-2 -> 5e-3 in mid-run steps, about
+8 % fewer model passes; a swinging 8-frame beam 77 -> 75 passes."""
 
 MAX_CUTS = 8
 """Static load increments are halved at most this many times (to 1/256 of a step) before giving up."""
@@ -468,7 +469,7 @@ def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, n
             uhat = u + options.dt * v
             # Newton starts from the motion extrapolated to second order (the last step's change of velocity
             # carried on: u + h (2 v - v_prev)), not from the inertial prediction uhat; the answer is the
-            # same to the tolerance, the first residual about ten times smaller (see PREDICTOR)
+            # same to the tolerance, the first residual about half as large (see PREDICTOR)
             w = v if v_prev is None or not PREDICTOR else 2.0 * v - v_prev
             u_start = u + options.dt * w
         else:

@@ -36,12 +36,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...._jit import njit, prange
+from ...._jit import chunk_bounds, njit, prange
 
 PAD = 40
 """Width of a pair block's rows in :func:`frame_stiffness_pairs` (36 numbers, zero-padded)."""
 
 __all__ = ["PAD", "frame_tables", "frame_pairs", "frame_F", "frame_forces", "frame_F_points", "frame_forces_points",
+           "points_F", "points_forces",
            "frame_stiffness_pairs", "frame_pairs_to_dense",
            "frame_stiffness_dense"]
 
@@ -74,13 +75,18 @@ def _fill_tables(index, order, w, dw, rest, frames, G):  # pragma: no cover - co
                     for j in range(3):
                         G[s, p, c, j] = 0.0
                 continue
-            wp = w[s, o]
-            for c in range(3):
-                r = rest[s, c] - frames[a, c]
-                for j in range(3):
-                    G[s, p, c, j] = r * dw[s, o, j] + (wp if c == j else 0.0)
-            for j in range(3):
-                G[s, p, 3, j] = dw[s, o, j]
+            _parent_table(w[s, o], dw[s, o], rest[s], frames[a], G[s, p])
+
+
+@njit
+def _parent_table(wp, dwp, x, xa, out):  # pragma: no cover - compiled
+    """out (4, 3) = one parent's table: ``w delta_cj + (x - x_a)_c dw_j`` (c < 3), ``dw_j`` (c = 3)."""
+    for c in range(3):
+        r = x[c] - xa[c]
+        for j in range(3):
+            out[c, j] = r * dwp[j] + (wp if c == j else 0.0)
+    for j in range(3):
+        out[3, j] = dwp[j]
 
 
 @njit
@@ -143,25 +149,40 @@ def point_chunks(m: int, parents: int) -> int:
     return int(min(POINT_CHUNKS, max(1, (m * parents) // POINT_CHUNK_ENTRIES)))
 
 
+def points_F(index, points, q, F) -> None:
+    """F (m, 3, 3) of point samples ``points`` = (w, dw, rest, frames) at state q: :func:`frame_F_points`,
+    in :func:`point_chunks` chunks on numba's threads when there are several (one runs serial)."""
+    q = np.ascontiguousarray(q, dtype=np.float64)
+    chunks = point_chunks(*index.shape)
+    if chunks > 1:
+        _F_points_chunks(index, *points, q, F, chunks)
+    else:
+        frame_F_points(index, *points, q, F)
+
+
+def points_forces(index, points, P_stress, weight, g) -> None:
+    """g (n, 12) += J^T (weight P) of point samples, as :func:`points_F` chunks them (the chunks' forces
+    summed in chunk order)."""
+    P_stress = np.ascontiguousarray(P_stress, dtype=np.float64)
+    chunks = point_chunks(*index.shape)
+    if chunks > 1:
+        _forces_points_chunks(index, *points, P_stress, weight, g, chunks)
+    else:
+        frame_forces_points(index, *points, P_stress, weight, g)
+
+
 @njit(parallel=True)
-def frame_F_points_parallel(index, w, dw, rest, frames, q, F, chunks):  # pragma: no cover - compiled
-    """:func:`frame_F_points` over ``chunks`` slices of the samples in parallel (F has the same bits)."""
-    m = index.shape[0]
-    step = (m + chunks - 1) // chunks
+def _F_points_chunks(index, w, dw, rest, frames, q, F, chunks):  # pragma: no cover - compiled
     for c in prange(chunks):
-        a, b = c * step, min(m, (c + 1) * step)
+        a, b = chunk_bounds(index.shape[0], chunks, c)
         frame_F_points(index[a:b], w[a:b], dw[a:b], rest[a:b], frames, q, F[a:b])
 
 
 @njit(parallel=True)
-def frame_forces_points_parallel(index, w, dw, rest, frames, P_stress, weight, g, chunks):  # pragma: no cover
-    """:func:`frame_forces_points` over ``chunks`` slices of the samples in parallel, each into forces of its
-    own, summed in chunk order."""
-    m = index.shape[0]
-    step = (m + chunks - 1) // chunks
+def _forces_points_chunks(index, w, dw, rest, frames, P_stress, weight, g, chunks):  # pragma: no cover
     part = np.zeros((chunks,) + g.shape)
     for c in prange(chunks):
-        a, b = c * step, min(m, (c + 1) * step)
+        a, b = chunk_bounds(index.shape[0], chunks, c)
         frame_forces_points(index[a:b], w[a:b], dw[a:b], rest[a:b], frames, P_stress[a:b], weight[a:b], part[c])
     for c in range(chunks):
         g += part[c]
@@ -388,12 +409,10 @@ def frame_stiffness_pairs(index, G, A, weight, pair_id, B, points=None):
 
 @njit(parallel=True)
 def _stiffness_chunks(index, G, pw, pdw, prest, pframes, A, weight, pair_id, B, chunks):  # pragma: no cover
-    m = index.shape[0]
-    step = (m + chunks - 1) // chunks
     part = np.zeros((chunks,) + B.shape)
     for c in prange(chunks):
-        _stiffness_range(index, G, pw, pdw, prest, pframes, A, weight, pair_id, part[c], c * step,
-                         min(m, (c + 1) * step))
+        s0, s1 = chunk_bounds(index.shape[0], chunks, c)
+        _stiffness_range(index, G, pw, pdw, prest, pframes, A, weight, pair_id, part[c], s0, s1)
     for c in range(chunks):
         B += part[c]
 
@@ -412,15 +431,8 @@ def _stiffness_range(index, G, pw, pdw, prest, pframes, A, weight, pair_id, B, s
         if points:
             for p in range(P):
                 a = index[s, p]
-                if a < 0:
-                    continue
-                wp = pw[s, p]
-                for c in range(3):
-                    r = prest[s, c] - pframes[a, c]
-                    for j in range(3):
-                        Gp[p, c, j] = r * pdw[s, p, j] + (wp if c == j else 0.0)
-                for j in range(3):
-                    Gp[p, 3, j] = pdw[s, p, j]
+                if a >= 0:
+                    _parent_table(pw[s, p], pdw[s, p], prest[s], pframes[a], Gp[p])
             Gs = Gp
         else:
             Gs = G[s]

@@ -340,8 +340,7 @@ class FrameModel(OnePass):
             return last[1]
         F = np.empty((self.n_samples, 3, 3))
         if self._points is not None:
-            K.frame_F_points_parallel(self._index, *self._points, np.ascontiguousarray(q, dtype=np.float64), F,
-                                      K.point_chunks(*self._index.shape))
+            K.points_F(self._index, self._points, q, F)
         else:
             K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
         F.setflags(write=False)
@@ -459,8 +458,7 @@ class FrameModel(OnePass):
     def _forces(self, P) -> np.ndarray:
         grad = np.zeros((self.n_nodes, 12))
         if self._points is not None:
-            K.frame_forces_points_parallel(self._index, *self._points, np.ascontiguousarray(P, dtype=np.float64),
-                                           self._volume, grad, K.point_chunks(*self._index.shape))
+            K.points_forces(self._index, self._points, P, self._volume, grad)
         else:
             K.frame_forces(self._index, self._G, np.ascontiguousarray(P), self._volume, grad)
         return grad
