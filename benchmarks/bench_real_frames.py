@@ -33,7 +33,11 @@ Parts (``--part``):
     (default 20) steps; ``--dyn-count`` (default 60) frames with the defaults against the voxel model:
     milliseconds per step (a 20-step run divided by its steps; warm: after an untimed run) and the
     trajectory error (max over the steps of the RMS surface error, relative to the largest reference
-    surface displacement over all steps).
+    surface displacement over all steps).  ``--dyn-placement strain`` places the frames by a first cheap
+    solve's strain energy, ``--dyn-samples N`` sets the elaston regions (the default is the frames' own count:
+    at least one region per 10 voxels), ``--dyn-exact`` adds each row's exact-integration twin (the same
+    frames with Gauss-Legendre points: an elaston row whose error is below its twin's is under-integrated,
+    the difference is a cancellation, not accuracy).
 ``profile``
     The bunny at ``--voxel`` with 40 frames and the defaults: wall time of the precompute (``vf.model``,
     the on-disk cache off; warm: numba compiled by an untimed run first), min / median of ``--repeat``,
@@ -65,7 +69,9 @@ Examples::
     python benchmarks/bench_real_frames.py --part bunny                     # 2 mm, 20/40/80 frames
     python benchmarks/bench_real_frames.py --part bunny --voxel 0.003 --counts 20,40,80,160
     python benchmarks/bench_real_frames.py --part second --mesh2 fandisk.obj --voxel2 0.05
-    python benchmarks/bench_real_frames.py --part dynamics --dyn-count 60 --steps 20
+    python benchmarks/bench_real_frames.py --part dynamics --dyn-counts 60 --steps 20
+    python benchmarks/bench_real_frames.py --part dynamics --dyn-weights natural-neighbour --dyn-placement strain \
+        --dyn-samples 1400 --dyn-exact
     python benchmarks/bench_real_frames.py --part profile --voxel 0.002
 """
 
@@ -355,8 +361,12 @@ def part_dynamics(args):
     sv = [1000 * t[1] / n for t in tv]
     print(f"| voxel model (reference) | {mv.describe()['dofs']:,} | 0 | 0 | {int(np.sum(rv.newton_iterations))} "
           f"| {len(tv)} | {min(t[0] for t in tv):.2f} | {min(sv):.1f} / {statistics.median(sv):.1f} |", flush=True)
-    for count, sf in ((c, f) for f in args.dyn_weights for c in args.dyn_counts):
-        sc = configure(base, count=count, sf=None if sf == "default" else sf)
+    rows = [(c, f, q) for f in args.dyn_weights for c in args.dyn_counts
+            for q in (("elaston", "gauss-legendre") if args.dyn_exact else ("elaston",))]
+    for count, sf, quad in rows:
+        sc = configure(base, count=count, sf=None if sf == "default" else sf, q=quad, placement=args.dyn_placement)
+        if args.dyn_samples and quad == "elaston":
+            sc = replace(sc, elasticity=replace(sc.elasticity, samples=args.dyn_samples))
         times, m, r = run(sc, image, 1)
         with warnings.catch_warnings(), _pinned():  # the model is built; time the stepping alone, warm
             warnings.simplefilter("ignore")
@@ -368,8 +378,11 @@ def part_dynamics(args):
         rec = _record(m, r)
         rec["voxel_size"] = ref["voxel_size"]
         rm, rr, _, _ = errors(rec, ref)
-        name = "RK + elastons (default)" if sf == "default" else f"{sf} + elastons"
-        print(f"| {count} frames {name}, {m.describe().get('parents')} parents | "
+        d = m.describe()
+        integ = (f"{d.get('regions')} elaston regions" if quad == "elaston"
+                 else "Gauss-Legendre 2x2x2 per voxel (exact)")
+        name = f"{'RK' if sf == 'default' else sf}, {integ}, {d.get('placement')} placement"
+        print(f"| {count} frames {name}, {d.get('parents')} parents | "
               f"{m.describe()['dofs']:,} | {100 * rm:.2f} % | {100 * rr:.2f} % | {int(np.sum(r.newton_iterations))} "
               f"| {args.repeat} | {times[0][0]:.2f} | {min(steps):.1f} / {statistics.median(steps):.1f} |", flush=True)
     print(f"\n{_load()}; max RSS {_rss_mb():.0f} MB")
@@ -439,6 +452,12 @@ def main():
     ap.add_argument("--dyn-counts", type=ints, default=[60], help="dynamics: frame counts")
     ap.add_argument("--dyn-weights", default=["default"], type=lambda s: s.split(","),
                     help="dynamics: shape functions, 'default' (RK) and e.g. natural-neighbour, with elastons")
+    ap.add_argument("--dyn-placement", default=None, choices=["volume", "strain"],
+                    help="dynamics: [nodes] placement (default: the scene's, volume)")
+    ap.add_argument("--dyn-samples", type=int, default=None,
+                    help="dynamics: [elasticity] samples, the elaston regions (default: the frames' own count)")
+    ap.add_argument("--dyn-exact", action="store_true",
+                    help="dynamics: each row also with Gauss-Legendre points (the exact integration twin; slow)")
     ap.add_argument("--dt", type=float, default=0.005, help="dynamics: time step (s)")
     ap.add_argument("--steps", type=int, default=20, help="dynamics: steps")
     ap.add_argument("--repeat", type=int, default=3, help="runs of the cheap rows (min / median)")

@@ -317,3 +317,30 @@ def test_large_batches_run_in_chunks_with_the_serial_bits(name, monkeypatch):
     chunked = st.evaluate(F, s)
     for a, b in zip(serial, chunked):
         assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", sorted(vs.STRAINS))
+def test_vjp_is_the_jacobian_contracted_with_s(name, monkeypatch):
+    """``vjp(F, s) = sum_k s_k dE_k/dF``: the invariant strains by a kernel of their own (no Jacobian formed),
+    the others by the contraction; equal to round-off (1e-12 of the largest entry), inverted F included, and
+    the chunked pass equal to the serial one bit for bit.  The strain alone (``apply``) keeps the bits of the
+    pass with derivatives (it skips them)."""
+    st = vs.STRAINS[name]
+    F = sample_F(inverted=name != "principal-stretch")
+    rng = np.random.default_rng(5)
+    s = rng.standard_normal((F.shape[0], st.size))
+    if st.kind.startswith("invariant"):
+        s[::3, 1] = 0.0  # the laws that leave I2 out (neo-Hooke): the kernel skips F C there
+    ref = np.einsum("nk,nkij->nij", s, st.jacobian(F))
+    got = st.vjp(F, s)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * max(np.abs(ref).max(), 1.0))
+    np.testing.assert_allclose(st.vjp(F[0], s[0]), ref[0], rtol=0, atol=1e-12 * max(np.abs(ref[0]).max(), 1.0))
+    assert st.compiled_vjp == (st.family == "invariant")
+    np.testing.assert_array_equal(st.apply(F), st.evaluate(F)[0])
+    with pytest.raises(InputError, match="s must have shape"):
+        st.vjp(F, s[:, :2])
+    big = np.eye(3) + 0.2 * rng.standard_normal((257, 3, 3))
+    sb = rng.standard_normal((257, st.size))
+    serial = st.vjp(big, sb)
+    monkeypatch.setattr(vs, "CHUNK_SAMPLES", 16)
+    assert np.array_equal(serial, st.vjp(big, sb))

@@ -433,13 +433,9 @@ def _invariant_kernel(F, s, deviatoric, want_j, want_g, E, J, G):
         for a in range(3):
             for b in range(3):
                 c = 0.0
-                bb = 0.0
                 for i in range(3):
                     c += f[i, a] * f[i, b]
-                    bb += f[a, i] * f[b, i]
                 C[a, b] = c
-                Bm[a, b] = bb
-        _matmul(f, C, FC)
         I1 = C[0, 0] + C[1, 1] + C[2, 2]
         trC2 = 0.0
         for a in range(3):
@@ -447,6 +443,22 @@ def _invariant_kernel(F, s, deviatoric, want_j, want_g, E, J, G):
                 trC2 += C[a, b] * C[a, b]
         I2 = 0.5 * (I1 * I1 - trC2)
         Jd = _det3(f)
+        if not (want_j or want_g):  # the strain alone (energy, line-search trials): no derivative below
+            if deviatoric:
+                cr = np.cbrt(Jd)
+                c1 = 1.0 / (cr * cr)  # as below: the same bits with or without derivatives
+                E[e, 0] = c1 * I1
+                E[e, 1] = (c1 * c1) * I2
+            else:
+                E[e, 0] = I1
+                E[e, 1] = I2
+            E[e, 2] = Jd
+            continue
+        _matmul(f, C, FC)
+        if want_g:
+            for a in range(3):
+                for b in range(3):
+                    Bm[a, b] = f[a, 0] * f[b, 0] + f[a, 1] * f[b, 1] + f[a, 2] * f[b, 2]
         # cofactor = dJ/dF
         for i in range(3):
             for j in range(3):
@@ -531,6 +543,53 @@ def _invariant_kernel(F, s, deviatoric, want_j, want_g, E, J, G):
 
 
 # ----------------------------------------------------------------------------- principal stretches
+
+@njit(error_model="numpy")
+def _invariant_vjp_kernel(F, s, deviatoric, P):  # pragma: no cover - compiled
+    """``P = sum_k s_k dE_k/dF`` (n, 3, 3) of the invariant strains without their Jacobian (27 numbers a
+    sample written and read again by the chain rule): the stress of a law's ``s = dW/dE`` in one pass.
+
+    With ``g1 = 2 F``, ``g2 = 2 I1 F - 2 F C`` and ``g3 = cof F`` (the derivatives of I1, I2, J) and the
+    scalings of :func:`_invariant_kernel`: ``P = (2 s1 c1 + 2 s2 c2 I1) F - 2 s2 c2 F C + (s3 + s1 d1 I1 +
+    s2 d2 I2) cof F``; ``F C`` only where the law reads I2 (``s2 != 0``)."""
+    n = F.shape[0]
+    C = np.empty((3, 3))
+    for e in range(n):
+        f = F[e]
+        for a in range(3):
+            for b in range(3):
+                C[a, b] = f[0, a] * f[0, b] + f[1, a] * f[1, b] + f[2, a] * f[2, b]
+        I1 = C[0, 0] + C[1, 1] + C[2, 2]
+        trC2 = 0.0
+        for a in range(3):
+            for b in range(3):
+                trC2 += C[a, b] * C[a, b]
+        I2 = 0.5 * (I1 * I1 - trC2)
+        Jd = _det3(f)
+        if deviatoric:
+            cr = np.cbrt(Jd)
+            c1 = 1.0 / (cr * cr)
+            c2 = c1 * c1
+            d1 = -2.0 / 3.0 * c1 / Jd
+            d2 = -4.0 / 3.0 * c2 / Jd
+        else:
+            c1 = 1.0
+            c2 = 1.0
+            d1 = d2 = 0.0
+        s1, s2, s3 = s[e, 0], s[e, 1], s[e, 2]
+        cf = 2.0 * s1 * c1 + 2.0 * s2 * c2 * I1
+        cc = s3 + s1 * d1 * I1 + s2 * d2 * I2
+        cb = -2.0 * s2 * c2
+        for i in range(3):
+            i1, i2 = (i + 1) % 3, (i + 2) % 3
+            for j in range(3):
+                j1, j2 = (j + 1) % 3, (j + 2) % 3
+                v = cf * f[i, j] + cc * (f[i1, j1] * f[i2, j2] - f[i1, j2] * f[i2, j1])
+                if s2 != 0.0:
+                    v += cb * (f[i, 0] * C[0, j] + f[i, 1] * C[1, j] + f[i, 2] * C[2, j])
+                P[e, i, j] = v
+
+
 @njit(error_model="numpy")
 def _stretch_kernel(F, s, gap, want_j, want_g, E, J, G, K):
     """Singular values of F (descending); ``gap`` is the relative floor of divided differences.
@@ -616,6 +675,14 @@ def chunked_strain(family, F, s, switch, gap, want_j, want_g, E, J, G, K, chunks
         else:
             _stretch_kernel(F[a:b], sc, gap, want_j, want_g, E[a:b], Jc, Gc, K[a:b] if K.shape[0] > 0 else K[0:0])
 
+
+
+@njit(parallel=True)
+def chunked_invariant_vjp(F, s, switch, P, chunks):  # pragma: no cover - compiled
+    """:func:`_invariant_vjp_kernel` over ``chunks`` slices on numba's threads (the same bits as one pass)."""
+    for c in prange(chunks):
+        a, b = chunk_bounds(F.shape[0], chunks, c)
+        _invariant_vjp_kernel(F[a:b], s[a:b], switch, P[a:b])
 
 # ============================================================================= numpy twins
 def _np_voigt(M):

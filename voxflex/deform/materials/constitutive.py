@@ -405,6 +405,14 @@ class Material:
         check_choice("backend", backend, _laws.BACKENDS)
         n = F.shape[0]
         numpy = backend == "numpy"
+        if not tangent and not numpy and getattr(self.strain, "compiled_vjp", False) is True:
+            # the stress alone (a line search's trials, forces): the strain, the law, then s through the
+            # strain's own kernel, never forming the (n, 3, 3, 3) Jacobian (14,000 neo-Hooke samples: 1.18 -> 0.66 ms)
+            e = np.ascontiguousarray(self.strain.apply(F), dtype=np.float64)
+            W, s, _ = self.law._evaluate(e, False, backend)
+            if self._shifted:
+                W = self.law.shifted_energy(*shifted_invariants(F, backend=backend))
+            return W, self.strain.vjp(F, s), None
         e, jac = self.strain.evaluate_reference(F) if numpy else self.strain.evaluate(F)
         e = np.ascontiguousarray(e, dtype=np.float64)
         m = e.shape[1]

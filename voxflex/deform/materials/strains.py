@@ -230,6 +230,32 @@ class Strain:
         E, J, G = self._run(F, s, True, s is not None, law_tangent)
         return (E, J) if s is None else (E, J, G)
 
+    @property
+    def compiled_vjp(self) -> bool:
+        """Whether :meth:`vjp` runs a kernel of its own (the invariant strains) rather than contracting
+        :meth:`jacobian`: a material's pass without the tangent then never forms the Jacobian."""
+        return self.family == "invariant"
+
+    def vjp(self, F, s) -> np.ndarray:
+        """``sum_k s_k dE_k/dF``: F (n, 3, 3), s (n, m) -> (n, 3, 3), the stress of a law's ``s = dW/dE``
+        (the same as contracting :meth:`jacobian` with s, to round-off)."""
+        F, single = _as_batch(F)
+        n, m = F.shape[0], self.size
+        s = np.ascontiguousarray(np.asarray(s, dtype=np.float64).reshape(n, m) if single
+                                 else np.asarray(s, dtype=np.float64))
+        if s.shape != (n, m):
+            raise InputError(f"s must have shape ({n}, {m}) for strain '{self.name}', got {s.shape}")
+        if self.compiled_vjp:
+            P = np.empty((n, 3, 3))
+            chunks = min(CHUNKS, n // CHUNK_SAMPLES)
+            if chunks >= 2:
+                _k.chunked_invariant_vjp(F, s, int(self.switch), P, chunks)
+            else:
+                _k._invariant_vjp_kernel(F, s, int(self.switch), P)
+        else:
+            P = np.einsum("nk,nkij->nij", s, self.jacobian(F))
+        return P[0] if single else P
+
     # -- numpy twin (reference for the tests) ----------------------------------------------
     def evaluate_reference(self, F, s=None, *, law_tangent=None):
         """Same as :meth:`evaluate`, computed by the plain numpy twin (slow, for tests)."""
