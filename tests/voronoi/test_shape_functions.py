@@ -97,6 +97,26 @@ def test_container_validation():
         ShapeValues(np.array([[1, 1, -1]]), w, dw, None, X)
     with pytest.raises(InputError, match=r"ddw must have shape"):
         ShapeValues(idx, w, dw, np.zeros((1, 3, 3)), X)
+    # the compiled check names each problem wherever it sits (not only in the first row or slot)
+    idx2 = np.array([[0, 1, -1], [2, 0, 1]])
+    w2 = np.array([[0.5, 0.5, 0.0], [0.2, 0.3, 0.5]])
+    dw2, ddw2, X2 = np.zeros((2, 3, 3)), np.zeros((2, 3, 3, 3)), np.zeros((2, 3))
+    ShapeValues(idx2, w2, dw2, ddw2, X2, n_nodes=3)
+    for name, arr in (("dw", dw2), ("ddw", ddw2), ("rest", X2)):
+        a = arr.copy()
+        a.reshape(-1)[-1] = np.inf
+        args = {"dw": dw2, "ddw": ddw2, "rest": X2, name: a}
+        with pytest.raises(InputError, match=f"ShapeValues.{name} has non-finite"):
+            ShapeValues(idx2, w2, args["dw"], args["ddw"], args["rest"])
+    with pytest.raises(InputError, match="below -1"):
+        ShapeValues(np.array([[0, 1, -1], [2, 0, -2]]), w2 * [[1, 1, 1], [1, 1, 0]], dw2, None, X2)
+    for arr in (dw2, ddw2):
+        a = arr.copy()
+        a[0, 2] = 1.0
+        with pytest.raises(InputError, match="padded slots"):
+            ShapeValues(idx2, w2, a if arr is dw2 else dw2, a if arr is ddw2 else ddw2, X2)
+    with pytest.raises(InputError, match="repeats a parent"):
+        ShapeValues(np.array([[0, 1, -1], [1, 0, 1]]), w2, dw2, None, X2)
     bad = ShapeValues(idx, np.array([[0.5, 0.6, 0.0]]), dw, None, X)
     assert abs(bad.partition_of_unity_error() - 0.1) < 1e-15
     with pytest.raises(InputError, match="power"):

@@ -30,6 +30,64 @@ from ..errors import InputError
 
 __all__ = ["ShapeValues", "shepard", "keep_largest"]
 
+
+_VALUE_ERRORS = {
+    1: "ShapeValues.w has non-finite values; compute the shape functions away from singular points",
+    2: "ShapeValues.dw has non-finite values; compute the shape functions away from singular points",
+    3: "ShapeValues.ddw has non-finite values; compute the shape functions away from singular points",
+    4: "ShapeValues.rest has non-finite values; compute the shape functions away from singular points",
+    5: "ShapeValues.index has entries below -1; pad with -1 only",
+    6: "ShapeValues: padded slots (index -1) must hold zero values, gradients and Hessians",
+    7: "ShapeValues.index repeats a parent within a child; merge the repeated entries",
+}
+
+
+@njit
+def _check_values(index, w, dw, rest, ddw):  # pragma: no cover - compiled
+    """0 when the values are sound, else the key of :data:`_VALUE_ERRORS` of the first problem found in the
+    order the messages list them (every array is read once; the rows' parents are compared pairwise)."""
+    m, P = index.shape
+    H = ddw.shape[1]
+    for s in range(m):
+        for p in range(P):
+            if not np.isfinite(w[s, p]):
+                return 1
+        for k in range(3 * P):
+            if not np.isfinite(dw[s, k]):
+                return 2
+        for k in range(H):
+            if not np.isfinite(ddw[s, k]):
+                return 3
+        for j in range(3):
+            if not np.isfinite(rest[s, j]):
+                return 4
+    for s in range(m):
+        for p in range(P):
+            if index[s, p] < -1:
+                return 5
+    for s in range(m):
+        for p in range(P):
+            if index[s, p] >= 0:
+                continue
+            if w[s, p] != 0.0:
+                return 6
+            for j in range(3):
+                if dw[s, 3 * p + j] != 0.0:
+                    return 6
+            if H:
+                for j in range(9):
+                    if ddw[s, 9 * p + j] != 0.0:
+                        return 6
+    for s in range(m):
+        for p in range(P):
+            a = index[s, p]
+            if a < 0:
+                continue
+            for q in range(p + 1, P):
+                if index[s, q] == a:
+                    return 7
+    return 0
+
 @dataclass(frozen=True)
 class ShapeValues:
     """Shape functions of ``m`` children (points or samples) on their parent nodes.
@@ -73,12 +131,9 @@ class ShapeValues:
     def __post_init__(self):
         def _float(name, a):
             try:
-                a = np.ascontiguousarray(a, dtype=np.float64)
+                return np.ascontiguousarray(a, dtype=np.float64)
             except (TypeError, ValueError) as exc:
                 raise InputError(f"ShapeValues.{name} must be a float array ({exc})") from None
-            if not np.all(np.isfinite(a)):
-                raise InputError(f"ShapeValues.{name} has non-finite values; compute the shape functions away from singular points")
-            return a
 
         index = np.asarray(self.index)
         if index.ndim != 2 or not (np.issubdtype(index.dtype, np.integer) or index.size == 0):
@@ -99,8 +154,12 @@ class ShapeValues:
             ddw = _float("ddw", self.ddw)
             if ddw.shape != (m, P, 3, 3):
                 raise InputError(f"ShapeValues.ddw must have shape {(m, P, 3, 3)} or be None, got {ddw.shape}")
-        if np.any(index < -1):
-            raise InputError("ShapeValues.index has entries below -1; pad with -1 only")
+        # one compiled pass: finiteness, padding, zero padded slots, repeated parents (numpy's isfinite, masks
+        # and a row sort took 0.64 s over the five ShapeValues of the bunny's 40-frame precompute)
+        bad = _check_values(index, w, dw.reshape(m, P * 3), rest,
+                            ddw.reshape(m, P * 9) if ddw is not None else np.zeros((m, 0)))
+        if bad:
+            raise InputError(_VALUE_ERRORS[bad])
         n_nodes = self.n_nodes
         if n_nodes is not None:
             n_nodes = int(n_nodes)
@@ -108,13 +167,6 @@ class ShapeValues:
                 raise InputError(f"ShapeValues.n_nodes must be >= 0, got {n_nodes}")
             if index.size and index.max() >= n_nodes:
                 raise InputError(f"ShapeValues.index refers to node {int(index.max())} but there are only {n_nodes} nodes")
-        pad = index < 0
-        if np.any(w[pad] != 0) or np.any(dw[pad] != 0) or (ddw is not None and np.any(ddw[pad] != 0)):
-            raise InputError("ShapeValues: padded slots (index -1) must hold zero values, gradients and Hessians")
-        if P > 1 and m:
-            s = np.sort(index, axis=1)
-            if np.any((s[:, 1:] == s[:, :-1]) & (s[:, 1:] >= 0)):
-                raise InputError("ShapeValues.index repeats a parent within a child; merge the repeated entries")
         object.__setattr__(self, "index", index)
         object.__setattr__(self, "w", w)
         object.__setattr__(self, "dw", dw)

@@ -248,6 +248,46 @@ def frame_forces_points(index, w, dw, rest, frames, P_stress, weight, g):  # pra
                 g[a, 9 + i] += vi
 
 
+
+@njit
+def gauge_sums(index, w, dw, rest, frames, phi, S, T):  # pragma: no cover - compiled
+    """Per sample s, over its parents a (index -1: padding): ``S[s, m, j] = sum w phi_a[m] r_j`` and
+    ``T[s, m, j, l] = sum phi_a[m] (w delta_jl + r_j dw_l)`` with ``r = X_s - X_a`` -- the motion and the
+    deformation gradient of the gauge candidates ``dA_a = sum_m C[k, m] phi_a[m]``
+    (:func:`voxflex.deform.models.frames.modes.gauge_modes`; the einsums over (samples, parents, 4, 3, 3)
+    took 0.9 s of 1.5 s on the bunny's 94k points with 35 parents)."""
+    m, P = index.shape
+    M = phi.shape[1]
+    for s in range(m):
+        for a in range(M):
+            for j in range(3):
+                S[s, a, j] = 0.0
+                for l in range(3):
+                    T[s, a, j, l] = 0.0
+        for p in range(P):
+            f = index[s, p]
+            if f < 0:
+                continue
+            wp = w[s, p]
+            r0, r1, r2 = rest[s, 0] - frames[f, 0], rest[s, 1] - frames[f, 1], rest[s, 2] - frames[f, 2]
+            d0, d1, d2 = dw[s, p, 0], dw[s, p, 1], dw[s, p, 2]
+            for a in range(M):
+                ph = phi[f, a]
+                pw = ph * wp
+                S[s, a, 0] += pw * r0
+                S[s, a, 1] += pw * r1
+                S[s, a, 2] += pw * r2
+                pr0, pr1, pr2 = ph * r0, ph * r1, ph * r2
+                T[s, a, 0, 0] += pr0 * d0 + pw
+                T[s, a, 0, 1] += pr0 * d1
+                T[s, a, 0, 2] += pr0 * d2
+                T[s, a, 1, 0] += pr1 * d0
+                T[s, a, 1, 1] += pr1 * d1 + pw
+                T[s, a, 1, 2] += pr1 * d2
+                T[s, a, 2, 0] += pr2 * d0
+                T[s, a, 2, 1] += pr2 * d1
+                T[s, a, 2, 2] += pr2 * d2 + pw
+
 def frame_pairs(index, G, n):
     """The tables of the pair-block stiffness: parents sorted by frame, and the coupled frame pairs.
 

@@ -45,7 +45,9 @@ def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 8192) ->
     """
     import scipy.linalg as sla
 
-    X = np.asarray(frames, dtype=np.float64)
+    from . import _kernels as K
+
+    X = np.ascontiguousarray(frames, dtype=np.float64)
     n = len(X)
     nodes = AffineFrames(X)
     B = nodes.gauge_candidates()
@@ -57,17 +59,13 @@ def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 8192) ->
     R = np.zeros((0, 18))
     for a in range(0, values.m, chunk):
         b = min(values.m, a + chunk)
-        idx = values.index[a:b]
-        ok = idx >= 0
-        ii = np.where(ok, idx, 0)
-        w = np.where(ok, values.w[a:b], 0.0)
-        dw = np.where(ok[..., None], values.dw[a:b], 0.0)
-        ph = phi[ii] * ok[..., None]  # (c, P, 4)
-        r = values.rest[a:b, None, :] - X[ii]  # (c, P, 3)
         # per sample, over its parents: S[m, j] = sum w phi_m r_j (the motion), T[m, j, l] = sum phi_m (w I + r (x) dw)
-        S = np.einsum("cpm,cpj->cmj", ph * w[..., None], r)
-        T = np.einsum("cpm,cpj,cpl->cmjl", ph, r, dw, optimize=True)
-        T += np.einsum("cpm,cp->cm", ph, w)[:, :, None, None] * np.eye(3)
+        S = np.empty((b - a, 4, 3))
+        T = np.empty((b - a, 4, 3, 3))
+        K.gauge_sums(np.ascontiguousarray(values.index[a:b], dtype=np.int64),
+                     np.ascontiguousarray(values.w[a:b], dtype=np.float64),
+                     np.ascontiguousarray(values.dw[a:b], dtype=np.float64),
+                     np.ascontiguousarray(values.rest[a:b], dtype=np.float64), X, np.ascontiguousarray(phi), S, T)
         F = np.matmul(C2, T.reshape(-1, 12, 3))  # (c, (k, i), l): candidate k's F[i, l]
         x = np.matmul(C2, S.reshape(-1, 12, 1))  # (c, (k, i), 1): candidate k's motion x_i
         F = F.reshape(-1, 18, 9).transpose(0, 2, 1).reshape(-1, 18)
