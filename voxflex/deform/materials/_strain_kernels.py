@@ -419,6 +419,33 @@ def _corot_kernel(F, s, method, want_j, want_g, E, J, G):
 
 # ----------------------------------------------------------------------------- invariants
 @njit(error_model="numpy")
+def _invariants_of(f, C):  # pragma: no cover - compiled
+    """(I1, I2, J) of one F ``f``, with ``C = f^T f`` written into C (the invariant kernels' common start)."""
+    for a in range(3):
+        for b in range(3):
+            C[a, b] = f[0, a] * f[0, b] + f[1, a] * f[1, b] + f[2, a] * f[2, b]
+    I1 = C[0, 0] + C[1, 1] + C[2, 2]
+    trC2 = 0.0
+    for a in range(3):
+        for b in range(3):
+            trC2 += C[a, b] * C[a, b]
+    return I1, 0.5 * (I1 * I1 - trC2), _det3(f)
+
+
+@njit(error_model="numpy")
+def _scalings(Jd, deviatoric):  # pragma: no cover - compiled
+    """(c1, c2, c1', c2', c1'', c2'') of the invariant strains: ``c = J^p`` with p = -2/3, -4/3 when
+    deviatoric (real cube root: defined for J < 0 too), c' = p c / J, c'' = p (p - 1) c / J^2; else 1 and 0."""
+    if not deviatoric:
+        return 1.0, 1.0, 0.0, 0.0, 0.0, 0.0
+    cr = np.cbrt(Jd)
+    c1 = 1.0 / (cr * cr)
+    c2 = c1 * c1
+    return (c1, c2, -2.0 / 3.0 * c1 / Jd, -4.0 / 3.0 * c2 / Jd, (-2.0 / 3.0) * (-5.0 / 3.0) * c1 / (Jd * Jd),
+            (-4.0 / 3.0) * (-7.0 / 3.0) * c2 / (Jd * Jd))
+
+
+@njit(error_model="numpy")
 def _invariant_kernel(F, s, deviatoric, want_j, want_g, E, J, G):
     """(I1, I2, J) of C = F^T F, or (J^-2/3 I1, J^-4/3 I2, J) when deviatoric."""
     n = F.shape[0]
@@ -430,28 +457,11 @@ def _invariant_kernel(F, s, deviatoric, want_j, want_g, E, J, G):
     g3 = np.empty((3, 3))
     for e in range(n):
         f = F[e]
-        for a in range(3):
-            for b in range(3):
-                c = 0.0
-                for i in range(3):
-                    c += f[i, a] * f[i, b]
-                C[a, b] = c
-        I1 = C[0, 0] + C[1, 1] + C[2, 2]
-        trC2 = 0.0
-        for a in range(3):
-            for b in range(3):
-                trC2 += C[a, b] * C[a, b]
-        I2 = 0.5 * (I1 * I1 - trC2)
-        Jd = _det3(f)
+        I1, I2, Jd = _invariants_of(f, C)
         if not (want_j or want_g):  # the strain alone (energy, line-search trials): no derivative below
-            if deviatoric:
-                cr = np.cbrt(Jd)
-                c1 = 1.0 / (cr * cr)  # as below: the same bits with or without derivatives
-                E[e, 0] = c1 * I1
-                E[e, 1] = (c1 * c1) * I2
-            else:
-                E[e, 0] = I1
-                E[e, 1] = I2
+            c1, c2 = _scalings(Jd, deviatoric)[:2]
+            E[e, 0] = c1 * I1
+            E[e, 1] = c2 * I2
             E[e, 2] = Jd
             continue
         _matmul(f, C, FC)
@@ -467,19 +477,7 @@ def _invariant_kernel(F, s, deviatoric, want_j, want_g, E, J, G):
                 g3[i, j] = f[i1, j1] * f[i2, j2] - f[i1, j2] * f[i2, j1]
                 g1[i, j] = 2.0 * f[i, j]
                 g2[i, j] = 2.0 * I1 * f[i, j] - 2.0 * FC[i, j]
-        # scalings c(J) = J^p (real cube root: defined for J < 0 too), c' = p c / J, c'' = p (p-1) c / J^2
-        if deviatoric:
-            cr = np.cbrt(Jd)
-            c1 = 1.0 / (cr * cr)
-            c2 = c1 * c1
-            d1 = -2.0 / 3.0 * c1 / Jd
-            d2 = -4.0 / 3.0 * c2 / Jd
-            dd1 = (-2.0 / 3.0) * (-5.0 / 3.0) * c1 / (Jd * Jd)
-            dd2 = (-4.0 / 3.0) * (-7.0 / 3.0) * c2 / (Jd * Jd)
-        else:
-            c1 = 1.0
-            c2 = 1.0
-            d1 = d2 = dd1 = dd2 = 0.0
+        c1, c2, d1, d2, dd1, dd2 = _scalings(Jd, deviatoric)
         E[e, 0] = c1 * I1
         E[e, 1] = c2 * I2
         E[e, 2] = Jd
@@ -556,26 +554,8 @@ def _invariant_vjp_kernel(F, s, deviatoric, P):  # pragma: no cover - compiled
     C = np.empty((3, 3))
     for e in range(n):
         f = F[e]
-        for a in range(3):
-            for b in range(3):
-                C[a, b] = f[0, a] * f[0, b] + f[1, a] * f[1, b] + f[2, a] * f[2, b]
-        I1 = C[0, 0] + C[1, 1] + C[2, 2]
-        trC2 = 0.0
-        for a in range(3):
-            for b in range(3):
-                trC2 += C[a, b] * C[a, b]
-        I2 = 0.5 * (I1 * I1 - trC2)
-        Jd = _det3(f)
-        if deviatoric:
-            cr = np.cbrt(Jd)
-            c1 = 1.0 / (cr * cr)
-            c2 = c1 * c1
-            d1 = -2.0 / 3.0 * c1 / Jd
-            d2 = -4.0 / 3.0 * c2 / Jd
-        else:
-            c1 = 1.0
-            c2 = 1.0
-            d1 = d2 = 0.0
+        I1, I2, Jd = _invariants_of(f, C)
+        c1, c2, d1, d2, _, _ = _scalings(Jd, deviatoric)
         s1, s2, s3 = s[e, 0], s[e, 1], s[e, 2]
         cf = 2.0 * s1 * c1 + 2.0 * s2 * c2 * I1
         cc = s3 + s1 * d1 * I1 + s2 * d2 * I2
