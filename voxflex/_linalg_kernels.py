@@ -31,3 +31,19 @@ def free_block_kernel(indptr, indices, data, newcol, free, out_indptr, out_indic
                 w += 1
         out_indptr[k + 1] = w
     return w
+
+
+@njit
+def csr_diagonal_kernel(indptr, indices, data, out):
+    """``out[i] = A[i, i]`` of a square CSR matrix with sorted column indices (0 where no entry is stored):
+    a binary search per row, where scipy's ``diagonal`` scans every entry (42 ms against about 2 ms for the
+    24 million entries of the voxel bunny's tangent).  Plain twin: the matrix's own ``diagonal()``."""
+    for i in range(len(out)):
+        lo, hi = indptr[i], indptr[i + 1]
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if indices[mid] < i:
+                lo = mid + 1
+            else:
+                hi = mid
+        out[i] = data[lo] if lo < indptr[i + 1] and indices[lo] == i else 0.0

@@ -198,3 +198,27 @@ def test_mixed_precision_cholesky_falls_back_when_single_precision_cannot_refine
     x, info = solve_linear(A, b, method="cholesky")
     assert "not positive definite" in info.note
     assert np.linalg.norm(A @ x - b) <= 1e-6 * np.linalg.norm(b)
+
+
+def test_diagonal_reads_the_stored_diagonal_of_any_csr_matrix():
+    """The compiled diagonal equals scipy's for CSR matrices with and without diagonal entries, with empty
+    rows, unsorted indices (the fallback) and other formats; the dtype is kept."""
+    import scipy.sparse as sp
+
+    from voxflex._linalg import diagonal
+
+    rng = np.random.default_rng(3)
+    for density in (0.0, 0.02, 0.3, 1.0):
+        A = sp.random(60, 60, density=density, format="csr", random_state=rng)
+        A = A + sp.diags(np.where(rng.random(60) < 0.5, rng.standard_normal(60), 0.0))  # some diagonals missing
+        A = sp.csr_matrix(A)
+        A.eliminate_zeros()
+        np.testing.assert_array_equal(diagonal(A), A.diagonal())
+        np.testing.assert_array_equal(diagonal(A.astype(np.float32)), A.astype(np.float32).diagonal())
+        assert diagonal(A.astype(np.float32)).dtype == np.float32
+        np.testing.assert_array_equal(diagonal(A.tocsc()), A.diagonal())
+        np.testing.assert_array_equal(diagonal(A.toarray()), A.diagonal())
+    # unsorted column indices: read by the matrix's own diagonal()
+    A = sp.csr_matrix((np.array([1.0, 2.0, 3.0]), np.array([1, 0, 1]), np.array([0, 2, 3])), shape=(2, 2))
+    A.has_sorted_indices = False
+    np.testing.assert_array_equal(diagonal(A), [2.0, 3.0])

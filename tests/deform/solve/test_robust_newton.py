@@ -389,3 +389,16 @@ def test_the_large_stability_check_stops_when_its_ritz_pair_has_converged(monkey
     shifted = (K - 2.0 * exact * sp.identity(len(free))).tocsr()
     theta = S._smallest_rayleigh(shifted, model.dof_grid, free)
     assert theta < -1e-8 * np.abs(shifted.diagonal()).max()
+    # after a Newton solve the check preconditions with that solve's coarse levels (same pattern, other
+    # values): no Galerkin product, and the same bound to 1 %
+    from voxflex.deform.solve.linear import solve_linear
+    from voxflex.deform.solve.multigrid import hierarchy as Hm
+
+    h = Hm.hierarchy(model.dof_grid, free)
+    solve_linear(K, np.ones(len(free)), method="multigrid", grid=model.dof_grid, free=free, rtol=1e-8)
+    built, galerkin = [], Hm._galerkin_impl
+    monkeypatch.setattr(Hm, "_galerkin_impl", lambda *a: built.append(1) or galerkin(*a))
+    stale_before = h.stale_solves
+    theta = S._smallest_rayleigh((1.1 * K).tocsr(), model.dof_grid, free)
+    assert not built and h.stale_solves == stale_before + 1
+    assert theta == pytest.approx(1.1 * exact, rel=1e-2)

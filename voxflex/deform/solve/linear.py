@@ -79,7 +79,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..._linalg import DIRECT_FALLBACK_MAX, vdot, vnorm
+from ..._linalg import DIRECT_FALLBACK_MAX, diagonal, vdot, vnorm
 from ...errors import ConvergenceError, InputError, check_choice
 from .options import METHODS
 
@@ -485,7 +485,7 @@ def cg_on_free_dofs(A, b, free, *, rtol: float = 1e-10, maxiter: int | None = No
     bnorm = vnorm(b)
     if bnorm == 0.0:
         return np.zeros(len(free)), LinearSolveInfo("cg", 0, 0.0, 0.0)
-    d = A.diagonal()[free]
+    d = diagonal(A)[free]
     if np.any(d <= 0):
         info = LinearSolveInfo("cg", 0, 1.0, time.perf_counter() - t0, converged=False, reason="negative curvature")
         return (np.zeros(len(free)) if partial else None), info
@@ -501,7 +501,7 @@ def cg_on_free_dofs(A, b, free, *, rtol: float = 1e-10, maxiter: int | None = No
 
 def _cg_jacobi(A, b, rtol, maxiter, x0):
     A = A if _matrix_free(A) else sp.csr_matrix(A)
-    d = A.diagonal()
+    d = diagonal(A)
     if np.any(d <= 0):
         return np.zeros_like(b), 0, False, "negative curvature"
     return _pcg(A, b, 1.0 / d, rtol, maxiter, x0)
@@ -527,7 +527,7 @@ def _cg_multigrid(A, b, rtol, maxiter, x0, grid, free, elements=None, status=Non
     status = {} if status is None else status
     status["reason"] = ""
     A = A if _matrix_free(A) else sp.csr_matrix(A)
-    if np.any(A.diagonal() <= 0):
+    if np.any(diagonal(A) <= 0):
         status["reason"] = "negative curvature"  # e_i . A e_i <= 0
         return np.zeros_like(b), 0, False, None
     # BLAS on one thread for the coarse factorisation and the small dense coarse solves of every cycle

@@ -26,7 +26,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ..._linalg import vdot, vnorm
+from ..._linalg import diagonal, vdot, vnorm
 from ...errors import ConvergenceError
 from ..models.protocol import ConstantStiffness, OnVoxelGrid, TangentProjection
 from .linear import (
@@ -203,7 +203,7 @@ class _Problem:
         pot = E - work
         mag = abs(E) + abs(work)
         if H is not None and self.elastic_diagonal is None:
-            self.elastic_diagonal = H.diagonal()  # read once, at the step's start (the round-off floor)
+            self.elastic_diagonal = diagonal(H)  # read once, at the step's start (the round-off floor)
         if g is not None:
             g = g.ravel() - self.f
         if self.M is not None:
@@ -512,7 +512,7 @@ def _shifted_direction(Hff, rhs, r, grid, free, eta, label, it):
     if not dense and not sp.issparse(Hff):
         raise ConvergenceError(f"{label}: no descent direction from the matrix-free stiffness at iteration {it}")
     n = Hff.shape[0]
-    diag = np.abs(Hff.diagonal())
+    diag = np.abs(diagonal(Hff))
     mu = SHIFT_START * float(np.mean(diag)) if n else 1.0
     if dense:
         method = "cholesky"

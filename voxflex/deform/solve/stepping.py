@@ -46,7 +46,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from ..._linalg import vdot, vnorm
+from ..._linalg import diagonal, vdot, vnorm
 from ...errors import ConvergenceError, InputError
 from ..models.protocol import END_STEP_PASSES, ConstantStiffness, end_step
 from .boundary import (
@@ -188,16 +188,18 @@ def _smallest_rayleigh(Hff, grid, free):
 
     n = Hff.shape[0]
     M, release = None, None
-    if grid is not None and np.all(Hff.diagonal() > 0):
+    if grid is not None and np.all(diagonal(Hff) > 0):
         from ..._blas import one_thread
         from .multigrid.hierarchy import hierarchy, multigrid_preconditioner
 
         with one_thread():
-            apply, _ = multigrid_preconditioner(Hff, grid, free)
+            # the coarse levels of the last Newton solve (same pattern) when the hierarchy may reuse them: the
+            # preconditioner only speeds LOBPCG up, the Ritz value bounds the smallest eigenvalue either way
+            apply, _ = multigrid_preconditioner(Hff, grid, free, stale=True)
         M = spla.LinearOperator((n, n), matvec=apply, dtype=float)
         release = hierarchy(grid, free).release
     X = np.random.default_rng(20240601).standard_normal((n, 2))
-    threshold = -1e-8 * float(np.abs(Hff.diagonal()).max())
+    threshold = -1e-8 * float(np.abs(diagonal(Hff)).max())
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # LOBPCG warns when it stops at maxiter: the Ritz value still bounds
@@ -272,7 +274,7 @@ def _check_stable(problem, delta, free, reduce, label):
     n = Hff.shape[0]
     if n == 0:
         return
-    top = float(np.abs(Hff.diagonal()).max())
+    top = float(np.abs(diagonal(Hff)).max())
     if n <= 400:
         lam = float(np.linalg.eigvalsh(Hff if isinstance(Hff, np.ndarray) else Hff.toarray())[0])
     elif n <= INERTIA_MAX:
