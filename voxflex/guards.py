@@ -334,10 +334,8 @@ def check_held(problem) -> None:
     """
     if not problem.fixed or any(f.transform is not None for f in problem.fixed):
         return
-    from .deform.solve.boundary import fixed_dofs
-
     model = problem.model
-    dofs, _ = fixed_dofs(model, problem.fixed)
+    dofs, _ = problem.held
     N = int(np.asarray(model.rest).size)
     d = model.dofs_per_node
     free = np.ones(N, dtype=bool)

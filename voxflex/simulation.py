@@ -597,24 +597,18 @@ class _Reactions:
     """
 
     def __init__(self, problem):
-        from .deform.solve.boundary import fixed_dofs, region_forces
-
         model, options = problem.model, problem.options
         self.model, self.options, self.n = model, options, len(problem.fixed)
-        self.dofs, self.owner = fixed_dofs(model, problem.fixed)
+        self.dofs, self.owner = problem.held
         rest = np.asarray(model.rest, dtype=float)
-        N = rest.size
-        f = region_forces(model, problem.forces).ravel() if problem.forces else np.zeros(N)
-        if problem.gravity is not None:
-            f = f + model.gravity_force(problem.densities, problem.gravity).ravel()
-        self.f = f
+        self.f = problem.loads
         modes = []
         for k in range(3):
             T = np.hstack([np.eye(3), np.eye(3)[:, [k]]])
             modes.append((model.moved_state(T) - rest).ravel()[self.dofs])
         self.modes = np.stack(modes, axis=1)  # (k, 3)
         self.dynamic = problem.dynamic
-        self.M = model.mass_matrix(problem.densities, lumped=options.mass == "lumped") if self.dynamic else None
+        self.M = problem.mass
 
     def __call__(self, rec, prev) -> np.ndarray:
         """(R, 3) at the state of ``rec``; ``prev`` is the previous step's record (None at the rest state)."""

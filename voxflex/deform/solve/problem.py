@@ -10,6 +10,7 @@ no two parts of a run read the scene differently.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -61,12 +62,44 @@ class Problem:
         """The run fraction of a state at ``time`` (:meth:`SolverOptions.fraction`)."""
         return self.options.fraction(time)
 
+    @cached_property
+    def held(self) -> tuple:
+        """``(dofs, owner)``: the flat DOFs the fixed regions hold, sorted, and the region holding each
+        (:func:`~voxflex.deform.solve.boundary.fixed_dofs`), found once for the guards, the solver and the
+        recorder of the reactions."""
+        from .boundary import fixed_dofs
+
+        return fixed_dofs(self.model, self.fixed)
+
+    @cached_property
+    def loads(self) -> np.ndarray:
+        """The full external load (N,) flat, at load factor 1: region forces and gravity (N)."""
+        from .boundary import region_forces
+
+        N = np.asarray(self.model.rest).size
+        f = region_forces(self.model, self.forces).ravel() if self.forces else np.zeros(N)
+        if self.gravity is not None:
+            f = f + self.model.gravity_force(self.densities, self.gravity).ravel()
+        return f
+
+    @cached_property
+    def mass(self):
+        """The mass matrix the options ask for (implicit Euler), or None (statics)."""
+        if not self.dynamic:
+            return None
+        return self.model.mass_matrix(self.densities, lumped=self.options.mass == "lumped")
+
     def solve(self, **kwargs):
-        """:func:`~voxflex.deform.solve.stepping.solve` of this problem (``kwargs``: callbacks, sink, q0, v0)."""
+        """:func:`~voxflex.deform.solve.stepping.solve` of this problem (``kwargs``: callbacks, sink, q0, v0), with
+        its held DOFs, loads and mass (:attr:`held`, :attr:`loads`, :attr:`mass`) as computed here."""
         from .stepping import solve
 
+        known = {}
+        if self.densities is not None or (self.gravity is None and not self.dynamic):
+            # (without the densities gravity and dynamics are refused by stepping.solve's own check)
+            known = {"held": self.held, "loads": self.loads, "mass": self.mass}
         return solve(self.model, fixed=self.fixed, forces=self.forces, gravity=self.gravity,
-                     densities=self.densities, options=self.options, **kwargs)
+                     densities=self.densities, options=self.options, **known, **kwargs)
 
     def record(self) -> dict:
         """What a result stores of the problem for renders and readers (plain values, no scene text)."""

@@ -331,6 +331,9 @@ def solve(
     v0=None,
     newton_callback: Callable | None = None,
     sink: Callable | None = None,
+    held=None,
+    loads=None,
+    mass=None,
 ) -> list[StepRecord]:
     """Run a static (load-stepped) or implicit-Euler simulation of ``model``.
 
@@ -360,6 +363,10 @@ def solve(
         Receives every record in order, the rest state first (before ``callback`` for a step).
         With a sink the returned list (and a ConvergenceError's ``records``) holds only the rest
         state and the latest record, so that memory does not grow with the steps.
+    held, loads, mass : optional
+        What the solver would otherwise compute from the arguments above, when the caller has it
+        (a :class:`~voxflex.deform.solve.problem.Problem` does): ``fixed_dofs(model, fixed)``, the
+        full load vector (N,) of ``forces`` and ``gravity``, and the mass matrix of ``options``.
 
     Returns
     -------
@@ -392,13 +399,18 @@ def solve(
     shape = np.shape(model.rest)
     X = np.asarray(model.rest, dtype=float).ravel()
     N = X.size
-    dofs, owner = fixed_dofs(model, fixed)
+    dofs, owner = fixed_dofs(model, fixed) if held is None else held
     if not dynamic and not model.supported_by_contact:
         check_supports(model, dofs)  # an unsupported part or a mechanism: refuse before solving
     free = _complement(dofs, N)
-    f_full = region_forces(model, forces).ravel() if forces else np.zeros(N)
-    if gravity is not None:
-        f_full = f_full + model.gravity_force(densities, gravity).ravel()
+    if loads is not None:
+        f_full = np.asarray(loads, dtype=float).ravel()
+        if f_full.shape != (N,):
+            raise InputError(f"loads must hold one value per DOF ({N}), got shape {np.shape(loads)}")
+    else:
+        f_full = region_forces(model, forces).ravel() if forces else np.zeros(N)
+        if gravity is not None:
+            f_full = f_full + model.gravity_force(densities, gravity).ravel()
     near_null = model.rigid_modes()[free] if options.linear_solver == "amg" else None
     reduce = _FreeBlock(free, N)
     block = None
@@ -414,7 +426,7 @@ def solve(
 
     M = None
     if dynamic:
-        M = model.mass_matrix(densities, lumped=options.mass == "lumped")
+        M = model.mass_matrix(densities, lumped=options.mass == "lumped") if mass is None else mass
     x = X.copy()
     if q0 is not None:
         q0 = np.asarray(q0, dtype=float)
