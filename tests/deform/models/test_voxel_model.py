@@ -115,6 +115,42 @@ def test_stiffness_kernel_matches_numpy_twin_and_private_hooke():
     assert abs(a.hessian(a.rest) - Ha).max() == 0.0
 
 
+def test_neo_hookean_element_stiffness_from_three_coefficients_is_the_general_one(monkeypatch):
+    """The neo-Hookean element stiffness from F, det F and (dW/dI1, dW/dJ, d2W/dJ2) equals the general
+    kernel on the material's full (9, 9) tangent and the numpy twin (1e-12 relative; round-off only),
+    gives NaN blocks where a sample is inverted, and the model's Hessian is the same with it or without
+    it (the general path stays for projected tangents and every other material)."""
+    import voxflex.deform.models.voxel.model as VM
+
+    rng = np.random.default_rng(4)
+    G = rng.standard_normal((8, 8, 3))
+    mat = material("neo-hookean", young=1e4, poisson=0.3)
+    assert mat.linear_in_i1 and not MATS[2].linear_in_i1
+    for spread in (1e-3, 0.3):
+        F = np.eye(3) + spread * rng.standard_normal((5 * 8, 3, 3))
+        vol = rng.random(5 * 8)
+        W, P, (s1, s3, k33, J) = mat.evaluate_i1j(F)
+        W0, P0, A0 = mat.evaluate(F)
+        assert np.array_equal(W, W0) and np.allclose(P, P0, rtol=0, atol=1e-13 * np.abs(P0).max())
+        K = kern.element_stiffness_i1j(G, F, J, s1, s3, k33, vol)
+        K0 = kern.element_stiffness(G, A0, vol)
+        assert np.abs(K - K0).max() <= 1e-12 * np.abs(K0).max()
+        assert np.abs(kern.element_stiffness_i1j_numpy(G, F, J, s1, s3, k33, vol) - K0).max() <= 1e-12 * np.abs(K0).max()
+        assert np.array_equal(K, K.transpose(0, 2, 1))
+    F[3] = np.diag([1.0, 1.0, -0.5])  # an inverted sample of element 0: its block is NaN, the others not
+    _, _, parts = mat.evaluate_i1j(F)
+    K = kern.element_stiffness_i1j(G, F, parts[3], *parts[:3], vol)
+    assert np.all(np.isnan(K[0])) and np.all(np.isfinite(K[1:]))
+    with pytest.raises(InputError, match="W = a I1"):
+        MATS[2].evaluate_i1j(F)
+    model = VoxelModel.from_image(_image(), MATS)
+    q = _state(model, scale=0.3)
+    E1, g1, H1 = model.energy_gradient_hessian(q)
+    monkeypatch.setattr(VM, "I1J_TANGENT", False)
+    E0, g0, H0 = model.energy_gradient_hessian(q)
+    assert E1 == E0 and np.array_equal(g1, g0) and abs(H1 - H0).max() <= 1e-13 * abs(H0).max()
+
+
 def _zero_modes(model):
     K = model.hessian(model.rest).toarray()
     ev = np.linalg.eigvalsh(K)

@@ -366,6 +366,26 @@ class Material:
         relative to itself near rest, not to the moduli (stiffness contrast 1e6)."""
         return self.law.shifted_energy is not None and getattr(self.strain, "name", None) == "invariant"
 
+    @property
+    def linear_in_i1(self) -> bool:
+        """Whether the tangent has the form of :attr:`~voxflex.deform.materials.laws.Law.linear_in_i1`:
+        such a law over the ``invariant`` strain (see :meth:`evaluate_i1j`)."""
+        return bool(getattr(self.law, "linear_in_i1", False)) and getattr(self.strain, "name", None) == "invariant"
+
+    def evaluate_i1j(self, F):
+        """Energy, stress and the tangent's coefficients of a :attr:`linear_in_i1` material, without the
+        (n, 9, 9) tangent: ``W, P, (s1, s3, K33, J)`` with ``dP/dF = 2 s1 I + s3 d2J/dF2 + K33 dJ/dF dJ/dF``
+        (each (n,); NaN where J <= 0, like the tangent).  For the voxel model's element stiffness
+        (:func:`~voxflex.deform.models.voxel._kernels.element_stiffness_i1j`)."""
+        if not self.linear_in_i1:
+            raise InputError(f"material '{self.name}' is not of the form W = a I1 + f(J) over the invariant strain")
+        F = _check_F(F)
+        e = np.ascontiguousarray(self.strain.apply(F), dtype=np.float64)
+        W, s, K = self.law._evaluate(e, True, "numba")
+        if self._shifted:
+            W = self.law.shifted_energy(*shifted_invariants(F))
+        return W, self.strain.vjp(F, s), (s[:, 0].copy(), s[:, 2].copy(), K[:, 2, 2].copy(), e[:, 2].copy())
+
     def energy(self, F) -> np.ndarray:
         """Energy density W (n,) [Pa] of deformation gradients F (n, 3, 3)."""
         F = _check_F(F)

@@ -539,6 +539,12 @@ class Law:
         """Tangent K = d2W/de2 (n, m, m) [Pa]."""
         return self.evaluate(e, tangent=True)[2]
 
+    linear_in_i1 = False
+    """Laws over ``(I1, I2, J)`` of the form ``W = a I1 + f(J)`` (no I2, no coupling): their tangent in F is
+    ``2 s1 I + s3 d2J/dF2 + K33 dJ/dF dJ/dF`` (``s1 = a``), which the voxel model assembles into its
+    element stiffness from ``s1, s3, K33`` and the cofactor of F without the (9, 9) tangent
+    (:func:`voxflex.deform.models.voxel._kernels.element_stiffness_i1j`)."""
+
     shifted_energy = None
     """Optional, laws over ``(I1, I2, J)``: ``shifted_energy(i1, j) -> W (n,)`` from ``i1 = I1 - 3`` and
     ``j = J - 1`` given without cancellation (numpy; see :func:`shifted_invariants`), written so that the
@@ -616,6 +622,7 @@ class NeoHookeanLaw(Law):
     strain_kind = "invariant"
     accepts = ("invariant",)
     size = 3
+    linear_in_i1 = True
     _kernel = staticmethod(_neo_hookean_kernel)
     _twin = staticmethod(_neo_hookean_numpy)
 

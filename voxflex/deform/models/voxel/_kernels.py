@@ -1,11 +1,13 @@
 """Compiled kernels of the voxel model (stiffness of trilinear voxels, CSR scatter).
 
-Three kernels, each with a plain numpy twin used by the tests:
+Kernels, each with a plain numpy twin used by the tests:
 
 * :func:`element_stiffness` — ``K_e = sum_q vol_q B_q^T A_q B_q`` for a batch
   of voxels sharing the world gradient table ``G (Q, 8, 3)`` (the same in every
   voxel of a regular grid), where ``(B_q x)_ij = sum_a x_ai G_qaj``;
-  DOF order inside the element: ``3 * corner + component``.
+  DOF order inside the element: ``3 * corner + component``;
+  :func:`element_stiffness_i1j` the same for a neo-Hookean tangent, from F and
+  three coefficients per sample instead of the (9, 9) tangent.
 * :func:`scatter_blocks` — adds element matrices (or one shared matrix times a
   per-element factor) into the data array of a CSR matrix whose rows hold
   whole 3x3 node blocks (see :func:`block_csr_pattern`).
@@ -24,16 +26,29 @@ import numpy as np
 from ...._jit import njit, prange
 
 
+@njit
+def _zeroed(Ke):  # pragma: no cover - compiled
+    for r in range(Ke.shape[0]):
+        for c in range(Ke.shape[1]):
+            Ke[r, c] = 0.0
+    return Ke
+
+
+@njit
+def _mirror(Ke):  # pragma: no cover - compiled
+    """Below the diagonal = above it (the kernels fill the node blocks b >= a: the tangents have major symmetry)."""
+    for r in range(Ke.shape[0]):
+        for c in range(r):
+            Ke[r, c] = Ke[c, r]
+
+
 @njit(parallel=True)
 def _element_stiffness_kernel(G, A, vol, out):
     k = out.shape[0]
     nq = G.shape[0]
     for e in prange(k):
         T = np.empty((8, 3, 3, 3))
-        Ke = out[e]
-        for r in range(24):
-            for s in range(24):
-                Ke[r, s] = 0.0
+        Ke = _zeroed(out[e])
         for q in range(nq):
             row = e * nq + q
             v = vol[row]
@@ -59,10 +74,7 @@ def _element_stiffness_kernel(G, A, vol, out):
                             Ke[3 * a + i, 3 * b + kk] += (
                                 T[a, i, kk, 0] * g0 + T[a, i, kk, 1] * g1 + T[a, i, kk, 2] * g2
                             )
-        # A has major symmetry (A_ijkl = A_klij), so K is symmetric: below the diagonal is the mirror
-        for r in range(24):
-            for c in range(r):
-                Ke[r, c] = Ke[c, r]
+        _mirror(Ke)  # A has major symmetry (A_ijkl = A_klij), so K is symmetric
 
 
 def element_stiffness(G, A, vol):
@@ -93,6 +105,91 @@ def element_stiffness(G, A, vol):
     out = np.empty((k, 24, 24))
     _element_stiffness_kernel(G, A, vol, out)
     return out
+
+
+@njit(parallel=True)
+def _element_stiffness_i1j_kernel(G, F, J, s1, s3, k33, vol, out):  # pragma: no cover - compiled
+    k = out.shape[0]
+    nq = G.shape[0]
+    for e in prange(k):
+        h = np.empty((8, 3))
+        C = np.empty((3, 3))
+        Ke = _zeroed(out[e])
+        for q in range(nq):
+            row = e * nq + q
+            v = vol[row]
+            if v == 0.0:
+                continue
+            f = F[row]
+            # C = cof(F) = J F^-T
+            C[0, 0] = f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1]
+            C[0, 1] = f[1, 2] * f[2, 0] - f[1, 0] * f[2, 2]
+            C[0, 2] = f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0]
+            C[1, 0] = f[0, 2] * f[2, 1] - f[0, 1] * f[2, 2]
+            C[1, 1] = f[0, 0] * f[2, 2] - f[0, 2] * f[2, 0]
+            C[1, 2] = f[0, 1] * f[2, 0] - f[0, 0] * f[2, 1]
+            C[2, 0] = f[0, 1] * f[1, 2] - f[0, 2] * f[1, 1]
+            C[2, 1] = f[0, 2] * f[1, 0] - f[0, 0] * f[1, 2]
+            C[2, 2] = f[0, 0] * f[1, 1] - f[0, 1] * f[1, 0]
+            for a in range(8):
+                for i in range(3):
+                    h[a, i] = C[i, 0] * G[q, a, 0] + C[i, 1] * G[q, a, 1] + C[i, 2] * G[q, a, 2]
+            sj = s3[row] / J[row]
+            al = 2.0 * s1[row] * v
+            be = (sj + k33[row]) * v
+            ga = -sj * v
+            for a in range(8):
+                for b in range(a, 8):
+                    gg = al * (G[q, a, 0] * G[q, b, 0] + G[q, a, 1] * G[q, b, 1] + G[q, a, 2] * G[q, b, 2])
+                    for i in range(3):
+                        for kk in range(3):
+                            val = be * h[a, i] * h[b, kk] + ga * h[b, i] * h[a, kk]
+                            if i == kk:
+                                val += gg
+                            Ke[3 * a + i, 3 * b + kk] += val
+        _mirror(Ke)
+
+
+def element_stiffness_i1j(G, F, J, s1, s3, k33, vol):
+    """Element stiffness matrices of a material whose tangent is ``2 s1 I + s3 d2J/dF2 + K33 dJ/dF dJ/dF``
+    (a law ``W = a I1 + f(J)`` over the invariant strain: neo-Hooke), from F and those three coefficients.
+
+    With ``h_a = cof(F) G_a`` (the corner's gradient pushed forward, times J) the node block is
+    ``v [2 s1 (G_a . G_b) I + (s3 / J + K33) h_a h_b^T - (s3 / J) h_b h_a^T]``: about a third of
+    :func:`element_stiffness`'s work, and the (n, 9, 9) tangent is never formed (the bunny at 2 mm,
+    754k samples: that tangent is 0.5 GB).  Equal to :func:`element_stiffness` of the material's full
+    tangent to round-off (``tests/deform/models/test_voxel_kernels.py``).
+
+    Parameters
+    ----------
+    G : (Q, 8, 3) float
+    F : (k * Q, 3, 3) float
+    J, s1, s3, k33 : (k * Q,) float
+        det F and the law's dW/dI1, dW/dJ, d2W/dJ2 at each sample (NaN where J <= 0: NaN blocks).
+    vol : (k * Q,) float
+
+    Returns
+    -------
+    (k, 24, 24) float, N/m.
+    """
+    G = np.ascontiguousarray(G, dtype=np.float64)
+    F = np.ascontiguousarray(F, dtype=np.float64)
+    args = [np.ascontiguousarray(a, dtype=np.float64) for a in (J, s1, s3, k33, vol)]
+    k = len(args[-1]) // G.shape[0]
+    out = np.empty((k, 24, 24))
+    _element_stiffness_i1j_kernel(G, F, *args, out)
+    return out
+
+
+def element_stiffness_i1j_numpy(G, F, J, s1, s3, k33, vol):
+    """Plain numpy twin of :func:`element_stiffness_i1j`: the full tangent, then :func:`element_stiffness_numpy`."""
+    F = np.asarray(F, dtype=np.float64)
+    C = np.linalg.det(F)[:, None, None] * np.linalg.inv(F).transpose(0, 2, 1)  # cof(F) (NaN-free for J != 0)
+    sj = np.asarray(s3) / np.asarray(J)
+    A = (2.0 * np.asarray(s1)[:, None, None, None, None] * np.einsum("ik,jl->ijkl", np.eye(3), np.eye(3))
+         + (sj + np.asarray(k33))[:, None, None, None, None] * np.einsum("nij,nkl->nijkl", C, C)
+         - sj[:, None, None, None, None] * np.einsum("nil,nkj->nijkl", C, C))
+    return element_stiffness_numpy(G, A, np.asarray(vol, dtype=np.float64))
 
 
 def element_stiffness_numpy(G, A, vol):

@@ -99,6 +99,12 @@ CHUNK_ELEMENTS = 16384
 FBAR_CHUNK_ELEMENTS = 4096
 """Voxels per batch with F-bar (three tangent-sized arrays per sample instead of one)."""
 
+I1J_TANGENT = True
+"""Materials of the form ``W = a I1 + f(J)`` (neo-Hooke) get their element stiffness from F and three
+coefficients per sample (:func:`~voxflex.deform.models.voxel._kernels.element_stiffness_i1j`) instead of
+the (9, 9) tangent and the general kernel (False: always the general path; the answers agree to
+round-off)."""
+
 
 
 
@@ -426,6 +432,10 @@ class VoxelModel:
                                          gradient=grad is not None, tangent=need_tangent)
             elif grad is None and not need_tangent:
                 W = _energy_density(mat, F)  # energy only (line-search trials)
+            elif need_tangent and I1J_TANGENT and getattr(mat, "linear_in_i1", False) and not (self._project and not const):
+                # neo-Hooke: the element stiffness from F and three coefficients per sample, no (9, 9) tangent
+                W, P, (s1, s3, k33, J) = mat.evaluate_i1j(F)
+                Ke = kern.element_stiffness_i1j(self._G, F, J, s1, s3, k33, vol)
             else:
                 W, P, A = mat.evaluate(F, tangent=need_tangent)
                 if need_tangent and self._project and not const:
