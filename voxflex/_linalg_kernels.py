@@ -47,3 +47,12 @@ def csr_diagonal_kernel(indptr, indices, data, out):
             else:
                 hi = mid
         out[i] = data[lo] if lo < indptr[i + 1] and indices[lo] == i else 0.0
+
+
+@njit
+def gather_kernel(data, sel, out):
+    """``out[k] = data[sel[k]]``: numpy's fancy indexing took 58 ms for 23 million entries, this loop 16 ms
+    (the free-DOF block of the voxel bunny's tangent, gathered at every Newton iteration).  Plain twin:
+    ``data[sel]``."""
+    for k in range(len(sel)):
+        out[k] = data[sel[k]]

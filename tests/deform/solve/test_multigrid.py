@@ -97,6 +97,11 @@ def test_galerkin_operators_symmetric_positive_definite(monkeypatch):
     blocked = h.galerkin(A)
     for M, B in zip(mats, blocked):
         assert abs(M - B).max() <= 1e-14 * abs(M).max()
+    # its row blocks, cut from A's arrays, are scipy's row slices exactly
+    for r0, r1 in ((0, 100), (100, 200), (len(free) - 7, len(free))):
+        blk, ref = mg._row_block(A, r0, r1), A[r0:r1]
+        assert blk.shape == ref.shape and np.array_equal(blk.indptr, ref.indptr)
+        assert np.array_equal(blk.indices, ref.indices) and np.array_equal(blk.data, ref.data)
     assert [M.shape[0] for M in mats] == h.sizes and len(mats) >= 3
     for P, fine, coarse in zip(h.prolongations, mats[:-1], mats[1:]):
         # symmetric to round-off of the sparse products (1e-13 relative to the largest entry)

