@@ -63,6 +63,14 @@ sensitive to other processes' load, but they count BLAS threads that spin.  Two 
   shared methods that needs no grid (Jacobi-CG for the linear beam, LU for
   Neo-Hooke).
 
+Measured on 2026-12-04 after the neo-Hookean element stiffness from three coefficients per sample
+(``--repeat 3 --tables-only``, load average 0.9-1.0, CPU seconds min, ratio peer / voxflex): Jacobi-CG
+voxflex 0.91, warp.fem 1.55 (1.70x), scikit-fem 4.79 (5.25x); linear multigrid-CG voxflex 0.18, warp.fem
+0.95 (5.21x, median 5.20x), scikit-fem 4.16 (22.8x); Neo-Hooke sparse LU voxflex 6.07, warp.fem 10.95
+(1.81x), scikit-fem 27.3 (4.49x); Neo-Hooke multigrid-CG voxflex 0.86 (31 Newton, 130 CG), warp.fem 6.93
+(8.06x, median 7.53x; wall 8.83x, 8.55x), scikit-fem 24.1 (28.0x); best each: linear warp.fem 8.49x,
+Neo-Hooke ``auto`` 0.81 (warp.fem 13.5x).  The whole host ran faster than on 2026-12-02 (every code).
+
 Measured on 2026-12-02 after the stale coarse levels, the first coarse level from the element
 matrices, the voxel stencil for the finest level, the compiled pattern and free-DOF gather and the
 single-precision cycle (``--repeat 3 --tables-only``, a 0.5 s pause before each timed run, load
