@@ -432,7 +432,8 @@ class VoxelModel:
                                          gradient=grad is not None, tangent=need_tangent)
             elif grad is None and not need_tangent:
                 W = _energy_density(mat, F)  # energy only (line-search trials)
-            elif need_tangent and I1J_TANGENT and getattr(mat, "linear_in_i1", False) and not (self._project and not const):
+            elif (need_tangent and I1J_TANGENT and getattr(mat, "linear_in_i1", False)
+                  and not (self._project and not const)):
                 # neo-Hooke: the element stiffness from F and three coefficients per sample, no (9, 9) tangent
                 W, P, (s1, s3, k33, J) = mat.evaluate_i1j(F)
                 Ke = kern.element_stiffness_i1j(self._G, F, J, s1, s3, k33, vol)
