@@ -15,7 +15,7 @@
   transposed Jacobian of the model's point mapping (see :func:`region_forces`).
 
 The functions here turn regions into arrays for any :class:`~voxflex.deform.models.protocol.Model`:
-:func:`fixed_dofs`, :func:`prescribed_positions`, :func:`region_forces`.
+:func:`fixed_dofs`, :func:`prescribed_positions`, :func:`region_forces`, :func:`load_vector`.
 """
 
 from __future__ import annotations
@@ -200,6 +200,16 @@ def prescribed_positions(model, regions, dofs, owner, factor: float) -> np.ndarr
             continue
         values[sel] = moved_rest(model, region.transform, factor)[dofs[sel]]
     return values
+
+
+def load_vector(model, forces=(), gravity=None, densities=None) -> np.ndarray:
+    """The full external load (N,) flat at load factor 1: the force regions' forces
+    (:func:`region_forces`) plus gravity on the materials' densities (N)."""
+    N = np.asarray(model.rest).size
+    f = region_forces(model, forces).ravel() if forces else np.zeros(N)
+    if gravity is not None:
+        f = f + model.gravity_force(densities, gravity).ravel()
+    return f
 
 
 def region_forces(model, regions) -> np.ndarray:

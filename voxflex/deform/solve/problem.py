@@ -74,13 +74,9 @@ class Problem:
     @cached_property
     def loads(self) -> np.ndarray:
         """The full external load (N,) flat, at load factor 1: region forces and gravity (N)."""
-        from .boundary import region_forces
+        from .boundary import load_vector
 
-        N = np.asarray(self.model.rest).size
-        f = region_forces(self.model, self.forces).ravel() if self.forces else np.zeros(N)
-        if self.gravity is not None:
-            f = f + self.model.gravity_force(self.densities, self.gravity).ravel()
-        return f
+        return load_vector(self.model, self.forces, self.gravity, self.densities)
 
     @cached_property
     def mass(self):

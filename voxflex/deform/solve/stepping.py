@@ -53,8 +53,8 @@ from .boundary import (
     FixedRegion,
     ForceRegion,
     fixed_dofs,
+    load_vector,
     prescribed_positions,
-    region_forces,
 )
 from .linear import DIRECT_FALLBACK_MAX
 from .newton import _Chord, _FreeBlock, _grid_of, _newton, _PatternAdd, _Problem
@@ -188,7 +188,8 @@ def _smallest_rayleigh(Hff, grid, free):
 
     n = Hff.shape[0]
     M, release = None, None
-    if grid is not None and np.all(diagonal(Hff) > 0):
+    d = diagonal(Hff)
+    if grid is not None and np.all(d > 0):
         from ..._blas import one_thread
         from .multigrid.hierarchy import hierarchy, multigrid_preconditioner
 
@@ -199,7 +200,7 @@ def _smallest_rayleigh(Hff, grid, free):
         M = spla.LinearOperator((n, n), matvec=apply, dtype=float)
         release = hierarchy(grid, free).release
     X = np.random.default_rng(20240601).standard_normal((n, 2))
-    threshold = -1e-8 * float(np.abs(diagonal(Hff)).max())
+    threshold = -1e-8 * float(np.abs(d).max())
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # LOBPCG warns when it stops at maxiter: the Ritz value still bounds
@@ -408,9 +409,7 @@ def solve(
         if f_full.shape != (N,):
             raise InputError(f"loads must hold one value per DOF ({N}), got shape {np.shape(loads)}")
     else:
-        f_full = region_forces(model, forces).ravel() if forces else np.zeros(N)
-        if gravity is not None:
-            f_full = f_full + model.gravity_force(densities, gravity).ravel()
+        f_full = load_vector(model, forces, gravity, densities)
     near_null = model.rigid_modes()[free] if options.linear_solver == "amg" else None
     reduce = _FreeBlock(free, N)
     block = None
