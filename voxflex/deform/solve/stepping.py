@@ -171,10 +171,16 @@ bunny at 2 mm (306k unknowns, after the third load step): theta = 7.1740e-4 afte
 iterations, residual / theta 1.06 / 0.059 / 0.0097 / 9e-5 / 2.7e-6 after 10 / 15 / 20 / 30 / 60;
 60 iterations took 10.2 s, 20 took 5.1 s."""
 
+EIGEN_BLOCK = 1
+"""Vectors in the check's LOBPCG block.  One vector costs half a two-vector iteration (one V-cycle and one
+product instead of two) and a few more iterations: on the voxel bunny above, 30 one-vector iterations took
+3.2 s against 5.2 s for 20 two-vector ones, to the same theta (7.17403e-4).  A (near-)degenerate smallest
+pair needs no second vector: every vector in its span has a residual within the pair's spread."""
+
 
 def _smallest_rayleigh(Hff, grid, free):
     """An upper bound of the smallest eigenvalue of the large sparse symmetric ``Hff``: the smallest
-    Ritz value of at most :data:`EIGEN_MAXITER` LOBPCG iterations (2 vectors, seeded; in stages of
+    Ritz value of at most :data:`EIGEN_MAXITER` LOBPCG iterations (:data:`EIGEN_BLOCK` vectors, seeded; in stages of
     :data:`EIGEN_STAGE` that stop at convergence, :data:`EIGEN_CONVERGED`, or below the instability
     threshold), preconditioned by the voxel multigrid V-cycle of Hff when there is a grid and Hff's
     diagonal is positive.
@@ -199,7 +205,7 @@ def _smallest_rayleigh(Hff, grid, free):
             apply, _ = multigrid_preconditioner(Hff, grid, free, stale=True)
         M = spla.LinearOperator((n, n), matvec=apply, dtype=float)
         release = hierarchy(grid, free).release
-    X = np.random.default_rng(20240601).standard_normal((n, 2))
+    X = np.random.default_rng(20240601).standard_normal((n, EIGEN_BLOCK))
     threshold = -1e-8 * float(np.abs(d).max())
     try:
         with warnings.catch_warnings():
