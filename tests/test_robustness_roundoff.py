@@ -4,13 +4,16 @@ The solvers carry the displacement from rest ``u = q - X``, not the positions: a
 dt = 1e-9 s falls 2.9e-17 m in two implicit-Euler steps, which ``X + u`` rounds away (eps |X| = 2.2e-16 m)
 but ``u`` and the probes' displacements (``/probe_displacements``) keep to round-off.  Before, both
 models returned exactly 0 for a neo-Hookean ball (the voxel model's linear path kept it only where the
-probe sat at the origin).  The elastic forces still come from the positions (the materials read F): a static
-motion below their round-off is refused with a message that says so.  The tolerance 1e-6 is a digit count
-(float64 keeps 15-16).
+probe sat at the origin).  The voxel model forms its strains from the displacement too
+(:class:`~voxflex.deform.models.protocol.FromDisplacement`: F = I + grad u, a linear model's forces K u), so a
+body far from the origin gets the answer it gets at the origin and a linear static motion of any size keeps its
+digits; the frame model still forms F from the positions: a static motion below their round-off is refused with
+a message that says so.  The tolerance 1e-6 is a digit count (float64 keeps 15-16).
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -49,22 +52,51 @@ def test_a_free_fall_at_dt_1e_9_moves_by_the_exact_discrete_fall(kind, model, tm
     assert back.probe_displacements()["centre"][2] == pytest.approx(exact, rel=1e-6)
 
 
-def _tip(kind, g):
-    text = beam(kind, gravity=f"[0.0, 0.0, {-g!r}]", nodes="count = 6" if kind == "affine" else "")
-    return vf.simulate(Scene.from_toml_text(text), progress=False, cache=False).probe_displacements()["tip"]
+def _tip(kind, g, *, origin=0.0, **kw):
+    text = beam(kind, gravity=f"[0.0, 0.0, {-g!r}]", nodes="count = 6" if kind == "affine" else "", **kw)
+    if origin:  # the same beam, clamp and probe moved by `origin` along every axis
+        o = f"{origin!r}"
+        text = (text.replace("origin = [0.0, 0.0, 0.0]", f"origin = [{o}, {o}, {o}]")
+                .replace("max = [1.0e-6, 1.0e9, 1.0e9]", f"max = [{origin + 1e-6!r}, 1.0e9, 1.0e9]")
+                .replace("point = [4.0, 0.5, 0.5]", f"point = [{origin + 4.0!r}, {origin + 0.5!r}, {origin + 0.5!r}]"))
+    r = vf.simulate(Scene.from_toml_text(text), progress=False, cache=False)
+    return r.probe_displacements()["tip"], r
 
 
-@pytest.mark.parametrize("kind", ["voxel", "affine"])
-def test_a_static_motion_below_the_forces_round_off_is_refused_and_named(kind):
-    """Forces still come from positions (the materials read F, not F - I): a linear cantilever under 1e-12
-    of its gravity (tip about 1e-13 m on a 4 m body) stops at relative residual ~1; the refusal names the
-    round-off of the forces and a fix that works (raise the loads), not a stiff layer.  Down to 1e-6 of the
-    load the answer still scales (to 1e-6)."""
-    ref = _tip(kind, 9.81)
+def test_a_static_motion_below_the_frames_round_off_is_refused_and_named():
+    """The frame model forms F from the positions: a linear cantilever under 1e-12 of its gravity (tip about
+    1e-13 m on a 4 m body) stops at relative residual ~1; the refusal names the round-off of the forces and
+    a fix that works (raise the loads), not a stiff layer.  Down to 1e-6 of the load the answer still scales
+    (to 1e-6)."""
+    ref = _tip("affine", 9.81)[0]
     assert ref[2] < -1e-2
-    np.testing.assert_allclose(_tip(kind, 9.81e-6), 1e-6 * ref, rtol=1e-6, atol=1e-6 * 1e-6 * abs(ref[2]))
+    np.testing.assert_allclose(_tip("affine", 9.81e-6)[0], 1e-6 * ref, rtol=1e-6, atol=1e-6 * 1e-6 * abs(ref[2]))
     with pytest.raises(vf.ConvergenceError, match=r"below what the elastic forces resolve .* raise the loads"):
-        _tip(kind, 9.81e-12)
+        _tip("affine", 9.81e-12)
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1e-12, 1e-20])
+def test_a_linear_voxel_model_keeps_the_digits_of_any_static_motion(scale):
+    """Its forces are K u of the displacement: 1e-12 of the gravity (refused before: the positions rounded the
+    1e-13 m tip away) and 1e-20 scale the tip exactly (a linear answer; 1e-12 relative, where the sideways
+    components, zero by symmetry, are round-off of the sag's)."""
+    ref = _tip("voxel", 9.81)[0]
+    np.testing.assert_allclose(_tip("voxel", 9.81 * scale)[0], scale * ref, rtol=1e-12, atol=1e-12 * scale * abs(ref[2]))
+
+
+def test_a_neo_hookean_voxel_body_far_from_the_origin_gets_the_answer_it_gets_at_the_origin():
+    """The beam moved 1 km and 1000 km away: the strains come from the displacement, so the tip is the one at
+    the origin to round-off (1e-12 of the sag; the positions' round-off, eps |x| / h = 4e-10 of the strain at
+    1000 km, moved it by 1.3e-7 and let Newton stop at its round-off floor before) in as many Newton
+    iterations."""
+    ref, r0 = _tip("voxel", 9.81, model="neo-hookean", elasticity="")
+    assert ref[2] < -0.3
+    for origin in (1e3, 1e6):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # no round-off-floor warning
+            tip, r = _tip("voxel", 9.81, model="neo-hookean", elasticity="", origin=origin)
+        np.testing.assert_allclose(tip, ref, rtol=0, atol=1e-12 * abs(ref[2]))
+        assert list(r.newton_iterations) == list(r0.newton_iterations)
 
 
 def test_results_without_the_displacement_group_read_the_positions():

@@ -63,9 +63,12 @@ accepted steps at 1.0)."""
 
 ROUNDOFF_MOTION = 1e-11
 """A step refused out of balance whose largest displacement is at most this fraction of the body's size is
-named as a motion below the forces' round-off (positions are known to eps |x|, so a strain of ~eps / h
-times the size is noise), not blamed on a stiff layer: a linear cantilever under 1e-12 of its gravity moves
-2e-14 of its size and stops at relative residual 0.98."""
+named as a motion below the forces' round-off, not blamed on a stiff layer: models that form F from the
+positions (known to eps |x|; the frame model) see a strain of ~eps |x| / h as noise, those that form it from
+the displacement (:class:`~voxflex.deform.models.protocol.FromDisplacement`: the voxel model) a strain of
+~eps.  A frame cantilever under 1e-12 of its gravity moves 2e-14 of its size and stops at relative residual
+0.97; a neo-Hookean voxel one under 1e-11 of it likewise (a linear voxel model, whose forces are K u, solves
+any load)."""
 
 THIN_FRACTION = 0.5
 """A body is one voxel thick along an axis when at least this fraction of its voxels have no material
@@ -398,8 +401,9 @@ class StateCheck:
                 raise ConvergenceError(
                     f"step {step} stopped at relative residual {residual:.2e} (the limit is {RESIDUAL_REFUSE:g}): the "
                     f"motion ({moved:.3g} m, {moved / self.rest_size:.2g} of the body's size) is below what the elastic "
-                    "forces resolve (they are computed from positions, known to about 1e-16 of the size); raise the "
-                    "loads (a linear answer scales with them) or simulate in dynamics, whose steps keep their digits")
+                    "forces resolve (their strains carry round-off of about 1e-16, or 1e-16 of the size where a "
+                    "model forms them from positions); raise the loads (a linear answer scales with them) or "
+                    "simulate in dynamics, whose steps keep their digits")
             raise ConvergenceError(
                 f"step {step} stopped at relative residual {residual:.2e} (its forces are out of balance by that "
                 f"fraction; the limit is {RESIDUAL_REFUSE:g}), which is not an equilibrium: a layer far stiffer "

@@ -11,7 +11,12 @@ import numpy as np
 from ...errors import InputError
 from ..models.protocol import end_step
 
-__all__ = ["ModelLayer"]
+__all__ = ["ModelLayer", "NOT_FORWARDED"]
+
+NOT_FORWARDED = frozenset({"energy_gradient_hessian_u", "strain_lengths"})
+"""Capabilities of the wrapped model that a layer does not pass on: the displacement form
+(:class:`~voxflex.deform.models.protocol.FromDisplacement`) would evaluate the wrapped model's energy
+without the layer's own, so a layer is evaluated at the positions unless it defines the form itself."""
 
 
 class ModelLayer:
@@ -46,7 +51,7 @@ class ModelLayer:
         return False
 
     def __getattr__(self, name):
-        if name == "inner":  # not set yet (during construction or unpickling)
+        if name == "inner" or name in NOT_FORWARDED:  # not set yet (construction, unpickling) / not the layer's
             raise AttributeError(name)
         return getattr(self.inner, name)
 

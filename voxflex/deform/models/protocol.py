@@ -33,7 +33,7 @@ from typing import Mapping, Protocol, runtime_checkable
 import numpy as np
 
 __all__ = ["Model", "PointMap", "DisplacementMap", "Part", "SurfacePoints", "OnePass", "end_step", "END_STEP_PASSES",
-           "OnVoxelGrid", "ConstantStiffness", "InternalVariables", "TangentProjection", "PointSamples"]
+           "OnVoxelGrid", "ConstantStiffness", "FromDisplacement", "InternalVariables", "TangentProjection", "PointSamples"]
 
 
 @runtime_checkable
@@ -242,6 +242,24 @@ class ConstantStiffness(Protocol):
     def constant_stiffness_block(self, free): ...
 
     def stiffness_elements(self): ...
+
+
+@runtime_checkable
+class FromDisplacement(Protocol):
+    """Strains formed from the displacement ``u = q - rest`` itself rather than from the positions q.
+
+    The positions are known to ``eps |x|`` only, so a strain formed from them carries noise of about
+    ``eps |x| / h`` (h the voxel or frame spacing): a body far from the origin, or a motion below ~1e-11 of
+    its size, loses its digits.  The solvers keep the displacement as their state and hand it over when
+    the model has this capability; ``energy_gradient_hessian_u(u)`` equals
+    ``energy_gradient_hessian(rest + u)`` in exact arithmetic."""
+
+    def energy_gradient_hessian_u(self, u, *, gradient: bool = True, hessian: bool = True):
+        """``energy_gradient_hessian`` at the displacement ``u`` (shaped like q)."""
+
+    def strain_lengths(self) -> np.ndarray:
+        """Shaped like q: per DOF, the motion that changes some sample's F by 1.  F = I + grad u is known
+        to eps, so the forces resolve motions down to about eps times these (Newton's round-off floor)."""
 
 
 @runtime_checkable

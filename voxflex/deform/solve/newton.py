@@ -28,7 +28,7 @@ import scipy.sparse as sp
 
 from ..._linalg import diagonal, vdot, vnorm
 from ...errors import ConvergenceError
-from ..models.protocol import ConstantStiffness, OnVoxelGrid, TangentProjection
+from ..models.protocol import ConstantStiffness, FromDisplacement, OnVoxelGrid, TangentProjection
 from .linear import (
     DIRECT_FALLBACK_MAX,
     INDEFINITE_REASONS,
@@ -145,6 +145,8 @@ class _Problem:
         # the solver's state is the displacement from rest (q - X, its digits kept whatever |X|): given as
         # u_base (and uhat, un: the inertial prediction and the previous state), the inertia, damping and
         # work read differences of displacements; without it, of the positions (callers of the former form)
+        # the models that form their strains from the displacement get u_base + delta, not the positions
+        self.u_base = None if u_base is None or not isinstance(model, FromDisplacement) else u_base
         if u_base is not None:
             self.off_hat = None if uhat is None else u_base - uhat
             self.off_n = None if un is None else u_base - un
@@ -182,6 +184,15 @@ class _Problem:
         self.projected = 0  # Hessians built from projected tangents
         self.chord = None  # a _Chord kept over the load or time steps (dense tangents), or None
 
+    def roundoff_lengths(self, free) -> np.ndarray:
+        """Per free DOF, the motion below which the elastic forces are round-off at the step's start
+        (Newton's floor is ``16 eps |diag(K) * this|``): the position ``|x|`` when the forces come from
+        positions (known to eps |x|); the displacement ``|u|`` plus the model's strain length (F = I + grad u
+        is known to eps) when they come from the displacement (:class:`FromDisplacement`)."""
+        if self.u_base is None:
+            return np.abs(self.base[free])
+        return np.abs(self.u_base.ravel()[free]) + np.asarray(self.model.strain_lengths(), dtype=float).ravel()[free]
+
     def __call__(self, delta, hessian=True, gradient=True, project=False):
         q = (self.base + delta).reshape(self.shape)
         hessian = hessian and self.block is None
@@ -190,15 +201,21 @@ class _Problem:
         self.energy_only += not gradient
         setter = self.model.set_tangent_projection if (
             project and hessian and gradient and isinstance(self.model, TangentProjection)) else None
+        if self.u_base is not None:  # the strains from the displacement, its digits kept (FromDisplacement)
+            u = (self.u_base + delta).reshape(self.shape)
+            evaluate = lambda **kw: self.model.energy_gradient_hessian_u(u, **kw)  # noqa: E731
+        else:
+            evaluate = lambda **kw: self.model.energy_gradient_hessian(q, **kw)  # noqa: E731
         if setter is not None:
             self.projected += bool(setter(True))
             try:
-                E, g, H = self.model.energy_gradient_hessian(q, hessian=True)
+                E, g, H = evaluate(hessian=True)
             finally:
                 setter(False)  # the model's Hessians stay exact outside this call (stability check, damping)
+        elif self.u_base is not None:
+            E, g, H = evaluate(gradient=gradient, hessian=hessian and gradient)
         else:
-            E, g, H = self.model.energy_gradient_hessian(q, hessian=hessian) if gradient else (
-                self.model.energy(q), None, None)
+            E, g, H = evaluate(hessian=hessian) if gradient else (self.model.energy(q), None, None)
         work = self.work0 + vdot(self.f, delta)
         pot = E - work
         mag = abs(E) + abs(work)
@@ -605,14 +622,15 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         secant = None
         if it == 0:
             scale = max(scale, rn)
-            # round-off floor: the elastic forces come from absolute positions, known to eps |x|, so
-            # the residual cannot drop below ~eps |diag(K)| |x|; taken at the step's start and frozen
+            # round-off floor: the elastic forces come from positions known to eps |x| (or from the displacement,
+            # F = I + grad u known to eps: _Problem.roundoff_lengths), so the residual cannot drop below
+            # ~eps |diag(K)| times that length; taken at the step's start and frozen
             # (a chord step's start has no Hessian of its own: the elastic diagonal of the step that built it)
             if problem.elastic_diagonal is None and use_chord:
                 diag = chord.elastic
             else:
                 diag = problem.elastic_diagonal if lean else problem.elastic_diagonal[free]
-            floor = 16.0 * np.finfo(float).eps * vnorm(diag * np.abs(problem.base[free]))
+            floor = 16.0 * np.finfo(float).eps * vnorm(diag * problem.roundoff_lengths(free))
         if it <= 1:
             scale = max(scale, vnorm(g[fixed]) if len(fixed) else 0.0)
         rel = rn / scale if scale > 0 else 0.0

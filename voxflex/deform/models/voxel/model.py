@@ -304,14 +304,19 @@ class VoxelModel:
             for start in range(0, len(ids), size):
                 yield label, _as_slice(ids[start : start + size]), const
 
-    def _deformation_gradient(self, q, elements):
-        """F (k * Q, 3, 3) at the samples of ``elements`` (element-major)."""
-        X = q[self.grid.element_nodes[elements]]  # (k, 8, 3)
+    def _deformation_gradient(self, q, elements, u=None):
+        """F (k * Q, 3, 3) at the samples of ``elements`` (element-major): ``sum_a x_a G_a`` of the positions,
+        or ``I + sum_a u_a G_a`` of the displacement ``u`` when given (the same in exact arithmetic, since
+        the corner gradients sum to zero; without the round-off of the positions, eps |x| / h)."""
+        X = (q if u is None else u)[self.grid.element_nodes[elements]]  # (k, 8, 3)
         # F[e, q] = X[e]^T G[q] as one batch of small products: each stays single-threaded in BLAS
         # (einsum's optimised path makes one large threaded product, 5-10x slower on a busy 2-core machine)
         k = len(X)
         F = np.matmul(X.transpose(0, 2, 1), self._Gm).reshape(k, 3, -1, 3).transpose(0, 2, 1, 3)
-        return F.reshape(-1, 3, 3)
+        F = F.reshape(-1, 3, 3)
+        if u is not None:
+            F = F + np.eye(3)
+        return F
 
     def _sample_volumes(self, elements):
         return (self.element_volume[elements][:, None] * self._qweights[None, :]).reshape(-1)
@@ -366,7 +371,25 @@ class VoxelModel:
         gradient : (n, 3) float or None (N)
         hessian : (3n, 3n) csr_matrix or None (N/m)
         """
-        q = self._check_q(q)
+        return self._evaluate(self._check_q(q), None, gradient, hessian)
+
+    def energy_gradient_hessian_u(self, u, *, gradient: bool = True, hessian: bool = True):
+        """:meth:`energy_gradient_hessian` at the displacement ``u = q - rest`` (n, 3) (m): F = I + grad u
+        and the quadratic terms' K u from u itself, so no digit of u is lost to the positions' round-off
+        (eps |x|; see :class:`~voxflex.deform.models.protocol.FromDisplacement`)."""
+        u = self._check_q(u)
+        return self._evaluate(self.rest + u, u, gradient, hessian)
+
+    def strain_lengths(self) -> np.ndarray:
+        """(n, 3): per DOF, the motion that changes some sample's F by 1 (the inverse of the largest corner
+        gradient ``|G_qa|``, about a voxel): F is known to eps, so eps times this is what the forces resolve.
+        Zero for a constant-tangent model: its forces are ``g0 + K u``, F is never formed."""
+        if self.constant_tangent:
+            return np.zeros((self.n_nodes, 3))
+        return np.full((self.n_nodes, 3), 1.0 / float(np.linalg.norm(self._G, axis=2).max()))
+
+    def _evaluate(self, q, u, gradient, hessian):
+        """Energy, gradient, Hessian at positions q; F and the quadratic terms from ``u`` (= q - rest) when given."""
         n = self.n_nodes
         energy = 0.0
         grad = np.zeros((n, 3)) if gradient else None
@@ -376,7 +399,8 @@ class VoxelModel:
             self._ensure_pattern()
         if has_constant:
             E0, g0, units = self._quadratic_terms()
-            u = q - self.rest
+            if u is None:
+                u = q - self.rest
             energy += E0
             if np.any(u):  # at rest (the first record, a step's start) no pass over the voxels
                 energy += vdot(g0.ravel(), u.ravel()) + self._constant_quadratic_energy(u, units)
@@ -396,7 +420,7 @@ class VoxelModel:
         if hessian and data is None:
             data = np.zeros(len(self._pattern[1]))
         if any(not const for _, _, const in self._groups):
-            energy += self._sample_pass(q, grad, data, only_variable=True)
+            energy += self._sample_pass(q, grad, data, only_variable=True, u=u)
         H = None
         if hessian:
             indptr, indices = self._pattern[:2]
@@ -415,15 +439,16 @@ class VoxelModel:
         self._project = bool(on)
         return self._project and any(not const and not self._fbar(label) for label, _, const in self._groups)
 
-    def _sample_pass(self, q, grad, data, *, only_variable=False, only_constant=False):
+    def _sample_pass(self, q, grad, data, *, only_variable=False, only_constant=False, u=None):
         """Energy of the selected groups from their samples; adds their gradient into ``grad``
-        (n, 3) and their stiffness into the CSR ``data`` when those are not None."""
+        (n, 3) and their stiffness into the CSR ``data`` when those are not None (F from the displacement
+        ``u`` when given, else from the positions ``q``)."""
         energy = 0.0
         n = self.n_nodes
         conn = self.grid.element_nodes
         for label, elements, const in self._chunks(only_variable=only_variable, only_constant=only_constant):
             mat = self.materials[label]
-            F = self._deformation_gradient(q, elements)
+            F = self._deformation_gradient(q, elements, u)
             vol = self._sample_volumes(elements)
             need_tangent = data is not None
             Ke = None
