@@ -22,6 +22,7 @@ residual fell a hundredfold 110 (122.6 s).
 from __future__ import annotations
 
 import time
+from functools import partial
 
 import numpy as np
 import scipy.sparse as sp
@@ -202,10 +203,9 @@ class _Problem:
         setter = self.model.set_tangent_projection if (
             project and hessian and gradient and isinstance(self.model, TangentProjection)) else None
         if self.u_base is not None:  # the strains from the displacement, its digits kept (FromDisplacement)
-            u = (self.u_base + delta).reshape(self.shape)
-            evaluate = lambda **kw: self.model.energy_gradient_hessian_u(u, **kw)  # noqa: E731
+            evaluate = partial(self.model.energy_gradient_hessian_u, (self.u_base + delta).reshape(self.shape))
         else:
-            evaluate = lambda **kw: self.model.energy_gradient_hessian(q, **kw)  # noqa: E731
+            evaluate = partial(self.model.energy_gradient_hessian, q)
         if setter is not None:
             self.projected += bool(setter(True))
             try:
