@@ -313,9 +313,9 @@ class VoxelModel:
         # (einsum's optimised path makes one large threaded product, 5-10x slower on a busy 2-core machine)
         k = len(X)
         F = np.matmul(X.transpose(0, 2, 1), self._Gm).reshape(k, 3, -1, 3).transpose(0, 2, 1, 3)
-        F = F.reshape(-1, 3, 3)
+        F = F.reshape(-1, 3, 3)  # a fresh array (the product's, reordered)
         if u is not None:
-            F = F + np.eye(3)
+            F += np.eye(3)  # in place: no second (k * Q, 3, 3) array per chunk
         return F
 
     def _sample_volumes(self, elements):
