@@ -399,19 +399,18 @@ class VoxelModel:
             self._ensure_pattern()
         if has_constant:
             E0, g0, units = self._quadratic_terms()
-            if u is None:
-                u = q - self.rest
+            du = q - self.rest if u is None else u  # the displacement of the quadratic terms (the samples keep u)
             energy += E0
-            if np.any(u):  # at rest (the first record, a step's start) no pass over the voxels
-                energy += vdot(g0.ravel(), u.ravel()) + self._constant_quadratic_energy(u, units)
+            if np.any(du):  # at rest (the first record, a step's start) no pass over the voxels
+                energy += vdot(g0.ravel(), du.ravel()) + self._constant_quadratic_energy(du, units)
             if gradient and (hessian or self._constant is not None):
                 Hc = sp.csr_matrix((self._constant_part()[0], self._pattern[1], self._pattern[0]), shape=(3 * n, 3 * n))
-                grad += g0 + (Hc @ u.ravel()).reshape(n, 3)
-            elif gradient and not np.any(u):
+                grad += g0 + (Hc @ du.ravel()).reshape(n, 3)
+            elif gradient and not np.any(du):
                 grad += g0  # at rest: K u = 0 without a pass over the voxels
             elif gradient:
                 # no assembled stiffness cached: apply it voxel by voxel instead of building it (memory)
-                grad += g0 + self._constant_apply(u, units)
+                grad += g0 + self._constant_apply(du, units)
             if hessian:
                 data_c = self._constant_part()[0]
                 # an all-constant model returns the cached (read-only) data itself: no copy per call
