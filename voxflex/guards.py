@@ -64,11 +64,10 @@ accepted steps at 1.0)."""
 ROUNDOFF_MOTION = 1e-11
 """A step refused out of balance whose largest displacement is at most this fraction of the body's size is
 named as a motion below the forces' round-off, not blamed on a stiff layer: models that form F from the
-positions (known to eps |x|; the frame model) see a strain of ~eps |x| / h as noise, those that form it from
-the displacement (:class:`~voxflex.deform.models.protocol.FromDisplacement`: the voxel model) a strain of
-~eps.  A frame cantilever under 1e-12 of its gravity moves 2e-14 of its size and stops at relative residual
-0.97; a neo-Hookean voxel one under 1e-11 of it likewise (a linear voxel model, whose forces are K u, solves
-any load)."""
+positions (known to eps |x|; the layers) see a strain of ~eps |x| / h as noise, those that form it from the
+displacement (:class:`~voxflex.deform.models.protocol.FromDisplacement`: the voxel and frame models) a
+strain of ~eps.  A neo-Hookean voxel cantilever under 1e-11 of its gravity stops at relative residual 0.98
+(a linear model, whose forces are K u, solves any load)."""
 
 THIN_FRACTION = 0.5
 """A body is one voxel thick along an axis when at least this fraction of its voxels have no material

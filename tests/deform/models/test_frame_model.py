@@ -475,3 +475,50 @@ def test_parallel_frame_kernels_give_the_same_bits_for_any_thread_count(monkeypa
     np.testing.assert_allclose(F, Fs, rtol=0, atol=1e-12)
     np.testing.assert_allclose(g, gs, rtol=0, atol=1e-12 * np.abs(gs).max())
     np.testing.assert_allclose(H, Hs, rtol=0, atol=1e-12 * np.abs(Hs).max())
+
+
+@pytest.mark.parametrize("name, kw, quadrature, hourglass", CASES)
+def test_the_displacement_form_is_the_position_form(name, kw, quadrature, hourglass):
+    """``energy_gradient_hessian_u(q - rest)`` (F = I + J u, the regions' fluctuation from u, a linear
+    material's K u) equals ``energy_gradient_hessian(q)`` to round-off (1e-8 relative at strains of 1e-2:
+    measured 1e-12), and a linear material's forces are K u exactly at rest and beyond."""
+    from voxflex.deform.models.protocol import FromDisplacement
+
+    model = _model(material(name, **kw), quadrature=quadrature, hourglass=hourglass, count=12)
+    assert isinstance(model, FromDisplacement)
+    q = _perturbed(model)
+    E1, g1, H1 = model.energy_gradient_hessian(q)
+    E2, g2, H2 = model.energy_gradient_hessian_u(q - model.rest)
+    assert E2 == pytest.approx(E1, rel=1e-8)
+    np.testing.assert_allclose(g2, g1, rtol=0, atol=1e-8 * np.abs(g1).max())
+    np.testing.assert_allclose(H2, H1, rtol=0, atol=1e-8 * np.abs(H1).max())
+    E0, g0, _ = model.energy_gradient_hessian_u(np.zeros_like(q))
+    assert E0 == 0.0 and np.abs(g0).max() <= 1e-12 * np.abs(g1).max()
+
+
+def test_reproducing_kernel_gauge_motions_are_pinned_and_move_no_point():
+    """Linearly precise weights describe a motion redundantly: their gauge motions move no point, so the
+    static tangent was singular along them to round-off (smallest eigenvalues ~1e-17 of the largest
+    diagonal entry; whether a Cholesky passed depended on the scene's units).  The energy pins them
+    (``alpha |G^T (q - rest)|^2 / 2``): the free tangent is now positive definite with room (> 1e-10), and
+    the pinned motions still move no material point (to 1e-12)."""
+    from robust import beam
+
+    from voxflex.deform.solve.boundary import FixedRegion, fixed_dofs
+    from voxflex.scene import Scene
+
+    text = beam("affine", model="neo-hookean", elasticity='quadrature = "elaston"',
+                nodes='count = 8\nshape_function = "reproducing-kernel"')
+    model = vf.model(Scene.from_toml_text(text), cache=False)
+    G = model.gauge_modes()
+    assert G.shape[1] > 0
+    H = model.energy_gradient_hessian(model.rest)[2]
+    dofs, _ = fixed_dofs(model, [FixedRegion([-1e9] * 3, [1e-6, 1e9, 1e9])])
+    free = np.setdiff1d(np.arange(H.shape[0]), dofs)
+    Hff = H[np.ix_(free, free)]
+    assert np.linalg.eigvalsh(Hff)[0] > 1e-10 * np.abs(np.diagonal(Hff)).max()
+    pts = model.image.index_to_world(np.argwhere(model.image.labels > 0) + 0.5)
+    pmap = model.point_mapping(pts)
+    for k in range(G.shape[1]):
+        moved = pmap.apply(model.rest + G[:, k].reshape(model.rest.shape)) - pts
+        assert np.abs(moved).max() <= 1e-12 * np.ptp(pts, axis=0).max()

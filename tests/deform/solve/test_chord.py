@@ -32,13 +32,16 @@ def _run(monkeypatch, chord: bool, dynamic: bool = True):
         monkeypatch.setattr(stepping, "_Chord", _NoChord)
     model = vf.model(Scene.from_toml_text(text), cache=False)
     calls = {"hessians": 0}
-    inner = model.energy_gradient_hessian
 
-    def counted(q, *, gradient=True, hessian=True):
-        calls["hessians"] += bool(gradient and hessian)
-        return inner(q, gradient=gradient, hessian=hessian)
+    def counting(inner):
+        def counted(q, *, gradient=True, hessian=True):
+            calls["hessians"] += bool(gradient and hessian)
+            return inner(q, gradient=gradient, hessian=hessian)
+        return counted
 
-    monkeypatch.setattr(model, "energy_gradient_hessian", counted)
+    # the solvers evaluate the frames at their displacement (FromDisplacement); other callers at positions
+    for name in ("energy_gradient_hessian", "energy_gradient_hessian_u"):
+        monkeypatch.setattr(model, name, counting(getattr(model, name)))
     r = vf.simulate(Scene.from_toml_text(text), model=model, progress=False)
     monkeypatch.undo()
     return r, calls["hessians"]

@@ -151,7 +151,7 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
             K = _unit_stiffness(model)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SpuriousModesWarning)
-            zero = check_modes(pre["frames"], model.samples, stiffness=K, gauge=_gauge(model))  # warns, naming how many
+            zero = check_modes(pre["frames"], model.samples, stiffness=K, gauge=model.gauge_modes())  # warns, naming how many
         if zero > 6:
             _refuse_static_mechanism(scene, model, K, model.samples, zero - 6)
         softest = pre.get("softest")
@@ -265,22 +265,6 @@ def _refuse_static_mechanism(scene, model, K, samples, spurious: int) -> None:
             '[elasticity] samples, use fewer frames, or quadrature = "gauss-legendre"')
 
 
-def _gauge(model) -> np.ndarray:
-    """(12n, g) the gauge motions of the model's weights: those of the 18 candidates that move no voxel
-    centre and deform none (:func:`~voxflex.deform.models.frames.modes.gauge_modes`); empty unless the weights
-    are linearly precise (reproducing kernels; eigenmode weights of a body without fixed regions).  Read at every voxel centre, not at the samples: a stabilised
-    mid-point region integrates Gauss points its centre does not show."""
-    from .modes import weights_gauge_modes
-
-    sf = model.shape_function
-    if not getattr(sf, "linearly_precise", False):
-        return np.zeros((12 * model.n_nodes, 0))
-    vv = sf.voxel_values() if hasattr(sf, "voxel_values") else None
-    if vv is None:
-        vv = sf(model.image.index_to_world(np.argwhere(model.image.labels > 0) + 0.5))
-    return weights_gauge_modes(sf, model.frames, vv)  # cached in the weights: the mass matrix asks again
-
-
 def _free_zero_modes(scene, model, K) -> int:
     """Zero eigenvalues of the stiffness over the DOFs ``scene`` does not hold (translations scaled by the
     samples' spread, so the verdict does not depend on the unit: :func:`~voxflex.deform.models.frames.modes.
@@ -295,7 +279,7 @@ def _free_zero_modes(scene, model, K) -> int:
     held = _held(scene, model)
     free = np.setdiff1d(np.arange(K.shape[0]), held)
     Ks = dimensionless(K, model.samples)[np.ix_(free, free)]
-    G = _gauge(model)  # (12n, g); no translation: the scaling leaves it alone
+    G = model.gauge_modes()  # (12n, g); no translation: the scaling leaves it alone
     if G.shape[1]:
         N = sla.null_space(G[held]) if len(held) else np.eye(G.shape[1])
         Gf = (G @ N)[free]
@@ -402,7 +386,7 @@ def _check(scene, image, pre, occupancy, make_model):
 
     model = make_model(pre)
     K = _unit_stiffness(model)
-    zero = zero_energy_modes(pre["frames"], model.samples, stiffness=K, gauge=_gauge(model))
+    zero = zero_energy_modes(pre["frames"], model.samples, stiffness=K, gauge=model.gauge_modes())
     if zero > 6:  # judged on the free body whatever the solver (the cache entry serves every solver kind)
         return f"{zero - 6} zero-energy mode(s) in the free body", K, None, model
     softest = _softest(scene, image, model, pre["sf"], occupancy, K)

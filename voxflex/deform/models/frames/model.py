@@ -214,7 +214,10 @@ class FrameModel(OnePass):
         self._mass_map_cache = None
         self._mass_points_cache = None
         self._project = False  # per-sample tangents projected to PSD in the Hessians (set_tangent_projection)
-        self._last_F = None  # (q, F) of the last state evaluated
+        self._last_F = None  # (q or u, F, whether q) of the last state evaluated
+        self._quadratic = None  # (materials, E0, g0, K) of a constant-tangent model at F = I (the displacement form)
+        self._strain_lengths = None
+        self._pin = None  # () or (G, alpha): the gauge motions' pin (_gauge_pin)
         self._last_P = None  # (F, materials, energy, P) of the last point pass: see _point_pass
 
     # -- construction -------------------------------------------------------
@@ -331,20 +334,27 @@ class FrameModel(OnePass):
         """F (m, 3, 3) at the samples (for stabilised mid-point regions: each region's mean F)."""
         return self._gradients_at(self._check_q(q)).copy()
 
-    def _gradients_at(self, q) -> np.ndarray:
+    def _gradients_at(self, q, u=None) -> np.ndarray:
         """F at the samples for the state q (read-only), the last state's kept: a line search's accepted trial
         is evaluated again with its gradient, and F streams the whole (m, P, 4, 3) table (17 ms of a 60-frame
-        bunny step's 30 ms gradient)."""
+        bunny step's 30 ms gradient).  With the displacement ``u = q - rest`` given, ``F = I + J u`` (F is
+        linear in the state and I at rest, the weights being a partition of unity): no round-off of the
+        positions (eps |x|) in the strain."""
+        state = q if u is None else u
         last = self._last_F
-        if last is not None and last[0].shape == q.shape and np.array_equal(last[0], q):
+        if (last is not None and last[2] == (u is None) and last[0].shape == state.shape
+                and np.array_equal(last[0], state)):
             return last[1]
         F = np.empty((self.n_samples, 3, 3))
         if self._points is not None:
-            K.points_F(self._index, self._points, q, F)
+            K.points_F(self._index, self._points, np.ascontiguousarray(state, dtype=np.float64), F)
         else:
-            K.frame_F(self._index, self._G, np.ascontiguousarray(q), F)
+            K.frame_F(self._index, self._G, np.ascontiguousarray(state, dtype=np.float64), F)
+        if u is not None:
+            for i in range(3):  # the diagonal only: a third of the time of adding np.eye(3) (14k samples: 34 us)
+                F[:, i, i] += 1.0
         F.setflags(write=False)
-        self._last_F = (np.array(q, copy=True), F)
+        self._last_F = (np.array(state, copy=True), F, u is None)
         return F
 
     def sample_fields(self, q) -> dict:
@@ -401,18 +411,115 @@ class FrameModel(OnePass):
 
         The Hessian is a dense ndarray (frames sharing material couple, so it is nearly full)."""
         q = self._check_q(q)
-        F = self._gradients_at(q)
+        return self._evaluate(q, None, q - self.rest, gradient, hessian)
+
+    def energy_gradient_hessian_u(self, u, *, gradient: bool = True, hessian: bool = True):
+        """:meth:`energy_gradient_hessian` at the displacement ``u = q - rest`` (n, 12): F = I + J u, the
+        regions' fluctuation from u, and a constant-tangent model's forces K u from the rest state's terms
+        (see :class:`~voxflex.deform.models.protocol.FromDisplacement`)."""
+        u = self._check_q(u)
+        if self.constant_tangent:
+            # a quadratic energy: E0 + g0 . u + u K u / 2 from the terms at F = I exactly (made once per set of
+            # materials), so a linear material's forces keep u's digits (F = I + J u rounds the strain to eps)
+            mats = tuple(self.materials.values())
+            kept = self._quadratic
+            if kept is None or len(kept[0]) != len(mats) or not all(a is b for a, b in zip(kept[0], mats)):
+                zero = np.zeros_like(self.rest)
+                E0, g0, K0 = self._evaluate(self.rest, zero, zero, True, True)
+                K0.setflags(write=False)
+                self._quadratic = kept = (mats, E0, g0.ravel(), K0)
+            _, E0, g0, K0 = kept
+            flat = u.ravel()
+            Ku = K0 @ flat
+            grad = (g0 + Ku).reshape(u.shape) if gradient else None
+            return float(E0 + vdot(g0, flat) + 0.5 * vdot(flat, Ku)), grad, (K0.copy() if hessian else None)
+        return self._evaluate(self.rest + u, u, u, gradient, hessian)
+
+    def strain_lengths(self) -> np.ndarray:
+        """(n, 12): per DOF, the motion that changes some sample's F by 1 (the inverse of the largest
+        ``|dF/dq_j|``): F is known to eps, so eps times this is what the forces resolve along that DOF.
+        A row entry ``3 i + c`` moves ``F[i, :]`` by ``r_c dw + w e_c``, a translation ``9 + i`` by ``dw``.
+        Zero for a constant-tangent model: :meth:`energy_gradient_hessian_u` then never forms F."""
+        if self.constant_tangent:
+            return np.zeros((self.n_nodes, 12))
+        if self._strain_lengths is None:
+            top = np.zeros((self.n_nodes, 4))
+            step = max(1, (1 << 20) // max(self._index.shape[1], 1))
+            for a in range(0, self._index.shape[0], step):
+                idx = self._index[a:a + step]
+                ok = idx >= 0
+                if self._Gtab is not None:
+                    norms = np.linalg.norm(self._Gtab[a:a + step], axis=-1)  # (c, P, 4)
+                else:
+                    w, dw, rest = (arr[a:a + step] for arr in self._points[:3])
+                    r = rest[:, None, :] - self._points[3][np.where(ok, idx, 0)]  # (c, P, 3)
+                    norms = np.empty(idx.shape + (4,))
+                    for c in range(3):
+                        g = r[..., c, None] * dw
+                        g[..., c] += w
+                        norms[..., c] = np.linalg.norm(g, axis=-1)
+                    norms[..., 3] = np.linalg.norm(dw, axis=-1)
+                for c in range(4):
+                    np.maximum.at(top[:, c], idx[ok], norms[..., c][ok])
+            inv = np.where(top > 0, 1.0 / np.where(top > 0, top, 1.0), 0.0)
+            self._strain_lengths = np.concatenate([np.tile(inv[:, :3], 3), inv[:, 3:].repeat(3, axis=1)], axis=1)
+        return self._strain_lengths
+
+    def gauge_modes(self) -> np.ndarray:
+        """(12n, g) the gauge motions of the model's weights: those of the 18 candidates that move no voxel
+        centre and deform none (:func:`~voxflex.deform.models.frames.modes.gauge_modes`); empty unless the
+        weights are linearly precise (reproducing kernels; eigenmode weights of a body without fixed regions).
+        Read at every voxel centre, not at the samples: a stabilised mid-point region integrates Gauss points
+        its centre does not show.  Cached in the weights (the checks, the mass and the gauge pin ask for them)."""
+        from .modes import weights_gauge_modes
+
+        sf = self.shape_function
+        if not getattr(sf, "linearly_precise", False):
+            return np.zeros((12 * self.n_nodes, 0))
+        vv = sf.voxel_values() if hasattr(sf, "voxel_values") else None
+        if vv is None:
+            vv = sf(self.image.index_to_world(np.argwhere(self.image.labels > 0) + 0.5))
+        return weights_gauge_modes(sf, self.frames, vv)
+
+    def _gauge_pin(self):
+        """``(G, alpha)``: the gauge motions of linearly precise weights (12n, g), which move no point and deform
+        nothing, and the stiffness that pins them (the mean matrix-entry diagonal of the rest stiffness), or
+        None when there are none.  Without it the static tangent is singular to round-off along them (smallest
+        eigenvalues ~1e-17 of the largest diagonal entry), and whether a Cholesky of it passes is decided by
+        round-off; with it the energy gains ``alpha |G^T (q - rest)|^2 / 2``, which no force excites (every
+        force is ``J^T f``, and J vanishes on them) and no point sees."""
+        if self._pin is None:
+            G = self.gauge_modes()
+            if G.shape[1] == 0:
+                self._pin = ()
+            else:
+                a_ = (np.arange(12 * self.n_nodes) % 12) < 9
+                self._pin = (G, float(np.abs(np.diagonal(self.rest_stiffness()))[a_].mean()))
+        return self._pin or None
+
+    def _evaluate(self, q, u, d, gradient, hessian):
+        """Energy, gradient, Hessian at q; F from the displacement ``u`` when given; ``d`` = q - rest (the gauge pin)."""
+        F = self._gradients_at(q, u)
         if any(self.volumetric.values()):
             energy, grad, H = self._projected_pass(F, gradient, hessian)
         else:
             energy, grad, H = self._point_pass(F, gradient, hessian)
         if self._fluct is not None and np.isfinite(energy):
-            e, g, h = self._fluct.evaluate(q, F, gradient=gradient, hessian=hessian)
+            e, g, h = self._fluct.evaluate(q, F, gradient=gradient, hessian=hessian, dq=u)
             energy += e
             if gradient:
                 grad = grad + g
             if hessian:
                 H += h
+        pin = self._gauge_pin() if np.isfinite(energy) else None
+        if pin is not None:
+            G, alpha = pin
+            c = G.T @ np.asarray(d, dtype=float).ravel()
+            energy += 0.5 * alpha * vdot(c, c)
+            if gradient:
+                grad = grad + (alpha * (G @ c)).reshape(grad.shape)
+            if hessian:
+                H += alpha * (G @ G.T)
         return float(energy), grad, H
 
     def _point_pass(self, F, gradient, hessian):

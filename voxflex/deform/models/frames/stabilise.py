@@ -267,15 +267,15 @@ class Fluctuation:
         self.backend = "numba"  # "numpy": the twin (tests)
         self._block_cache = {}
 
-    def evaluate(self, q, F, *, gradient=True, hessian=True):
+    def evaluate(self, q, F, *, gradient=True, hessian=True, dq=None):
         """Fluctuation energy (J), its gradient (n, 12) and Hessian (12n, 12n) (dense, or None).
 
         ``F`` (R, 3, 3): the regions' mean deformation gradients at ``q``.  A region whose mean F
         is singular (det F_r = 0) has infinite energy (its material's energy is then infinite too,
-        or undefined).
+        or undefined).  ``dq``: the displacement ``q - rest`` when the caller has it (its digits kept).
         """
         n = self.n
-        dq = np.asarray(q, dtype=float) - self.rest_state()
+        dq = np.asarray(q, dtype=float) - self.rest_state() if dq is None else np.asarray(dq, dtype=float)
         dflat = dq.reshape(-1)
         Kc = self.constant_matrix
         g_c = Kc @ dflat

@@ -315,7 +315,8 @@ class VoxelModel:
         F = np.matmul(X.transpose(0, 2, 1), self._Gm).reshape(k, 3, -1, 3).transpose(0, 2, 1, 3)
         F = F.reshape(-1, 3, 3)  # a fresh array (the product's, reordered)
         if u is not None:
-            F += np.eye(3)  # in place: no second (k * Q, 3, 3) array per chunk
+            for i in range(3):  # in place, the diagonal only (no second (k * Q, 3, 3) array per chunk)
+                F[:, i, i] += 1.0
         return F
 
     def _sample_volumes(self, elements):
