@@ -378,8 +378,7 @@ class VoxelModel:
         """:meth:`energy_gradient_hessian` at the displacement ``u = q - rest`` (n, 3) (m): F = I + grad u
         and the quadratic terms' K u from u itself, so no digit of u is lost to the positions' round-off
         (eps |x|; see :class:`~voxflex.deform.models.protocol.FromDisplacement`)."""
-        u = self._check_q(u)
-        return self._evaluate(self.rest + u, u, gradient, hessian)
+        return self._evaluate(None, self._check_q(u), gradient, hessian)  # the positions are never read
 
     def strain_lengths(self) -> np.ndarray:
         """(n, 3): per DOF, the motion that changes some sample's F by 1 (the inverse of the largest corner
@@ -390,7 +389,7 @@ class VoxelModel:
         return np.full((self.n_nodes, 3), 1.0 / float(np.linalg.norm(self._G, axis=2).max()))
 
     def _evaluate(self, q, u, gradient, hessian):
-        """Energy, gradient, Hessian at positions q; F and the quadratic terms from ``u`` (= q - rest) when given."""
+        """Energy, gradient, Hessian at positions q, or from the displacement ``u`` (= q - rest; q then None)."""
         n = self.n_nodes
         energy = 0.0
         grad = np.zeros((n, 3)) if gradient else None
