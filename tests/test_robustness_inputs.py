@@ -150,6 +150,17 @@ def test_a_non_finite_state_is_refused():
             check(3, q, np.ones((2, 3)), 0.0)
 
 
+def test_a_non_finite_drawn_surface_is_refused():
+    check = StateCheck(np.array([[0, 0, 0], [1, 1, 1]], dtype=float))
+    for bad in (np.nan, np.inf, -np.inf):
+        for where in ((0, 0), (1, 2)):
+            surface = np.ones((2, 3))
+            surface[where] = bad
+            with pytest.raises(ConvergenceError, match="drawn surface is not finite"):
+                check(3, np.zeros(3), surface, 0.0)
+    check(3, np.zeros(3), np.ones((2, 3)), 0.0)
+
+
 def test_a_step_accepted_out_of_balance_is_refused():
     check = StateCheck(np.array([[0, 0, 0], [1, 1, 1]], dtype=float))
     check(1, np.zeros(3), np.zeros((2, 3)), RESIDUAL_REFUSE / 2)

@@ -145,14 +145,19 @@ def voxels_touching_box(image, lo, hi) -> np.ndarray:
     it holds no voxel centre but touches the first layer of voxels.  Frames are
     placed in, and a fixed region holds the frames of, the voxels it touches.
     """
+    ijk = np.indices(image.shape).reshape(3, -1).T
+    return voxel_boxes_meet(image, ijk, lo, hi).reshape(image.shape)
+
+
+def voxel_boxes_meet(image, ijk, lo, hi) -> np.ndarray:
+    """(m,) bool: whether the (closed, world-aligned bounding) box of each voxel ``ijk`` (m, 3) meets the box
+    [lo, hi] (:func:`voxels_touching_box` for a few voxels: a frame model's held frames)."""
     lo = np.asarray(lo, dtype=float)
     hi = np.asarray(hi, dtype=float)
-    ijk = np.indices(image.shape).reshape(3, -1).T
-    centres = _centres(image, ijk)
+    centres = _centres(image, np.asarray(ijk).reshape(-1, 3))
     half = 0.5 * np.abs(np.asarray(image.direction, dtype=float)) @ np.asarray(image.spacing, dtype=float)
     tol = 1e-9 * float(np.max(image.spacing))
-    meets = np.all((centres + half >= lo - tol) & (centres - half <= hi + tol), axis=1)
-    return meets.reshape(image.shape)
+    return np.all((centres + half >= lo - tol) & (centres - half <= hi + tol), axis=1)
 
 
 def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="geodesic", compliance=None,

@@ -216,6 +216,67 @@ def test_mass_matrices_carry_the_mass_and_momentum():
     assert float(model.rigid_modes()[:, 2] @ g.ravel()) == pytest.approx(-9.81 * mass, rel=1e-12)
 
 
+def test_lumped_mass_blocks_are_the_per_entry_sums():
+    """The lumped mass's per-frame 4x4 blocks (one compiled pass) equal the sums over the voxel centres'
+    parent entries written out in numpy (``sum m w [r; 1][r; 1]^T``), bit for bit: the same products added
+    in the same order."""
+    model = _model(material("neo-hookean", young=1e3, poisson=0.3))
+    rho = {1: 1100.0}
+    M = model.mass_matrix(rho, lumped=True).toarray()
+    mp = model._point_masses(rho)
+    v = model._mass_layer()[2].shape
+    assert np.all(v.w >= 0)  # the per-frame path (Shepard weights)
+    want = np.zeros((model.n_nodes, 4, 4))
+    for s_ in range(v.m):
+        for p in range(v.index.shape[1]):
+            a = v.index[s_, p]
+            if a >= 0:
+                r = np.append(v.rest[s_] - model.frames[a], 1.0)
+                want[a] += np.outer(v.w[s_, p] * mp[s_] * r, r)
+    for a in range(model.n_nodes):
+        for i in range(3):
+            d = [12 * a + 3 * i, 12 * a + 3 * i + 1, 12 * a + 3 * i + 2, 12 * a + 9 + i]
+            assert np.allclose(M[np.ix_(d, d)], want[a], rtol=1e-14, atol=0)
+    assert np.count_nonzero(M) == model.n_nodes * 3 * 16  # block-diagonal, nothing between frames
+
+
+def test_held_dofs_are_those_of_the_frames_in_the_voxels_the_box_touches():
+    """held_dofs tests only the frames' voxels; the answer is the one of the whole grid's touched voxels."""
+    from voxflex.voronoi.placement import voxels_touching_box
+
+    model = _model(material("neo-hookean", young=1e3, poisson=0.3))
+    for lo, hi in (([-1, -1, -1], [0.0, 2, 2]), ([1.0, -1, -1], [1.5, 2, 2]), ([2.5, 0.4, 0.4], [9, 9, 9]),
+                   ([5, 5, 5], [6, 6, 6])):
+        lo, hi = np.array(lo, float), np.array(hi, float)
+        ijk = np.floor(model.image.world_to_index(model.frames) + 1e-9).astype(int)
+        touched = voxels_touching_box(model.image, lo, hi)[tuple(ijk.T)]
+        inside = np.all((model.frames >= lo) & (model.frames <= hi), axis=1)
+        frames = np.flatnonzero(touched | inside)
+        want = np.sort((12 * frames[:, None] + np.arange(12)[None, :]).ravel())
+        assert np.array_equal(model.held_dofs(lo, hi), want)
+
+
+def test_fields_of_the_solvers_answer_reuse_its_F():
+    """The recorder's F at a dynamic step's answer is the solver's last F, formed from the displacement (no
+    pass of its own), and equals the F formed from the positions to round-off; another state gets its own."""
+    from voxflex.deform.solve.boundary import FixedRegion
+
+    model = _model(material("neo-hookean", young=1e3, poisson=0.3))
+    records = solve(model, fixed=[FixedRegion([-1, -1, -1], [0.3, 2, 2])], densities={1: 1000.0},
+                    gravity=[0.0, 0.0, -9.81], options=SolverOptions(kind="implicit-euler", dt=0.01, steps=3))
+    q = records[-1].q
+    F = model.sample_fields(q)["F"]
+    assert F is model._last_F[1] and model._last_F[2] is False  # the displacement form's, kept
+    Fq = FrameModel.from_image(model.image, model.frames, model.shape_function, model.materials,
+                               quadrature="gauss-legendre").deformation_gradients(q)
+    assert np.abs(F - Fq).max() < 1e-12 and np.abs(F - np.eye(3)).max() > 1e-4
+    other = model.sample_fields(records[1].q)["F"]
+    assert other is not F and np.abs(other - F).max() > 1e-6
+    # and the energies the steps record are the model's at their states (Newton's own evaluation reused)
+    for r in records[1:]:
+        assert r.elastic_energy == pytest.approx(float(model.energy(r.q)), rel=1e-9)
+
+
 def test_implicit_euler_with_frames_never_gains_energy():
     """A clamped bar released from a bent state: total energy never increases (backward Euler dissipates)."""
     model = _model(material("neo-hookean", young=1e3, poisson=0.3))

@@ -130,3 +130,33 @@ def test_the_extrapolated_start_leaves_the_trajectory_as_it_was(monkeypatch):
     assert scale > 1e-2
     np.testing.assert_allclose(u_extra, u_plain, rtol=0, atol=1e-6 * scale)
     assert n_extra <= n_plain, (n_extra, n_plain)
+
+
+def test_a_factor_serving_many_solves_becomes_its_inverse(monkeypatch):
+    """After CHORD_INVERSE_AFTER solves a kept factor solves by its explicit inverse (made once): the same
+    steps as the triangular solves to round-off (1e-12 relative; cond(H) ~ 10 here, so eps cond ~ 1e-15), with
+    and without secant pairs; a matrix above CHORD_INVERSE_MAX keeps the triangular solves."""
+    rng = np.random.default_rng(3)
+    n = 40
+    B = rng.standard_normal((n, n))
+    H = B @ B.T + n * np.eye(n)
+    chord = newton._Chord()
+    chord.store(H, np.diag(H))
+    rhs = [rng.standard_normal(n) for _ in range(2 * newton.CHORD_INVERSE_AFTER)]
+    inverses = set()
+    for k, b in enumerate(rhs):
+        if k == 3:
+            s = rng.standard_normal(n)
+            assert chord.secant(s, H @ s)  # an exact secant pair: the L-BFGS correction leaves H's solve alone
+        z = chord.solve(b)
+        assert np.linalg.norm(z - np.linalg.solve(H, b)) <= 1e-12 * np.linalg.norm(z)
+        assert (chord.inverse is not None) == (k + 1 >= newton.CHORD_INVERSE_AFTER)
+        if chord.inverse is not None:
+            inverses.add(id(chord.inverse))
+    assert len(inverses) == 1
+    chord.store(H, np.diag(H))  # a fresh factor forgets the inverse
+    assert chord.inverse is None and chord.uses == 0
+    monkeypatch.setattr(newton, "CHORD_INVERSE_MAX", n - 1)
+    for b in rhs:
+        z = chord.solve(b)
+    assert chord.inverse is None and np.linalg.norm(z - np.linalg.solve(H, b)) <= 1e-12 * np.linalg.norm(z)

@@ -513,7 +513,7 @@ def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, n
             delta, its, rel, lin_its, solver_used, halvings = _newton(
                 problem, np.zeros(N), free, dofs, u_fixed - u_start[dofs], options, near_null, label, reduce
             )
-            cuts, E_new = 0, None
+            cuts, E_new = 0, getattr(problem, "solution_energy", None)
             u_new = u_start + delta
             if not np.all(np.isfinite(u_new)):
                 raise ConvergenceError(f"{label}: the state is not finite after {its} Newton iterations")
@@ -539,10 +539,10 @@ def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, n
             if not np.all(np.isfinite(x_new)):
                 raise ConvergenceError(f"{label}: the state is not finite after re-solving the step")
             its, lin_its, halvings, cuts = its + its_p, lin_its + lin_p, halvings + halv_p, cuts + cuts_p
-        if dynamic or passes or E_new is None:
+        if passes or E_new is None:
             E = float(model.energy(x_new.reshape(shape)))
         else:
-            E = float(E_new)  # Newton's own evaluation at the answer (a pass over the voxels saved)
+            E = float(E_new)  # Newton's own evaluation at the answer (a pass over the samples saved)
         kin = 0.0
         if dynamic:
             # u_new - u = h w + delta on the free DOFs (u_start = u + h w there) and delta on the fixed

@@ -250,6 +250,31 @@ def frame_forces_points(index, w, dw, rest, frames, P_stress, weight, g):  # pra
 
 
 @njit
+def mass_blocks(index, w, rest, frames, mass, blocks):  # pragma: no cover - compiled
+    """blocks (n, 4, 4) += per frame a, over the points s whose parent it is, ``mass_s w_sa [r; 1][r; 1]^T``
+    with ``r = X_s - X_a`` (the lumped frame mass: the same sums as a bincount per entry pair, in the same
+    order, without its (entries, 4) temporaries: 17 -> 2 ms for the 3 mm bunny's 28k voxel centres)."""
+    m, P = index.shape
+    r = np.empty(4)
+    r[3] = 1.0
+    for s in range(m):
+        for p in range(P):
+            a = index[s, p]
+            if a < 0:
+                continue
+            c = w[s, p] * mass[s]
+            r[0], r[1], r[2] = rest[s, 0] - frames[a, 0], rest[s, 1] - frames[a, 1], rest[s, 2] - frames[a, 2]
+            for i in range(4):
+                ci = c * r[i]
+                for j in range(i, 4):
+                    blocks[a, i, j] += ci * r[j]
+    for a in range(blocks.shape[0]):
+        for i in range(4):
+            for j in range(i + 1, 4):
+                blocks[a, j, i] = blocks[a, i, j]
+
+
+@njit
 def gauge_sums(index, w, dw, rest, frames, phi, S, T):  # pragma: no cover - compiled
     """Per sample s, over its parents a (index -1: padding): ``S[s, m, j] = sum w phi_a[m] r_j`` and
     ``T[s, m, j, l] = sum phi_a[m] (w delta_jl + r_j dw_l)`` with ``r = X_s - X_a`` -- the motion and the

@@ -357,6 +357,17 @@ class FrameModel(OnePass):
         self._last_F = (np.array(state, copy=True), F, u is None)
         return F
 
+    def _fields_F(self, q) -> np.ndarray:
+        """F at the samples for the fields of state ``q`` (read-only): the solver's last F when it was formed from
+        the displacement of this very state (``rest + u == q`` bit for bit: the recorder's state is the solver's
+        answer), which is the more accurate one (no round-off of the positions) and costs no pass; else
+        :meth:`_gradients_at`."""
+        last = self._last_F
+        if (last is not None and not last[2] and last[0].shape == q.shape
+                and np.array_equal(self.rest + last[0], q)):
+            return last[1]
+        return self._gradients_at(q)
+
     def sample_fields(self, q) -> dict:
         """What result fields are computed from (see :meth:`voxflex.deform.models.protocol.Model.sample_fields`): every
         sample its own cell; on the surface, F through the frames at the centre of the voxel behind each face."""
@@ -373,7 +384,7 @@ class FrameModel(OnePass):
         fmap = self._surface_fmap[0]
         # F read-only as the model keeps it (no copy); the surface layer's F only when a field asks for it
         # (every recorded step checks the samples' det F, few scenes record fields)
-        return {"F": self._gradients_at(q), "volume": s.volume, "label": s.label,
+        return {"F": self._fields_F(q), "volume": s.volume, "label": s.label,
                 "cell": np.arange(len(s.volume)), "n_cells": len(s.volume), "cell_kind": "samples",
                 "materials": self.materials, "surface_F": lambda: fmap.apply(q),
                 "surface_label": self._surface_fmap[1], "triangle_point": np.tile(np.arange(nf), 2)}
@@ -748,16 +759,10 @@ class FrameModel(OnePass):
             # voxel centres, the points gravity acts on, through the weights themselves
             return self._point_mass(v, mp)
         n = self.n_nodes
-        X = v.rest
-        ok = v.index >= 0
-        blocks = np.empty((n, 4, 4))  # per frame: sum m w [r; 1][r; 1]^T with r = X - X_a
-        idx = v.index[ok]
-        r = np.ones((len(idx), 4))
-        r[:, :3] = np.broadcast_to(X[:, None, :], ok.shape + (3,))[ok] - self.frames[idx]  # (entries, 4)
-        mr = (v.w * mp[:, None])[ok][:, None] * r
-        for i in range(4):
-            for j in range(i, 4):
-                blocks[:, i, j] = blocks[:, j, i] = np.bincount(idx, mr[:, i] * r[:, j], minlength=n)
+        blocks = np.zeros((n, 4, 4))  # per frame: sum m w [r; 1][r; 1]^T with r = X - X_a
+        K.mass_blocks(np.ascontiguousarray(v.index), np.ascontiguousarray(v.w, dtype=np.float64),
+                      np.ascontiguousarray(v.rest, dtype=np.float64), np.ascontiguousarray(self.frames, dtype=np.float64),
+                      np.ascontiguousarray(mp, dtype=np.float64), blocks)
         # DOF layout: A row i (3 entries) then t_i; x_i = sum_j A_ij r_j + t_i couples A_i. with t_i
         full = np.zeros((n, 12, 12))
         for i in range(3):
@@ -874,14 +879,14 @@ class FrameModel(OnePass):
         """DOFs a fixed box [lo, hi] holds: those of the frames in the box or in a voxel the box
         touches (a thin box around a face holds the frames of the first voxel layer); for component c,
         row c of A and t_c.  Material points without a frame follow the frames."""
-        from ....voronoi.placement import voxels_touching_box
+        from ....voronoi.placement import voxel_boxes_meet
 
         lo = np.asarray(lo, dtype=float)
         hi = np.asarray(hi, dtype=float)
         in_box = np.all((self.frames >= lo) & (self.frames <= hi), axis=1)
         f = np.floor(self._grid().world_to_index(self.frames) + 1e-9).astype(np.int64)
         f = np.clip(f, 0, np.asarray(self.image.shape) - 1)
-        touched = voxels_touching_box(self.image, lo, hi)[f[:, 0], f[:, 1], f[:, 2]]
+        touched = voxel_boxes_meet(self.image, f, lo, hi)  # the frames' voxels only, not the whole grid's
         frames = np.flatnonzero(in_box | touched)
         local = []
         for c in components:
