@@ -82,13 +82,21 @@ def _n_moments(degree: int) -> int:
 
 
 def _monomials(d, nm) -> np.ndarray:
-    """The first ``nm`` monomials of :data:`~voxflex.sampling.volume_moments.EXPONENTS` at offsets d (K, 3)."""
+    """The first ``nm`` monomials of :data:`~voxflex.sampling.volume_moments.EXPONENTS` at offsets d (K, 3).
+
+    Column by column from contiguous powers (the same products in the same order as gathering the
+    exponents of a (K, degree, 3) table, a quarter of its time: 0.35 s of the bunny's 754k Gauss points)."""
     e = EXPONENTS[:nm]
     top = int(e.max()) + 1
-    powers = np.ones((d.shape[0], top, 3))
+    dt = np.ascontiguousarray(np.asarray(d, dtype=np.float64).T)  # (3, K)
+    powers = np.empty((top, 3, dt.shape[1]))
+    powers[0] = 1.0
     for k in range(1, top):
-        powers[:, k] = powers[:, k - 1] * d
-    return powers[:, e[:, 0], 0] * powers[:, e[:, 1], 1] * powers[:, e[:, 2], 2]
+        powers[k] = powers[k - 1] * dt
+    out = np.empty((dt.shape[1], nm))
+    for j, (a, b, c) in enumerate(e):
+        out[:, j] = powers[a, 0] * powers[b, 1] * powers[c, 2]
+    return out
 
 
 def _close(a, b, rtol, atol) -> bool:
@@ -154,30 +162,57 @@ def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degr
     centre = np.stack([np.bincount(region, weights=volume * points[:, a], minlength=n_regions)
                        for a in range(3)], axis=1) / vol_r[:, None]
     mono = _monomials((points - centre[region]) / h, nm)
-    selected, weights = [], []
+    selected = [None] * n_regions
+    weights = [None] * n_regions
+    fits = {}  # support size -> [(region, ids, A, b, scale, keep, x)]: re-solved in batches below
     for r in range(n_regions):
         ids = order[bounds[r]:bounds[r + 1]]
-        v = volume[ids]
         if len(ids) <= nm:  # no fewer points possible in general: keep the full rule
-            selected.append(ids)
-            weights.append(v)
+            selected[r], weights[r] = ids, volume[ids]
             continue
         A = mono[ids].T  # (nm, k)
-        b = A @ (v / h**3)  # weights in voxel volumes: NNLS's tolerances are absolute, the fit scale-free
+        b = A @ (volume[ids] / h**3)  # weights in voxel volumes: NNLS's tolerances are absolute, the fit scale-free
         scale = 1.0 / np.maximum(np.abs(A).max(axis=1), 1e-300)
         x, _ = nnls(A * scale[:, None], b * scale, maxiter=50 * len(ids))
         keep = np.flatnonzero(x > 1e-12 * x.max())
-        # the support's weights re-solved to round-off (NNLS stops at its own tolerance)
-        Ak = A[:, keep]
-        xs, *_ = np.linalg.lstsq(Ak * scale[:, None], b * scale, rcond=None)
-        if np.all(xs > 0) and _close(Ak @ xs, b, 1e-10, 1e-13 * abs(b[0])):
-            x_keep = xs
-        else:
-            x_keep = x[keep]
-        if not _close(Ak @ x_keep, b, 1e-8, 1e-11 * abs(b[0])):  # pragma: no cover
-            selected.append(ids)  # cannot happen for Gauss candidates (the full rule is a solution); be safe
-            weights.append(v)
-            continue
-        selected.append(ids[keep])
-        weights.append(x_keep * h**3)
+        fits.setdefault(len(keep), []).append((r, ids, A, b, scale, keep, x))
+    for group in fits.values():
+        _resolve(group, selected, weights, volume, h)
     return np.concatenate(selected).astype(np.int64), np.concatenate(weights)
+
+
+def _resolve(group, selected, weights, volume, h) -> None:
+    """The weights on each NNLS support re-solved to round-off (NNLS stops at its own tolerance), for regions
+    with supports of one size at once: least squares by batched QR of the row-scaled (nm, k) systems (full
+    column rank: NNLS's supports are independent columns), kept where every weight is positive and the moments
+    are met to 1e-10, else NNLS's own weights; a support that misses them beyond 1e-8 keeps the full rule."""
+    Ak = np.stack([A[:, keep] for _, _, A, _, _, keep, _ in group])  # (G, nm, k)
+    b = np.stack([g[3] for g in group])  # (G, nm)
+    scale = np.stack([g[4] for g in group])
+    k = Ak.shape[2]
+    xs = np.full((len(group), k), np.nan)
+    if k:
+        Q, R = np.linalg.qr(Ak * scale[:, :, None])
+        rhs = np.einsum("gik,gi->gk", Q, b * scale)
+        d = np.abs(np.diagonal(R, axis1=1, axis2=2))
+        ok = d.min(axis=1) > 1e-14 * d.max(axis=1)  # numerically independent columns (else NNLS's weights)
+        if ok.any():
+            xs[ok] = np.linalg.solve(R[ok], rhs[ok][..., None])[..., 0]
+    xn = np.stack([x[keep] for *_, keep, x in group])  # NNLS's own weights on the supports
+    tol = np.abs(b[:, :1])
+    with np.errstate(invalid="ignore"):
+        resolved = np.all(xs > 0, axis=1) & _close_rows(Ak, xs, b, 1e-10, 1e-13 * tol)
+    x_keep = np.where(resolved[:, None], xs, xn)
+    met = _close_rows(Ak, x_keep, b, 1e-8, 1e-11 * tol)
+    for (r, ids, *_, keep, _), xk, ok in zip(group, x_keep, met):
+        if ok:
+            selected[r], weights[r] = ids[keep], xk * h**3
+        else:  # pragma: no cover - cannot happen for Gauss candidates (the full rule is a solution); be safe
+            selected[r], weights[r] = ids, volume[ids]
+
+
+def _close_rows(A, x, b, rtol, atol) -> np.ndarray:
+    """Per system g, whether ``A[g] @ x[g]`` is within ``atol[g] + rtol |b[g]|`` of ``b[g]`` (:func:`_close` of
+    a batch; False where x is not finite)."""
+    Ax = np.matmul(A, x[..., None])[..., 0]
+    return np.all(np.abs(Ax - b) <= atol + rtol * np.abs(b), axis=1)
