@@ -408,7 +408,9 @@ class FrameModel(OnePass):
         m = self.n_samples
         A = np.empty((m, 3, 3, 3, 3))
         for label, ids in self._groups:
-            A[ids] = mats[label].evaluate(np.broadcast_to(np.eye(3), (len(ids), 3, 3)).copy(), tangent=True)[2]
+            # one material point at F = I: the tangent is a function of F alone, the same at every sample of the
+            # label (evaluating it at each of the bunny's 92k samples took 0.12 s)
+            A[ids] = mats[label].evaluate(np.eye(3)[None].copy(), tangent=True)[2][0]
         H = K.frame_stiffness_dense(self._index, self._Gtab, A, self.n_nodes, self._volume,
                                     (self._index, self._Gtab, self._pairs, self._pair_id), self._points)
         if self.tables is not None:
