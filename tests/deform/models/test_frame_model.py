@@ -583,3 +583,37 @@ def test_reproducing_kernel_gauge_motions_are_pinned_and_move_no_point():
     for k in range(G.shape[1]):
         moved = pmap.apply(model.rest + G[:, k].reshape(model.rest.shape)) - pts
         assert np.abs(moved).max() <= 1e-12 * np.ptp(pts, axis=0).max()
+
+
+def test_the_gauge_pin_reads_the_rest_diagonal_without_assembling_it():
+    """The pin's alpha (the rest stiffness's mean matrix-entry diagonal) from the point samples' weights equals
+    the assembled stiffness's to 1e-12 relative (sums of positive terms in another order), for reproducing
+    kernels on a beam whose elaston regions are sub-rules (fewer points than Gauss) and for Gauss points, and
+    for two materials; region tables (their fluctuation adds to the diagonal) are left to the assembled one."""
+    from robust import beam
+
+    from voxflex.scene import Scene
+
+    for quad in ("elaston", "gauss-legendre"):
+        text = beam("affine", model="neo-hookean", size=(4.0, 1.0, 1.0), h=0.125, elasticity=f'quadrature = "{quad}"',
+                    nodes='count = 10\nshape_function = "reproducing-kernel"')
+        model = vf.model(Scene.from_toml_text(text), cache=False)
+        if quad == "elaston":
+            assert model.n_samples < 8 * int((model.image.labels > 0).sum())  # sub-rules, not the Gauss rule
+        a_ = (np.arange(12 * model.n_nodes) % 12) < 9
+        want = float(np.abs(np.diagonal(model.rest_stiffness()))[a_].mean())
+        assert model._rest_entry_diagonal() == pytest.approx(want, rel=1e-12)
+        assert model._gauge_pin()[1] == pytest.approx(want, rel=1e-12)
+    # two materials (a hand-made image, Shepard weights, elaston samples)
+    labels = np.ones((6, 2, 2), dtype=np.uint8)
+    labels[3:] = 2
+    image = LabelImage(labels, spacing=(0.5, 0.5, 0.5))
+    sf = ShepardSF(image, FRAMES, parents=5)
+    mats = {1: material("neo-hookean", young=1e3, poisson=0.3), 2: material("hooke", young=5e4, poisson=0.45)}
+    model = FrameModel.from_image(image, FRAMES, sf, mats, samples=vf.sample(image, sf, kind="elaston", count=12),
+                                  quadrature="elaston")
+    a_ = (np.arange(12 * model.n_nodes) % 12) < 9
+    want = float(np.abs(np.diagonal(model.rest_stiffness()))[a_].mean())
+    assert len(model._groups) == 2 and model._rest_entry_diagonal() == pytest.approx(want, rel=1e-12)
+    stab = _model(material("neo-hookean", young=1e3, poisson=0.3), quadrature="midpoint", hourglass="stiffness")
+    assert stab.tables is not None and stab._rest_entry_diagonal() is None
