@@ -117,3 +117,75 @@ def test_results_without_the_displacement_group_read_the_positions():
     np.testing.assert_allclose(r.probe_displacements()["p"], [0, 0, -0.5])
     with pytest.raises(vf.InputError, match="name a probe"):
         Result(**{**r.__dict__, "probe_displacement": {"q": np.zeros((T, 3))}})
+
+
+CABLE = """
+[[cable]]
+anchor = [5.0, 0.5, 0.5]
+points = [[1.0, 0.5, 0.5], [2.0, 0.5, 0.5], [3.9, 0.5, 0.5]]
+stiffness = 100.0
+shorten = 0.01
+"""
+
+PLANE = """
+[[obstacle]]
+kind = "plane"
+point = [0.0, 0.0, -0.3]
+normal = [0.0, 0.0, 1.0]
+"""
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
+@pytest.mark.parametrize("extra", [CABLE, PLANE, CABLE + PLANE], ids=["cable", "plane", "both"])
+def test_layers_form_the_wrapped_models_strains_from_the_displacement(kind, extra):
+    """A cable or an obstacle wrapping a model with the displacement form has it too: the wrapped model's
+    strains from u, the layer's own term at rest + u.  Its (energy, gradient, Hessian) equal the position
+    form's at strains ~1e-2 (1e-12 relative: round-off), and the layer's term is in it (a layer that
+    forwarded the wrapped model's form dropped a cable's pull from the solve)."""
+    from voxflex.deform.models.protocol import FromDisplacement
+
+    text = beam(kind, model="neo-hookean", elasticity="", nodes="count = 6" if kind == "affine" else "", extra=extra)
+    model = vf.model(Scene.from_toml_text(text), cache=False)
+    model.set_time(1.0)  # the cable shortened: it pulls
+    assert isinstance(model, FromDisplacement) and isinstance(model.inner, FromDisplacement)
+    rng = np.random.default_rng(0)
+    u = (1e-2 if kind == "affine" else 1e-3) * rng.standard_normal(np.shape(model.rest))
+    E1, g1, H1 = model.energy_gradient_hessian_u(u)
+    E0, g0, H0 = model.energy_gradient_hessian(np.asarray(model.rest) + u)
+    dense = [np.asarray(H.toarray() if hasattr(H, "toarray") else H) for H in (H1, H0)]
+    assert E1 == pytest.approx(E0, rel=1e-12)
+    assert np.abs(g1 - g0).max() <= 1e-12 * np.abs(g0).max()
+    assert np.abs(dense[0] - dense[1]).max() <= 1e-12 * np.abs(dense[1]).max()
+    inner = model.inner.energy_gradient_hessian_u(u)
+    if "cable" in extra:
+        assert np.abs(g1 - inner[1]).max() > 1e-6 * np.abs(g1).max()  # the cable's pull is in the form
+
+
+def test_plasticity_passes_the_displacement_form_on():
+    """Plasticity adds no energy (its materials are the wrapped model's): its displacement form is the
+    wrapped model's own."""
+    from voxflex.deform.layers.plasticity import PlasticModel
+
+    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "examples" / "plastic_bar.toml")
+    model = vf.model(scene, cache=False)
+    assert isinstance(model, PlasticModel) and model.adds_energy is False
+    assert model.energy_gradient_hessian_u == model.inner.energy_gradient_hessian_u
+    assert model.strain_lengths == model.inner.strain_lengths
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
+def test_a_body_with_a_layer_far_from_the_origin_gets_the_answer_it_gets_at_the_origin(kind):
+    """The neo-Hookean beam above a plane 10 m below (never touched: the layer adds nothing but its presence)
+    moved 1000 km away gets its tip at the origin to the tolerance of the bare beam's test (the strains come
+    from the displacement through the contact layer; before, the layered model formed them from the
+    positions: 1.3e-7 and 7.3e-8 of the sag off)."""
+    plane = PLANE.replace("[0.0, 0.0, -0.3]", "[0.0, 0.0, -10.0]")
+    ref, r0 = _tip(kind, 9.81, model="neo-hookean", elasticity="", extra=plane)
+    assert ref[2] < -0.2
+    origin = 1e6
+    moved = plane.replace("[0.0, 0.0, -10.0]", f"[{origin!r}, {origin!r}, {origin - 10.0!r}]")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no round-off-floor warning
+        tip, r = _tip(kind, 9.81, model="neo-hookean", elasticity="", origin=origin, extra=moved)
+    tol = 1e-12 if kind == "voxel" else 4 * np.finfo(float).eps * origin / 0.5
+    np.testing.assert_allclose(tip, ref, rtol=0, atol=tol * abs(ref[2]))

@@ -400,9 +400,12 @@ def test_the_displacement_form_is_the_position_form_without_the_positions_round_
     assert err_u < 1e-4 and err_x > 1e-3, (err_u, err_x)
 
 
-def test_layers_do_not_pass_on_the_displacement_form():
+def test_layers_give_their_own_displacement_form():
     """A layer's energy is its own plus the wrapped model's: handing out the wrapped model's displacement form
-    would drop the layer's (a cable's pull vanished from a solve), so a layer is solved at the positions."""
+    would drop the layer's (a cable's pull vanished from a solve that way), so a layer that adds an energy has
+    a form of its own (the wrapped model's plus its term at the positions; ``tests/test_robustness_roundoff.py``
+    checks its values), and the wrapped model's strain lengths; a layer without an energy of its own passes the
+    wrapped model's form on, and one whose energy cannot take the displacement is evaluated at the positions."""
     from voxflex.deform.layers.cables import CableModel
     from voxflex.deform.models.protocol import FromDisplacement
 
@@ -412,4 +415,20 @@ def test_layers_do_not_pass_on_the_displacement_form():
     layer = CableModel.__new__(CableModel)  # the forwarding alone (no cable needed)
     layer.inner = m
     assert layer.energy_gradient_hessian is not None and layer.n_nodes == m.n_nodes  # the rest is forwarded
-    assert not isinstance(layer, FromDisplacement)
+    assert isinstance(layer, FromDisplacement)
+    assert layer.energy_gradient_hessian_u == layer._layered_u and layer.energy_gradient_hessian_u != \
+        m.energy_gradient_hessian_u
+    assert layer.strain_lengths == m.strain_lengths
+
+    from voxflex.deform.layers.base import ModelLayer
+
+    class Passes(ModelLayer):  # no energy of its own (as plasticity): the wrapped model's form
+        def __init__(self, inner):
+            self.inner = inner
+
+    class OwnWithoutU(Passes):  # an energy of its own that cannot take u: evaluated at the positions
+        def energy_gradient_hessian(self, q, *, gradient=True, hessian=True):
+            return self.inner.energy_gradient_hessian(q, gradient=gradient, hessian=hessian)
+
+    assert Passes(m).energy_gradient_hessian_u == m.energy_gradient_hessian_u
+    assert not isinstance(OwnWithoutU(m), FromDisplacement)

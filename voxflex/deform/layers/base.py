@@ -9,14 +9,30 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import InputError
-from ..models.protocol import end_step
+from ..models.protocol import FromDisplacement, end_step
 
 __all__ = ["ModelLayer", "NOT_FORWARDED"]
 
 NOT_FORWARDED = frozenset({"energy_gradient_hessian_u", "strain_lengths"})
-"""Capabilities of the wrapped model that a layer does not pass on: the displacement form
-(:class:`~voxflex.deform.models.protocol.FromDisplacement`) would evaluate the wrapped model's energy
-without the layer's own, so a layer is evaluated at the positions unless it defines the form itself."""
+"""Capabilities of the wrapped model that a layer never forwards as they are: the wrapped model's
+displacement form (:class:`~voxflex.deform.models.protocol.FromDisplacement`) would leave the layer's own
+energy out (a cable's pull was dropped from the solve that way).  A layer has the form exactly when the model
+it wraps has it: a layer that adds an energy (:attr:`ModelLayer.adds_energy`) evaluates the wrapped model's
+displacement form plus its own term at the positions ``rest + u`` (:meth:`ModelLayer._layered_u`; its
+``energy_gradient_hessian`` takes ``u``, else it is evaluated at the positions); one that only changes the
+wrapped model's materials (plasticity) passes the form on."""
+
+
+_TAKES_U: dict = {}
+
+
+def _takes_u(cls) -> bool:
+    """Whether ``cls.energy_gradient_hessian`` takes the displacement ``u`` (keyword), once per class."""
+    if cls not in _TAKES_U:
+        import inspect
+
+        _TAKES_U[cls] = "u" in inspect.signature(cls.energy_gradient_hessian).parameters
+    return _TAKES_U[cls]
 
 
 class ModelLayer:
@@ -33,6 +49,11 @@ class ModelLayer:
 
     layer = "layer"
     layer_advice = ""
+    @property
+    def adds_energy(self) -> bool:
+        """Whether the layer adds an energy of its own: it defines ``energy_gradient_hessian`` (contact, cables);
+        a layer that does not (plasticity: it changes the wrapped model's materials) has the wrapped model's."""
+        return hasattr(type(self), "energy_gradient_hessian")
 
     kind = property(lambda self: self.inner.kind)
     node_kind = property(lambda self: self.inner.node_kind)
@@ -51,9 +72,31 @@ class ModelLayer:
         return False
 
     def __getattr__(self, name):
-        if name == "inner" or name in NOT_FORWARDED:  # not set yet (construction, unpickling) / not the layer's
+        if name == "inner":  # not set yet (construction, unpickling)
             raise AttributeError(name)
+        if name in NOT_FORWARDED:
+            if not isinstance(self.inner, FromDisplacement):
+                raise AttributeError(name)  # evaluated at the positions, as the wrapped model is
+            if name == "strain_lengths" or not self.adds_energy:
+                return getattr(self.inner, name)
+            if not _takes_u(type(self)):
+                raise AttributeError(name)  # an energy of its own without the form: evaluated at the positions
+            return self._layered_u
         return getattr(self.inner, name)
+
+    def _layered_u(self, u, *, gradient: bool = True, hessian: bool = True):
+        """The displacement form of a layer that adds an energy: the wrapped model's at ``u`` and the layer's own
+        term at the positions ``rest + u`` (``energy_gradient_hessian(q, ..., u=u)``)."""
+        u = np.asarray(u, dtype=float)
+        q = np.asarray(self.rest, dtype=float) + u
+        return self.energy_gradient_hessian(q, gradient=gradient, hessian=hessian, u=u)
+
+    def _inner_terms(self, q, u, gradient: bool, hessian: bool):
+        """The wrapped model's (energy, gradient, Hessian): from the displacement ``u`` when given (the layer's
+        displacement form), else at the positions q."""
+        if u is not None:
+            return self.inner.energy_gradient_hessian_u(u, gradient=gradient, hessian=hessian)
+        return self.inner.energy_gradient_hessian(q, gradient=gradient, hessian=hessian)
 
     def set_tangent_projection(self, on: bool) -> bool:
         """Forwarded to the wrapped model (the layer's own Hessian stays exact); False when it has none."""

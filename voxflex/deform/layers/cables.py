@@ -242,14 +242,15 @@ class CableModel(OnePass, ModelLayer):
         return self._J
 
     # -- energy -----------------------------------------------------------------------
-    def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True):
+    def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True, u=None):
         """(energy J, gradient (n, d) or None, Hessian (nd, nd) or None) of the inner model plus the cables.
 
         The Hessian has the inner model's type (sparse, or dense for frame models).
-        Where the inner energy is not finite its (energy, None, None) is returned as is.
+        Where the inner energy is not finite its (energy, None, None) is returned as is.  ``u`` (= q - rest):
+        the inner model's strains from the displacement (the layer's displacement form, :class:`ModelLayer`).
         """
         q = np.asarray(q, dtype=float)
-        E, g, H = self.inner.energy_gradient_hessian(q, gradient=gradient, hessian=hessian)
+        E, g, H = self._inner_terms(q, u, gradient, hessian)
         if not np.isfinite(E):
             return E, g, H
         x = self.mapping.apply(q)

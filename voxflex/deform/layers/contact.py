@@ -505,12 +505,15 @@ class ContactModel(OnePass, ModelLayer):
         """The barrier energy E_c (J) of state q (n, d) (inf when a point touches or enters an obstacle)."""
         return self._point_terms(np.asarray(q, dtype=float), fraction, hessian=False)[0]
 
-    def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True, exact: bool = False):
+    def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True, exact: bool = False,
+                                u=None):
         """(energy J, gradient (n, d) or None, Hessian CSR (nd, nd) or None) of the inner model plus the barrier.
 
         ``exact=True`` skips the positive semi-definite projection of the barrier
         blocks (the true Hessian).  Where a collision point touches or enters an
-        obstacle the energy is inf and the gradient and Hessian are None.
+        obstacle the energy is inf and the gradient and Hessian are None.  ``u`` (= q - rest): the inner
+        model's strains from the displacement (the layer's displacement form, :class:`ModelLayer`); the
+        barrier reads the positions.
         """
         q = np.asarray(q, dtype=float)
         Ec, fpts, blocks, _ = self._point_terms(q, hessian=hessian, exact=exact)
@@ -522,7 +525,7 @@ class ContactModel(OnePass, ModelLayer):
             fpts = fpts + ff
             if hessian:
                 blocks = blocks + fb
-        E, g, H = self.inner.energy_gradient_hessian(q, gradient=gradient, hessian=hessian)
+        E, g, H = self._inner_terms(q, u, gradient, hessian)
         E = E + Ec
         act = np.flatnonzero(np.any(fpts != 0, axis=1)) if fpts is not None else np.zeros(0, dtype=np.int64)
         if gradient and len(act):
