@@ -19,15 +19,22 @@ TIE = 1e-9
 """Relative tolerance under which compared distances tie (far above round-off, far below any real gap)."""
 
 
-def first_extreme(values, which: str) -> int:
+def first_extreme(values, which: str, *, floor: float | None = None) -> int:
     """Index of the first of ``values`` within :data:`TIE` (relative to the largest finite magnitude) of
-    the largest (``which="max"``) or smallest (``"min"``); infinities compare as themselves."""
+    the largest (``which="max"``) or smallest (``"min"``); infinities compare as themselves.
+
+    ``floor``: values beyond it on the far side (below it for ``"max"``, above for ``"min"``) are sentinels
+    that never win, left out of the magnitude: an array of distances with -1 for the excluded entries would
+    otherwise make the tolerance ``TIE`` metres (not relative) whenever the distances are below 1, so that
+    the same scene at 1 nm and at 1 m broke ties differently."""
     v = np.asarray(values, dtype=float)
     i = int(np.argmax(v) if which == "max" else np.argmin(v))
     best = float(v[i])
     if not np.isfinite(best) or i == 0:
         return i  # the first infinity, or already the first index
     other = float(v.min() if which == "max" else v.max())
+    if floor is not None:
+        other = max(other, float(floor)) if which == "max" else min(other, float(floor))
     if np.isfinite(other):
         mag = max(abs(best), abs(other))
     else:  # infinities at the other end: the largest finite magnitude by a masked pass

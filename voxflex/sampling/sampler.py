@@ -147,7 +147,12 @@ class _Context:
     def __init__(self, image, mask):
         self.image = image
         self.mask = mask
-        self.graph = VoxelGraph.from_mask(mask, image.spacing)
+        # the graph in voxel units (the spacing over its smallest edge, rounded to 12 digits, as the frames'
+        # placement does): its distances are the same bits for the scene in any unit, so the farthest points,
+        # the Lloyd cells and the splits break their ties alike at 1 nm and 1 km (in metres, voxels equidistant
+        # from two seeds went to either as the sums rounded at each scale)
+        h = float(np.min(image.spacing))
+        self.graph = VoxelGraph.from_mask(mask, np.round(np.asarray(image.spacing, dtype=np.float64) / h, 12))
         self.n = self.graph.n
         self.centres = image.index_to_world(self.graph.ijk + 0.5)
         self.occ = np.ones(self.n) if image.occupancy is None else image.occupancy[mask].astype(np.float64)
@@ -245,7 +250,7 @@ def _farthest_point_lloyd(ctx, cand, k, seed, iterations=None):
     seeds = [int(cand[rng.integers(len(cand))])]
     g.propagate(group, seeds[-1:], [0], dist, owner)
     while True:
-        v = first_extreme(dist, "max")  # ties broken scale-free (voxflex._ties)
+        v = first_extreme(dist, "max", floor=0.0)  # ties broken scale-free (voxflex._ties); -1: not a candidate
         if dist[v] <= 0.0 or (len(seeds) >= k and np.isfinite(dist[v])):
             break
         seeds.append(v)
