@@ -304,10 +304,11 @@ max = [1e-6, 1, 1]
 def test_a_degenerate_cluster_is_taken_whole_and_the_frames_do_not_depend_on_the_unit():
     """The clamped square bar's modes come in pairs (bending about y and z): asking for 6 frames (the clamp's
     and 5 modes) would cut the pair of modes 5 and 6, leaving a round-off-driven direction of it; the pair is
-    completed (7 frames).  The same bar at 1 m and 1 um: the same frames (Q-DEIM ties broken scale-free; LAPACK's
-    pivoting put them 3 voxels apart) and the same weights."""
+    completed (7 frames).  The same bar at 1 m, 1 um and 1 km: the same frames (Q-DEIM ties broken scale-free;
+    LAPACK's pivoting put them 3 voxels apart; at 1 km the rows' squared norms, below 1, tied with the -1
+    marking the rows already taken until that sentinel left the tolerance's magnitude) and the same weights."""
     out = {}
-    for s in (1.0, 1e-6):
+    for s in (1.0, 1e-6, 1e3):
         image = LabelImage(np.ones((16, 4, 4), np.uint8), spacing=(s * H,) * 3)
         owner = -np.ones(image.shape, dtype=np.int64)
         owner[0] = 0
@@ -319,5 +320,7 @@ def test_a_degenerate_cluster_is_taken_whole_and_the_frames_do_not_depend_on_the
     assert abs(lam[5] - lam[4]) < 1e-9 * lam[5] and lam[4] > lam[3] * (1 + 1e-3)
     np.testing.assert_allclose(b.frames / 1e-6, a.frames, rtol=0, atol=1e-12 * 1.6)
     np.testing.assert_allclose(b.weights.toarray(), a.weights.toarray(), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(out[1e3].frames / 1e3, a.frames, rtol=0, atol=1e-12 * 1.6)
+    np.testing.assert_allclose(out[1e3].weights.toarray(), a.weights.toarray(), rtol=0, atol=1e-9)
     assert len(shape_function(image, [[0.5 * H * 1e-6, 1.5e-6 * H, 1.5e-6 * H]], kind="eigenmode", count=7,
                               seed_owner=owner).frames) == 7

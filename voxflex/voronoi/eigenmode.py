@@ -632,7 +632,7 @@ def _pivots(A, k):
     norms = np.einsum("ij,ij->i", R, R)
     out = []
     for _ in range(int(k)):
-        p = first_extreme(np.where(np.isin(np.arange(len(R)), out), -1.0, norms), "max")
+        p = first_extreme(np.where(np.isin(np.arange(len(R)), out), -1.0, norms), "max", floor=0.0)  # -1: taken
         out.append(p)
         v = R[p].copy()
         nv = float(np.sqrt(v @ v))
