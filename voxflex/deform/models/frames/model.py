@@ -36,38 +36,10 @@ Quadratures (``samples.kind``; :mod:`voxflex.deform.models.frames.quadrature`)
 
 Volumetric locking (``volumetric``)
 -----------------------------------
-A few frames bending a nearly incompressible body cannot keep every sample's
-volume (they cannot give the Poisson contraction's variation across a section),
-so full integration of the volumetric term locks: the linear cantilever 32x8x8 with
-20 frames and Gauss points bends 45x too little at nu = 0.4999 (-0.0087 against
--0.393 m projected, -0.376 m for the voxel model with B-bar).  ``volumetric="reduced"`` projects the volume
-ratio onto the span of the frames' weights: per label, the L2 projection
-
-    Jbar(X) = sum_a w_a(X) pi_a,   M pi = b,   M_ab = sum_s v_s w_a w_b,   b_a = sum_s v_s w_a J_s
-
-(``J_s = det F_s``; the quadrature's own samples), and each sample sees
-F-bar ``F~_s = (Jbar_s / J_s)^(1/3) F_s``, or for a material with a constant
-tangent B-bar, ``F~_s = F_s + (trbar_s - tr F_s) I / 3`` (the projected trace),
-which keeps its energy quadratic.  The weights are a partition of unity, so an
-affine motion gives ``Jbar = J`` (the patch test holds), and the projection
-space grows with the frames (the consistent limit is full integration).  The
-energy ``sum_s v_s W(F~_s)`` has its exact gradient and Hessian (every sample
-of a label couples with the projection: rank-n products, see
-:meth:`FrameModel._projected_pass`).  ``"auto"`` projects the labels whose
-effective Poisson ratio at rest is >= 0.4
-(:func:`~voxflex.deform.materials.fbar.nearly_incompressible`) when the weights are
-not linearly precise; linearly precise weights (reproducing kernels) keep the full
-term, because there the projection is too soft and does not converge while full
-integration barely locks.  Measured on the neo-Hooke cantilever 32x8x8 with elastons
-against the voxel model with F-bar (-0.3854 / -0.3791 / -0.3751 / -0.3740 m at
-nu = 0.3 / 0.45 / 0.49 / 0.4999): reproducing kernels, full, 20 frames -0.3862 /
--0.3711 / -0.3633 / -0.3439, 40 frames -0.3685 (0.49) / -0.3601 (0.4999);
-projected -0.4106 / -0.4120 / -0.4121 / -0.4121 (20) and -0.4141 (40, both):
-7-11 % too soft.  Natural neighbours, projected: -0.3839 / -0.3922 / -0.3937 /
--0.3940 (full: -0.2965 at 0.3, -0.2172 at 0.45).  Projecting onto the weights
-times (1, x - X_a) as well (4 per frame) behaves like full integration (-0.3873 at
-0.3, -0.3730 at 0.45) and lost Newton convergence at 0.49.  A sample cannot
-pass through zero volume (infinite energy where ``Jbar_s / J_s <= 0``).
+``volumetric="reduced"`` projects each sample's volume ratio onto the span of the
+frames' weights (F-bar, B-bar for constant-tangent materials; ``"auto"`` for the
+nearly incompressible labels of weights that are not linearly precise):
+:mod:`voxflex.deform.models.frames.volumetric` says how and what it measures.
 
 The model satisfies the protocol of :mod:`voxflex.deform.models.protocol`, so the same
 solvers, loads, result files and renders run it.
@@ -118,11 +90,14 @@ from ....sampling.voxel import voxel_samples
 from ...chain.mappings import DeformationGradientMapping, PointMapping
 from ...chain.nodes import AffineFrames
 from ...materials.constitutive import Material, project_psd
-from ...materials.fbar import VOLUMETRIC, bar_scalar, nearly_incompressible
+from ...materials.fbar import VOLUMETRIC, nearly_incompressible
 from ..protocol import OnePass, Part, SurfacePoints
 from ..voxel.kind import HOURGLASS
 from . import _kernels as K
 from .kind import AFFINE
+from .mass import mass_matrix as frame_mass_matrix
+from .mass import point_mass
+from .volumetric import projected_pass, volumetric_projection
 
 __all__ = ["FrameModel"]
 
@@ -621,128 +596,16 @@ class FrameModel(OnePass):
         return K.frame_stiffness_dense(self._index, self._Gtab, np.ascontiguousarray(A), self.n_nodes, self._volume,
                                        (self._index, self._Gtab, self._pairs, self._pair_id), self._points)
 
-    # -- the volumetric term projected onto the frames' weights --------------------
+    # -- the volumetric term projected onto the frames' weights (frames/volumetric.py) ------------
     def _projection(self):
-        """Per projected label: its samples, the weights N (sparse, samples x frames), the pseudo-inverse of
-        ``M = N^T V N`` over the frames it touches, and the sparse pattern of per-sample DOF rows; once."""
-        if self._proj is None:
-            n = self.n_nodes
-            out = []
-            dofs = self._dofs()
-            for label, ids in self._groups:
-                if not self.volumetric[label]:
-                    continue
-                idx = self._index[ids]
-                ok = idx >= 0
-                k = len(ids)
-                N = sp.csr_matrix((self._w[ids][ok], (np.broadcast_to(np.arange(k)[:, None], idx.shape)[ok], idx[ok])),
-                                  shape=(k, n))
-                N.sum_duplicates()
-                active = np.flatnonzero(np.asarray(abs(N).sum(axis=0)).ravel() > 0)
-                N = N[:, active].tocsr()
-                v = self._volume[ids]
-                M = (N.T @ sp.diags(v) @ N).toarray()
-                M = 0.5 * (M + M.T)
-                # rows of the per-sample DOF vectors (m, P, 3, 4) as a CSR pattern (k, 12n)
-                P = idx.shape[1]
-                okr = np.broadcast_to(ok[:, :, None, None], (k, P, 3, 4)).reshape(k, -1)
-                d = dofs[ids].reshape(k, -1)
-                counts = okr.sum(axis=1)
-                indptr = np.concatenate([[0], np.cumsum(counts)])
-                # M^+ = U diag(1 / lam) U^T over its range: with fewer samples than frames M is singular, and
-                # the projection (onto the span of the weights at the samples) is still an orthogonal one
-                lam, U = np.linalg.eigh(M)
-                keep = lam > 1e-12 * max(float(lam.max(initial=0.0)), 1e-300)
-                Minv = (U[:, keep] / lam[keep]) @ U[:, keep].T
-                out.append({"label": label, "ids": ids, "N": N, "NT": N.T.tocsr(), "M": 0.5 * (Minv + Minv.T),
-                            "okr": okr, "indices": d[okr], "indptr": indptr, "linear": bool(
-                                getattr(self.materials[label], "constant_tangent", False))})
-            self._proj = out
-        return self._proj
+        """Per projected label, the projection's operators (:func:`.volumetric.volumetric_projection`), made once."""
+        return volumetric_projection(self)
 
     def _projected_pass(self, F, gradient, hessian):
-        """Samples with the volumetric term of some labels projected onto the frames' weights (module
-        docstring).
+        """Energy, gradient and Hessian with the projected labels' volumetric term
+        (:func:`.volumetric.projected_pass`)."""
+        return projected_pass(self, F, gradient, hessian)
 
-        Per projected label, with ``J_s`` the samples' volume ratios (or traces, B-bar),
-        ``Jbar = N pi``, ``pi = M^-1 N^T V J``: the per-sample derivatives of ``W(F~(F_s, Jbar_s))``
-        (:func:`~voxflex.deform.materials.fbar.bar_scalar`: gF, gJ, HFF, HFJ, HJJ) chain as
-        gradient ``J^T (v gF + y c)`` with ``y = V N M^-1 N^T (v gJ)``, ``c_s = dJ_s/dF_s``, and Hessian
-        ``J^T blockdiag(v HFF + y d2J) J + X Q + (X Q)^T + Q^T N^T diag(v HJJ) N Q`` with
-        ``Q = M^-1 N^T V B`` (``B_s = c_s^T J_s``, the rows of dJ/dq) and
-        ``X = sum_s v_s J_s^T HFJ_s N_s`` (numpy and scipy.sparse; every product is rank n).
-        """
-        vol = self._volume
-        m, n = len(vol), self.n_nodes
-        want = gradient or hessian
-        energy = 0.0
-        P = np.zeros((m, 3, 3)) if want else None
-        A = np.zeros((m, 3, 3, 3, 3)) if hessian else None
-        extra = []
-        for label, ids in self._groups:
-            if self.volumetric[label]:
-                continue
-            W, Pl, Al = self.materials[label].evaluate(F[ids], tangent=hessian)
-            energy += vdot(vol[ids], W)
-            if want:
-                P[ids] = Pl
-            if hessian:
-                A[ids] = Al
-        for pr in self._projection():
-            ids, N, NT, cho, linear = pr["ids"], pr["N"], pr["NT"], pr["M"], pr["linear"]
-            Fl = F[ids]
-            v = vol[ids]
-            Js = np.trace(Fl, axis1=1, axis2=2) if linear else np.linalg.det(Fl)
-            Jbar = N @ (cho @ (NT @ (v * Js)))
-            out = bar_scalar(self.materials[pr["label"]], Fl, Jbar, linear=linear, gradient=want, tangent=hessian)
-            energy += vdot(v, out[0])
-            if not np.isfinite(energy):
-                return np.inf, (np.full((n, 12), np.nan) if gradient else None), \
-                    (np.full((12 * n, 12 * n), np.nan) if hessian else None)
-            if not want:
-                continue
-            gF, gJ = out[1], out[2]
-            y = v * (N @ (cho @ (NT @ (v * gJ))))  # dE/dJ_s through Jbar
-            if linear:
-                c = np.broadcast_to(np.eye(3), Fl.shape)
-            else:
-                c = np.linalg.det(Fl)[:, None, None] * np.linalg.inv(Fl).transpose(0, 2, 1)  # cofactor
-            P[ids] = gF.reshape(-1, 3, 3) + (y / v)[:, None, None] * c
-            if hessian:
-                Al = out[3].reshape(-1, 3, 3, 3, 3)
-                if not linear:  # y d2(det F): cof derivative, d2J/dF_ij dF_kl = J (Finv_ji Finv_lk - Finv_li Finv_jk)
-                    Fi = np.linalg.inv(Fl)
-                    Jd = np.linalg.det(Fl)
-                    d2 = Jd[:, None, None, None, None] * (np.einsum("sji,slk->sijkl", Fi, Fi)
-                                                          - np.einsum("sli,sjk->sijkl", Fi, Fi))
-                    Al = Al + (y / v)[:, None, None, None, None] * d2
-                A[ids] = Al
-                extra.append((pr, c, out[4], out[5]))
-        if not want:
-            return energy, None, None
-        grad = self._forces(P) if gradient else None
-        H = None
-        if hessian:
-            H = self._stiffness(A)
-            for pr, c, HFJ, HJJ in extra:
-                ids, N, NT, cho = pr["ids"], pr["N"], pr["NT"], pr["M"]
-                v = vol[ids]
-                B = self._dof_rows(pr, ids, c.reshape(-1, 3, 3))  # dJ_s/dq (k, 12n) sparse
-                Xr = self._dof_rows(pr, ids, (v[:, None] * HFJ).reshape(-1, 3, 3))  # v_s J_s^T HFJ_s
-                Z = (NT @ sp.diags(v) @ B).toarray()  # (na, 12n)
-                Q = cho @ Z
-                X = (Xr.T @ N).toarray()  # (12n, na)
-                XQ = X @ Q
-                ND = (NT @ sp.diags(v * HJJ) @ N).toarray()
-                H += XQ + XQ.T + Q.T @ (ND @ Q)
-            H = 0.5 * (H + H.T)
-        return energy, grad, H
-
-    def _dof_rows(self, pr, ids, c) -> sp.csr_matrix:
-        """Sparse (k, 12n) rows ``J_s^T vec(c_s)``: per sample the DOF vector of ``c_s : dF_s``
-        (``sum_j c[i, j] G[p, c, j]`` at DOF (p, i, c))."""
-        rows = np.einsum("sij,spcj->spic", c, self._G[ids]).reshape(len(ids), -1)
-        return sp.csr_matrix((rows[pr["okr"]], pr["indices"], pr["indptr"]), shape=(len(ids), 12 * self.n_nodes))
     # -- mass and gravity --------------------------------------------------------
     def _mass_points(self):
         """Mass points: the voxel centres, their volumes (occupancy-weighted) and labels (no shape values)."""
@@ -777,72 +640,13 @@ class FrameModel(OnePass):
         return table[label] * vol
 
     def mass_matrix(self, densities: Mapping[int, float], *, lumped: bool = True) -> sp.csr_matrix:
-        """Mass matrix (12n, 12n): consistent ``J^T diag(m) J`` or lumped per frame (see the module docstring)."""
-        mp = self._point_masses(densities)
-        if not lumped:
-            # one point per voxel can leave the consistent mass singular on thin parts (few voxels
-            # across a frame's support): the 2x2x2 Gauss points of every voxel integrate it
-            s = voxel_samples(self.image, self.shape_function, rule="gauss-legendre", use_occupancy=self.use_occupancy)
-            m8 = np.repeat(mp / self._mass_points()[1], 8) * s.volume  # density of each voxel x Gauss volumes
-            return self._point_mass(s.values, m8)
-        _, _, pmap = self._mass_layer()
-        v = pmap.shape
-        if np.any(v.w < 0):
-            # weights negative somewhere (reproducing kernels): per-frame blocks would be indefinite (35 of 40
-            # frames on the cantilever) and, made positive, would not accelerate the material by g under its
-            # own weight where a held frame's weight is negative (1.8 g at a beam's tip): the mass of the
-            # voxel centres, the points gravity acts on, through the weights themselves
-            return self._point_mass(v, mp)
-        n = self.n_nodes
-        blocks = np.zeros((n, 4, 4))  # per frame: sum m w [r; 1][r; 1]^T with r = X - X_a
-        K.mass_blocks(np.ascontiguousarray(v.index), np.ascontiguousarray(v.w, dtype=np.float64),
-                      np.ascontiguousarray(v.rest, dtype=np.float64), np.ascontiguousarray(self.frames, dtype=np.float64),
-                      np.ascontiguousarray(mp, dtype=np.float64), blocks)
-        # DOF layout: A row i (3 entries) then t_i; x_i = sum_j A_ij r_j + t_i couples A_i. with t_i
-        full = np.zeros((n, 12, 12))
-        for i in range(3):
-            dofs = [3 * i, 3 * i + 1, 3 * i + 2, 9 + i]
-            full[:, np.ix_(dofs, dofs)[0], np.ix_(dofs, dofs)[1]] = blocks
-        return sp.block_diag(list(full), format="csr")
+        """Mass matrix (12n, 12n): consistent ``J^T diag(m) J`` or lumped per frame (see the module docstring;
+        :func:`.mass.mass_matrix`)."""
+        return frame_mass_matrix(self, densities, lumped=lumped)
 
     def _point_mass(self, values, masses, chunk: int = 4096) -> sp.csr_matrix:
-        """``J^T diag(m) J`` of point masses ``masses`` (k,) at the points of ``values``, with the gauge
-        motions of linearly precise weights (:func:`~voxflex.deform.models.frames.modes.gauge_modes`,
-        along which it is singular: they move no point) given the frames' mean matrix-entry mass, which
-        no force excites (every force is ``J^T f``, and ``J`` vanishes on them).
-
-        Each spatial component of a point moves by ``sum_a w_a [r_a; 1] . [A_a row; t_a]``: the (4n, 4n)
-        matrix ``sum_p m_p b_p b_p^T`` (``b_p`` the point's ``w_a [r_a; 1]`` in the frames' slots, dense
-        by chunks of points) is the same for the three components (the sparse J of the bunny's 94k
-        voxel centres with 35 parents would hold 10 million entries)."""
-        from .modes import weights_gauge_modes
-
-        n = self.n_nodes
-        G4 = np.zeros((4 * n, 4 * n))
-        for a in range(0, values.m, chunk):
-            b = min(values.m, a + chunk)
-            idx = values.index[a:b]
-            ok = idx >= 0
-            ii = np.where(ok, idx, 0)
-            w = np.where(ok, values.w[a:b], 0.0)
-            Bp = np.concatenate([values.rest[a:b, None, :] - self.frames[ii], np.ones(ii.shape + (1,))], axis=2)
-            Bp = Bp * w[..., None]  # (c, P, 4)
-            S = np.zeros((b - a, 4 * n))
-            cols = (4 * ii[..., None] + np.arange(4)).reshape(b - a, -1)
-            np.add.at(S, (np.repeat(np.arange(b - a), cols.shape[1]), cols.ravel()), Bp.reshape(b - a, -1).ravel())
-            G4 += S.T @ (S * masses[a:b, None])
-        # DOF layout: A row i (3 entries) then t_i; component i of x moves with [A row i, t_i]
-        M = np.zeros((n, 12, n, 12))
-        G4 = G4.reshape(n, 4, n, 4)
-        for i in range(3):
-            d = np.array([3 * i, 3 * i + 1, 3 * i + 2, 9 + i])
-            M[:, d[:, None], :, d[None, :]] = G4.transpose(1, 3, 0, 2)
-        M = M.reshape(12 * n, 12 * n)
-        G = weights_gauge_modes(self.shape_function, self.frames, values)
-        if G.shape[1]:
-            a_ = (np.arange(12 * n) % 12) < 9
-            M += float(np.diagonal(M)[a_].mean()) * (G @ G.T)
-        return sp.csr_matrix(0.5 * (M + M.T))
+        """``J^T diag(m) J`` of point masses at the points of ``values`` (:func:`.mass.point_mass`)."""
+        return point_mass(self, values, masses, chunk)
 
     def gravity_force(self, densities: Mapping[int, float], g) -> np.ndarray:
         """Generalised gravity force (n, 12): ``J^T (m g)`` at the mass points."""
