@@ -40,7 +40,7 @@ Sample identity
 Without ``samples`` it requires F to hold every sample in order (one call
 over all samples of the label: the frame models with point samples always
 evaluate so, a voxel model does for a label of at most
-:data:`~voxflex.deform.models.voxel.model.CHUNK_ELEMENTS` voxels, element-major, the
+:data:`~voxflex.deform.models.voxel.constant.CHUNK_ELEMENTS` voxels, element-major, the
 Gauss points of each voxel in turn); any other row count is refused once a
 sample has yielded, because the plastic strains could not be matched to the
 rows.  A virgin material (no plastic strain anywhere) is the base material
