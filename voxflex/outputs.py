@@ -23,12 +23,12 @@ import re
 from pathlib import Path
 
 from ._atomic import check_name_length, check_output_path, probe_folder
+from ._result_layout import _FORMAT as _RESULT_FORMAT  # the root attribute a result file carries
 from .errors import InputError
 
 RESULT_EXTENSIONS = (".h5", ".hdf5")
 RENDER_FILES = (".png", ".gif", ".mp4")
 _FORCE = "pass --force to overwrite it"
-_RESULT_FORMAT = "voxflex-result"  # the root attribute voxflex.result writes
 
 
 def is_result_file(path) -> bool:
