@@ -49,6 +49,7 @@ class ModelLayer:
 
     layer = "layer"
     layer_advice = ""
+
     @property
     def adds_energy(self) -> bool:
         """Whether the layer adds an energy of its own: it defines ``energy_gradient_hessian`` (contact, cables);

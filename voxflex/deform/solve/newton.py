@@ -143,7 +143,7 @@ class _Chord:
         return z
 
 
-def _inverse_of(factor) -> np.ndarray:
+def _inverse_of(factor) -> np.ndarray | None:
     """The symmetric inverse (n, n) of the matrix whose ``scipy.linalg.cho_factor`` is ``factor``, or ``None``
     where LAPACK reports a zero pivot."""
     from scipy.linalg import lapack
@@ -215,6 +215,7 @@ class _Problem:
         self.hessian_misses = 0
         self.projected = 0  # Hessians built from projected tangents
         self.chord = None  # a _Chord kept over the load or time steps (dense tangents), or None
+        self.solution_energy = None  # the model's energy at the answer, once Newton has converged (_newton)
 
     def roundoff_lengths(self, free) -> np.ndarray:
         """Per free DOF, the motion below which the elastic forces are round-off at the step's start

@@ -141,7 +141,7 @@ def _static_increment(model, f_full, u, s0, s1, free, dofs, owner, fixed, option
         halv_total += halvings
         u, s = u_new, s_next
         h = min(2.0 * h, s1 - s0)
-    return u, its_total, rel, lin_total, solver_used, halv_total, cuts, getattr(problem, "solution_energy", None)
+    return u, its_total, rel, lin_total, solver_used, halv_total, cuts, problem.solution_energy
 
 
 INERTIA_MAX = DIRECT_FALLBACK_MAX
@@ -513,7 +513,7 @@ def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, n
             delta, its, rel, lin_its, solver_used, halvings = _newton(
                 problem, np.zeros(N), free, dofs, u_fixed - u_start[dofs], options, near_null, label, reduce
             )
-            cuts, E_new = 0, getattr(problem, "solution_energy", None)
+            cuts, E_new = 0, problem.solution_energy
             u_new = u_start + delta
             if not np.all(np.isfinite(u_new)):
                 raise ConvergenceError(f"{label}: the state is not finite after {its} Newton iterations")
