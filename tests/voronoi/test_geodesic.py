@@ -8,6 +8,7 @@ import pytest
 from voxflex.errors import InputError
 from voxflex.image import LabelImage
 from voxflex.voronoi import geodesic_distance
+from voxflex.voronoi.geodesic import voxel_coordinates
 
 
 def _cube_errors(spacing, method, n=40):
@@ -206,3 +207,16 @@ def test_errors():
         geodesic_distance(img, [[2.5, 2.5, 2.5]], method="exact")
     with pytest.raises(InputError, match="label"):
         geodesic_distance(img, [[2.5, 2.5, 2.5]], compliance={2: 1.0})
+
+
+@pytest.mark.parametrize("unit", [1e-6, 0.37, 1.0, 3e3])
+def test_voxel_coordinates_take_the_units_round_off_out(unit):
+    """A voxel centre, face or quarter point given in world units comes back at its exact voxel coordinate in
+    every unit (world_to_index alone gives 1.4999999999999998 in some); a point at random is not moved."""
+    h = 0.005 * unit
+    img = LabelImage(np.ones((40, 4, 4), np.uint8), spacing=(h, h, h), origin=(0.3 * unit, -0.1 * unit, 0.0))
+    c = np.array([[1.5, 0.5, 2.5], [3.0, 1.25, 0.75], [17.5, 3.5, 1.0]])
+    X = img.index_to_world(c)
+    assert np.array_equal(voxel_coordinates(img, X), c)
+    r = np.random.default_rng(0).random((50, 3)) * 4
+    np.testing.assert_array_equal(voxel_coordinates(img, img.index_to_world(r)), img.world_to_index(img.index_to_world(r)))

@@ -17,7 +17,7 @@ from voxflex.image import LabelImage
 from voxflex.voronoi import _march as M
 from voxflex.voronoi import shape_function
 from voxflex.voronoi._sight import frame_distances
-from voxflex.voronoi.geodesic import _prepare
+from voxflex.voronoi.geodesic import _prepare, voxel_coordinates
 from voxflex.voronoi.natural_neighbour import natural_naive, natural_weights
 
 
@@ -314,7 +314,8 @@ def test_voxels_of_points_outside_match_a_brute_force_search():
                 best, bestd = v, dd
         return best, bestd
 
-    ref = [brute(ci) for ci in img.world_to_index(X)]  # the same rounding as the code under test
+    # the same coordinates as the code under test: corners at exact integers (the units' round-off taken out)
+    ref = [brute(ci) for ci in voxel_coordinates(img, X)]
     ok = np.array([r[0] is not None and r[1] <= half for r in ref])
     assert ok.sum() > 50 and (~ok).sum() > 5  # both cases are exercised
     np.testing.assert_array_equal(sf._voxels_of(X[ok]), np.array([r[0] for r in ref if r[0] is not None and r[1] <= half]))

@@ -80,6 +80,36 @@ def _slowness(image, compliance):
     return table[image.labels]
 
 
+SNAP_GRID = 2.0 ** -16
+"""Continuous voxel coordinates this close to a multiple of 2^-16 voxel (:data:`SNAP_TOLERANCE`) are put on it
+(:func:`voxel_coordinates`)."""
+SNAP_TOLERANCE = 2.0 ** -36
+
+
+def voxel_coordinates(image, points) -> np.ndarray:
+    """Continuous voxel coordinates (n, 3) of world ``points``, with the units' round-off taken out.
+
+    ``image.world_to_index`` carries the round-off of the scene's units: a frame placed at a voxel
+    centre (x = origin + 1.5 h) comes back as 1.4999999999999998 in one unit and 1.5000000000000002
+    in another, and where the geodesic marches meet a tie (a voxel as far from two frames) the owner
+    then depends on the unit.  A coordinate within 2^-36 voxel (1.5e-11; the round-off is ~1e-13 for
+    images up to a thousand voxels from their origin) of a multiple of 2^-16 voxel is put on it, so the
+    same scene gives the same coordinates, bit for bit, in every unit; any other coordinate is left as it
+    is (a point placed at random moves by nothing)."""
+    c = image.world_to_index(points)
+    r = np.round(c / SNAP_GRID) * SNAP_GRID
+    return np.where(np.abs(c - r) <= SNAP_TOLERANCE, r, c)
+
+
+def voxel_units(spacing) -> tuple[np.ndarray, float]:
+    """The spacing in units of its smallest edge (rounded to 12 digits, so an isotropic image gives
+    exactly 1.0) and that edge in metres: the marches run in voxel units, so that their ties and their
+    bucket order do not depend on the scene's unit."""
+    spacing = np.asarray(spacing, dtype=np.float64)
+    unit = float(spacing.min())
+    return np.round(spacing / unit, 12), unit
+
+
 def _seed_voxels(image, seeds, name="seeds"):
     """Validated seeds (s, 3) world, their continuous index coords (s, 3) and voxel indices (s, 3)."""
     try:
@@ -92,7 +122,7 @@ def _seed_voxels(image, seeds, name="seeds"):
         raise InputError(f"{name} must be a non-empty (s, 3) array of world positions, got shape {S.shape}")
     if not np.all(np.isfinite(S)):
         raise InputError(f"{name} must be finite")
-    c = image.world_to_index(S)
+    c = voxel_coordinates(image, S)
     ijk = np.floor(c).astype(np.int64)
     shape = np.array(image.shape)
     inside = np.all((ijk >= 0) & (ijk < shape), axis=1)

@@ -68,7 +68,7 @@ from ..errors import InputError, check_choice
 from . import _march as M
 from ._sight import frame_distances
 from .families import FRAME_SHAPE_FUNCTIONS
-from .geodesic import _centres, _prepare, _seed_voxels
+from .geodesic import _centres, _prepare, _seed_voxels, voxel_coordinates, voxel_units
 from .natural_neighbour import keep_largest_insert, natural_weights, normalise_first
 from .placement import _compliance_for
 from .shape_functions import ShapeValues
@@ -141,7 +141,7 @@ class ShapeFunction:
     def _voxels_of(self, points):
         """Material voxel (m, 3) used for each point; InputError naming the first point too far outside."""
         img = self.image
-        c = img.world_to_index(points)
+        c = voxel_coordinates(img, points)  # a point on a voxel face picks the same voxel in every unit
         ijk = np.floor(c).astype(np.int64)
         shape = np.array(img.shape)
         inside = np.all((ijk >= 0) & (ijk < shape), axis=1)
@@ -480,7 +480,10 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
     if len(np.unique(fv)) != n:
         dup = np.flatnonzero(np.bincount(fv) > 1)[0]
         raise InputError(f"two frames share material voxel {np.argwhere(material)[dup].tolist()}; keep one per voxel")
-    mask, cost, pshape, spacing = _prepare(image, comp)
+    mask, cost, pshape, spacing_m = _prepare(image, comp)
+    # the marches and the natural neighbours' stealing run in voxel units (their ties then break the same
+    # way in every unit of the scene); distances come back in metres only where they leave (the kernels')
+    spacing, unit = voxel_units(spacing_m)
     seed_pts, seed_own = fc + M.PAD, np.arange(n)
     anchored = np.zeros(image.shape, dtype=bool)
     if seed_owner is not None:
@@ -504,7 +507,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
 
         from .reproducing_kernel import DEFAULT_SUPPORT, reproducing_kernel
 
-        sf = reproducing_kernel(image, F, d, own, mask, cost, pshape,
+        sf = reproducing_kernel(image, F, d * unit, own, mask, cost, pshape,
                                 support=DEFAULT_SUPPORT if support is None else support,
                                 anchored=anchored if np.any(anchored) else None, seed_owner=seed_owner)
         if parents is not None and parents < sf.parents:
@@ -522,7 +525,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
     node_vox = np.concatenate([fv, lat])
     node_pos = np.concatenate([F, centres[lat]])
     # node regions (Dijkstra, through material), adding nodes in parts far from all
-    nd, nown = M.march(mask, cost, pshape, spacing, image.world_to_index(node_pos) + M.PAD,
+    nd, nown = M.march(mask, cost, pshape, spacing, voxel_coordinates(image, node_pos) + M.PAD,
                        np.arange(len(node_pos)), fmm=0)
     far = 1.5 * s * float(np.max(spacing)) * float(cost.max())
     extra = []
@@ -532,7 +535,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
         if dm[v] <= far:
             break
         extra.append(v)
-        M.march(mask, cost, pshape, spacing, image.world_to_index(centres[v][None]) + M.PAD,
+        M.march(mask, cost, pshape, spacing, voxel_coordinates(image, centres[v][None]) + M.PAD,
                 [len(node_pos) + len(extra) - 1], fmm=0, dist=nd, owner=nown)
     if extra:
         node_vox = np.concatenate([node_vox, extra])
@@ -545,7 +548,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
     nw = np.zeros((Q, kmax))
     nf[:n, 0] = np.arange(n)
     nw[:n, 0] = 1.0
-    pts = image.world_to_index(node_pos[n:]) + M.PAD
+    pts = voxel_coordinates(image, node_pos[n:]) + M.PAD
     if kind == "shepard":
         nf[n:], nw[n:] = _shepard_nodes(mask, cost, pshape, spacing, fc + M.PAD, pts, kmax)
     else:
@@ -553,7 +556,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
         nf[n:], nw[n:], _ = natural_weights(mask, cost, pshape, spacing, d, own, pts, n, laplace=mode, kmax=kmax)
     if np.any(anchored):
         # nodes in a frame's own seed region belong to it alone (a point there steals nothing)
-        nijk = np.floor(image.world_to_index(node_pos[n:])).astype(np.int64)
+        nijk = np.floor(voxel_coordinates(image, node_pos[n:])).astype(np.int64)
         inside = anchored[tuple(nijk.T)]
         nf[n:][inside] = -1
         nw[n:][inside] = 0.0
@@ -577,7 +580,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
     pa, pb = pairs // Q, pairs % Q
 
     # per-node quadratic fits (compiled; the numpy twin is _fit_nodes)
-    h = s * float(np.max(spacing))
+    h = s * float(np.max(spacing_m))
     node_frames, node_coef = fit_nodes(node_pos, nf, nw, pa, pb, h, n)
     node_of_voxel = -np.ones(image.shape, dtype=np.int64)
     node_of_voxel[material] = nown[mflat]
