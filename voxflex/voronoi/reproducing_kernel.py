@@ -90,6 +90,7 @@ from ..errors import InputError
 from ..image.grid import TrilinearGrid, trilinear_weights
 from . import _march as M
 from .shape_functions import ShapeValues
+from .geodesic import voxel_coordinates
 
 __all__ = ["CornerWeights", "ReproducingKernel", "ReproducingKernelWarning", "reproducing_kernel", "DEFAULT_SUPPORT", "CONDITION",
            "LEBESGUE_MAX", "GROWTH", "MAX_GROWTH_ROUNDS"]
@@ -828,7 +829,7 @@ def reproducing_kernel(image, frames, d, own, mask, cost, pshape, *, support=DEF
     rho = np.maximum(support * h, floor)
 
     # seeds of each frame's march: its own point, and the voxels it owns outright (their centres)
-    fc = image.world_to_index(F) + M.PAD
+    fc = voxel_coordinates(image, F) + M.PAD  # without the unit's round-off (geodesic.voxel_coordinates)
     owned = [np.zeros((0, 3))] * n
     if anchored is not None and np.any(anchored):
         aijk = np.argwhere(anchored)

@@ -138,6 +138,20 @@ class ShapeFunction:
     def n_nodes(self) -> int:
         return len(self.frames)
 
+    def _units(self):
+        """(unit, h_u): the smallest voxel edge in metres and the fits' length scale in units of it."""
+        if "units" not in self._cache:
+            spacing_u, unit = voxel_units(self.image.spacing)
+            self._cache["units"] = unit, float(np.round(self._scale / unit, 12))
+        return self._cache["units"]
+
+    def _unit_positions(self, points) -> np.ndarray:
+        """World points (m, 3) in voxel units about the image's origin: the weights are evaluated there, so
+        that two equal values (frames tied at the parents' cut) compare the same way in every unit of the
+        scene (in metres their round-off decided which frame was kept: a cube's top moved 0.18 % at 1 mm)."""
+        spacing_u, _ = voxel_units(self.image.spacing)
+        return (voxel_coordinates(self.image, points) * spacing_u) @ np.asarray(self.image.direction, dtype=np.float64).T
+
     def _voxels_of(self, points):
         """Material voxel (m, 3) used for each point; InputError naming the first point too far outside."""
         img = self.image
@@ -212,10 +226,12 @@ class ShapeFunction:
         mask = self.image.labels > 0
         ijk = np.argwhere(mask)
         # voxel centres in the nodes' frame (index coords: world = origin + (c * spacing) @ direction.T)
-        cn = self.image.world_to_index(self._node_pos)
-        index, w = _centre_kernel(ijk, self._node_of_voxel[mask], cn, np.asarray(self.image.spacing, dtype=np.float64),
+        # in voxel units (see _unit_positions): the same weights and the same kept parents in every unit
+        cn = voxel_coordinates(self.image, self._node_pos)
+        spacing_u, _ = voxel_units(self.image.spacing)
+        index, w = _centre_kernel(ijk, self._node_of_voxel[mask], cn, spacing_u,
                                   np.asarray(self.image.direction, dtype=np.float64), self._node_frames,
-                                  self._node_coef, float(self._scale), int(self.parents))
+                                  self._node_coef, self._units()[1], int(self.parents))
         if self._anchor is not None:
             own = self._anchor[mask]
             a = own >= 0
@@ -260,11 +276,17 @@ class ShapeFunction:
         dw = np.zeros((m, P, 3))
         ddw = np.zeros((m, P, 3, 3))
         pruned = 0.0
+        unit, h_u = self._units()
+        if "unit_nodes" not in self._cache:
+            self._cache["unit_nodes"] = self._unit_positions(self._node_pos)
+        npos = self._cache["unit_nodes"]
         for a in range(0, m, chunk):
             b = min(m, a + chunk)
-            r = _evaluate_impl(X[a:b], self._node_pos[nodes[a:b]], self._node_frames[nodes[a:b]],
-                               self._node_coef[nodes[a:b]], self._scale, P)
-            index[a:b], w[a:b], dw[a:b], ddw[a:b], pr = r
+            r = _evaluate_impl(self._unit_positions(X[a:b]), npos[nodes[a:b]], self._node_frames[nodes[a:b]],
+                               self._node_coef[nodes[a:b]], h_u, P)
+            index[a:b], w[a:b], pr = r[0], r[1], r[4]
+            dw[a:b] = r[2] / unit  # per voxel unit -> per metre
+            ddw[a:b] = r[3] / (unit * unit)
             pruned = max(pruned, pr)
         self._cache["pruned"] = max(self._cache.get("pruned", 0.0), pruned)
         return ShapeValues(index=index, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=len(self.frames))
@@ -580,8 +602,12 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
     pa, pb = pairs // Q, pairs % Q
 
     # per-node quadratic fits (compiled; the numpy twin is _fit_nodes)
+    # the fits in voxel units too: their normal equations are singular along the monomials a flat layer of
+    # nodes cannot see, and the ridge turns the round-off of positions in metres into coefficients ~1e-8 apart
+    # between units, enough to swap two parents at the pruning (a cube's top moved 0.18 % at 1 mm)
     h = s * float(np.max(spacing_m))
-    node_frames, node_coef = fit_nodes(node_pos, nf, nw, pa, pb, h, n)
+    pos_u = (voxel_coordinates(image, node_pos) * spacing) @ np.asarray(image.direction, dtype=np.float64).T
+    node_frames, node_coef = fit_nodes(pos_u, nf, nw, pa, pb, s * float(np.max(spacing)), n)
     node_of_voxel = -np.ones(image.shape, dtype=np.int64)
     node_of_voxel[material] = nown[mflat]
     return ShapeFunction(frames=F, kind="sibson" if kind == "natural-neighbour" else kind, parents=parents,
