@@ -617,3 +617,34 @@ def test_the_gauge_pin_reads_the_rest_diagonal_without_assembling_it():
     assert len(model._groups) == 2 and model._rest_entry_diagonal() == pytest.approx(want, rel=1e-12)
     stab = _model(material("neo-hookean", young=1e3, poisson=0.3), quadrature="midpoint", hourglass="stiffness")
     assert stab.tables is not None and stab._rest_entry_diagonal() is None
+
+
+def test_hidden_gauge_motions_move_nothing_and_are_pinned():
+    """modes.hidden_modes: on 22 eigenmode frames in a 32-voxel ball, 3 motions beyond the 18 gauge candidates
+    move no voxel centre and deform none (measured: 1e-14 of a unit row); the model's gauge basis holds all 21,
+    orthonormal, and the free body's stiffness with them deflated has exactly the 6 rigid zero modes."""
+    from dataclasses import replace
+
+    import voxflex as vf
+    from voxflex.deform.models.frames.modes import dimensionless, gauge_modes, hidden_modes
+    from voxflex.scene import Scene
+
+    from paths import EXAMPLES
+
+    sc = Scene.from_toml(EXAMPLES / "ball_on_plane.toml")
+    sc = replace(sc, nodes=replace(sc.nodes, kind="affine", shape_function="eigenmode"))
+    model = vf.model(sc, cache=False).inner
+    vv = model.shape_function.voxel_values()
+    G18 = gauge_modes(model.frames, vv)
+    G = hidden_modes(model.frames, vv, G18)
+    assert G18.shape[1] == 18 and G.shape[1] == 21
+    np.testing.assert_allclose(G.T @ G, np.eye(21), atol=1e-12)
+    pm = model.point_mapping(vv.rest)
+    for k in range(21):  # every basis motion moves no voxel centre (at 1e-3 of the DOFs: below 1e-12 m)
+        q = model.rest + 1e-3 * G[:, k].reshape(model.rest.shape)
+        assert np.abs(pm.apply(q) - pm.apply(model.rest)).max() < 1e-12
+    K = model.rest_stiffness()
+    K = K.toarray() if hasattr(K, "toarray") else np.asarray(K)
+    Ks = dimensionless(K, model.samples)
+    ev = np.linalg.eigvalsh(Ks + np.trace(Ks) / len(Ks) * (G @ G.T))
+    assert int((ev < 1e-8 * ev.max()).sum()) == 6

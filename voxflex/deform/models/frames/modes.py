@@ -24,7 +24,7 @@ from ...chain.mappings import DeformationGradientWithGradientMapping
 from ...chain.nodes import AffineFrames
 
 __all__ = ["SpuriousModesWarning", "zero_energy_modes", "check_modes", "free_body_stiffness", "softest_mode",
-           "SOFT_RATIO", "gauge_modes", "weights_gauge_modes", "dimensionless"]
+           "SOFT_RATIO", "gauge_modes", "hidden_modes", "weights_gauge_modes", "dimensionless"]
 
 GAUGE_TOL = 1e-8
 """A gauge candidate (:meth:`AffineFrames.gauge_modes`) whose deformation gradient and motion at the
@@ -90,10 +90,86 @@ def weights_gauge_modes(sf, frames, values) -> np.ndarray:
         cached = store.get("gauge_modes")
         if cached is not None and cached.shape[0] == 12 * len(frames):
             return cached
-    modes = gauge_modes(frames, values)
+    modes = hidden_modes(frames, values, gauge_modes(frames, values))
     if same:
         store["gauge_modes"] = modes
     return modes
+
+
+def _row_responses(frames, values, y, L):
+    """Motion / L and F at every point of ``values`` (rows: the points' motions, then their F rows; columns: the
+    vectors) of the per-component motions ``y`` (3n, k): frame a's row ``y[3a:3a+3]`` of A moves a spatial
+    component by ``y[3a:3a+3] . r`` (r = X - X_a), t unmoved."""
+    idx = values.index
+    ok = idx >= 0
+    ii = np.where(ok, idx, 0)
+    w = np.where(ok, values.w, 0.0)
+    dw = np.where(ok[..., None], values.dw, 0.0)
+    r = values.rest[:, None, :] - np.asarray(frames)[ii]  # (m, P, 3)
+    Y = y.reshape(-1, 3, y.shape[1])[ii]  # (m, P, 3, k)
+    lin = np.einsum("mpj,mpjk->mpk", r, Y)  # (m, P, k): the frame's value at the point
+    motion = np.einsum("mp,mpk->mk", w, lin) / L
+    F = np.einsum("mp,mpjk->mjk", w, Y) + np.einsum("mpk,mpl->mlk", lin, dw)  # (m, 3, k)
+    return motion, F.reshape(-1, y.shape[1])
+
+
+def hidden_modes(frames, values, gauge, *, tol: float = GAUGE_TOL, chunk: int = 4096) -> np.ndarray:
+    """The gauge motions ``gauge`` (12n, g) completed with every other change of the frames' A (t fixed, as the
+    candidates of :func:`gauge_modes`) that moves no point of ``values`` and deforms none: an orthonormal
+    (12n, g') basis, g' >= g.
+
+    The 18 candidates of :func:`gauge_modes` are what linear precision alone leaves; frames crowded on a small
+    body leave more (22 eigenmode frames on a 32-voxel ball: 3 more, so the implicit-Euler tangent was singular
+    along motions nobody sees, Newton's iterate drifted 86 km along them and the energy lost its digits).
+    Cheap where there are none: a spatial component's motion is linear in each frame's row of A (3n unknowns),
+    so the (3n, 3n) Gram matrix of the points' motions shows whether more than ``g / 3`` rows per component move
+    no point; only then are their deformation gradients formed and the F-free ones kept.  Motions over the
+    frames' extent L and F are both dimensionless: the verdict does not depend on the unit."""
+    X = np.asarray(frames, dtype=np.float64)
+    n = len(X)
+    if gauge.shape[1] == 0 or values.m == 0:
+        return gauge  # weights that are not linearly precise: nothing moves nothing
+    L = float(np.ptp(X, axis=0).max()) if n > 1 else 1.0
+    L = L if L > 0 else 1.0
+    G3 = np.zeros((3 * n, 3 * n))
+    for a in range(0, values.m, chunk):
+        b = min(values.m, a + chunk)
+        idx = values.index[a:b]
+        ok = idx >= 0
+        ii = np.where(ok, idx, 0)
+        B = (values.rest[a:b, None, :] - X[ii]) / L * values.w[a:b, :, None]  # (c, P, 3)
+        Sm = np.zeros((b - a, 3 * n))
+        rows = np.broadcast_to(np.arange(b - a)[:, None, None], B.shape)
+        cols = 3 * ii[..., None] + np.arange(3)
+        sel = np.broadcast_to(ok[..., None], B.shape)  # a point's parents are distinct frames: plain stores
+        Sm[rows[sel], cols[sel]] = B[sel]
+        G3 += Sm.T @ Sm
+    ev, V = np.linalg.eigh(G3)
+    top = float(ev.max())
+    if not top > 0:
+        return gauge
+    still = V[:, ev <= 1e-12 * top]  # moving the points by 1e-6 of the most visible row, or less: candidates
+    if 3 * still.shape[1] <= gauge.shape[1]:
+        return gauge  # no more motionless directions than the gauge motions themselves
+    motion, F = _row_responses(X, values, still, L)
+    _, sv, Vt = np.linalg.svd(np.concatenate([motion, F]), full_matrices=False)
+    # exact: their motion and F below tol of the most visible row's motion (both dimensionless)
+    rows = still @ Vt[sv <= tol * np.sqrt(top)].T  # (3n, h): rows of A that move nothing and deform nothing
+    if rows.shape[1] == 0:
+        return gauge
+    h = rows.shape[1]
+    cand = np.zeros((n, 12, 3 * h))  # the same rows in each of A's three rows (the spatial components)
+    for i in range(3):
+        cand[:, 3 * i:3 * i + 3, i * h:(i + 1) * h] = rows.reshape(n, 3, h)
+    cand = cand.reshape(12 * n, 3 * h)
+    cand -= gauge @ (gauge.T @ cand)  # less what the gauge motions already span
+    U, sv2, _ = np.linalg.svd(cand, full_matrices=False)
+    extra = U[:, sv2 > 1e-6]
+    if extra.shape[1] == 0:
+        return gauge
+    extra -= gauge @ (gauge.T @ extra)
+    extra, _ = np.linalg.qr(extra)
+    return np.concatenate([gauge, extra], axis=1)
 
 
 class SpuriousModesWarning(UserWarning):
