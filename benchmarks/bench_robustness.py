@@ -217,7 +217,7 @@ def cases():
                 fresh = vf.simulate('s.toml', progress=False)
                 (path,) = glob.glob('cache/frames/*.npz')
                 if '{what}' == 'edited':
-                    d = dict(np.load(path)); d['w'] = d['w'] * 1.01; np.savez(path, **d)
+                    d = dict(np.load(path)); d['samples_w'] = d['samples_w'] * 1.01; np.savez(path, **d)  # a valid entry, edited
                 else:
                     data = open(path, 'rb').read(); open(path, 'wb').write(data[: len(data) // 2])
                 again = vf.simulate('s.toml', progress=False)

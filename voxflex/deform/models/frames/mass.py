@@ -61,22 +61,10 @@ def point_mass(model, values, masses, chunk: int = 4096) -> sp.csr_matrix:
     matrix ``sum_p m_p b_p b_p^T`` (``b_p`` the point's ``w_a [r_a; 1]`` in the frames' slots, dense
     by chunks of points) is the same for the three components (the sparse J of the bunny's 94k
     voxel centres with 35 parents would hold 10 million entries)."""
-    from .modes import weights_gauge_modes
+    from .modes import motion_gram, weights_gauge_modes
 
     n = model.n_nodes
-    G4 = np.zeros((4 * n, 4 * n))
-    for a in range(0, values.m, chunk):
-        b = min(values.m, a + chunk)
-        idx = values.index[a:b]
-        ok = idx >= 0
-        ii = np.where(ok, idx, 0)
-        w = np.where(ok, values.w[a:b], 0.0)
-        Bp = np.concatenate([values.rest[a:b, None, :] - model.frames[ii], np.ones(ii.shape + (1,))], axis=2)
-        Bp = Bp * w[..., None]  # (c, P, 4)
-        S = np.zeros((b - a, 4 * n))
-        cols = (4 * ii[..., None] + np.arange(4)).reshape(b - a, -1)
-        np.add.at(S, (np.repeat(np.arange(b - a), cols.shape[1]), cols.ravel()), Bp.reshape(b - a, -1).ravel())
-        G4 += S.T @ (S * masses[a:b, None])
+    G4 = motion_gram(model.frames, values, masses=masses, chunk=chunk)
     # DOF layout: A row i (3 entries) then t_i; component i of x moves with [A row i, t_i]
     M = np.zeros((n, 12, n, 12))
     G4 = G4.reshape(n, 4, n, 4)
