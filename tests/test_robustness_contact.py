@@ -63,6 +63,18 @@ def _plane_distance(r):
 
 
 @pytest.mark.parametrize("kind", ["voxel", "affine"])
+def test_an_obstacle_inside_the_body_is_refused(kind):
+    """A sphere wholly inside the box touches none of the collision points (they are on the surface): it was
+    accepted and never acted (contact force 0, exit 0).  Now the voxel centres inside it are counted and the
+    scene refused, naming the obstacle."""
+    text = DROP.format(kind=kind, nodes="count = 10" if kind == "affine" else "", normal="[0.0, 0.0, 1.0]", steps=2)
+    text = text.replace('kind = "plane"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]',
+                        'kind = "sphere"\ncenter = [0.5, 0.5, 0.26]\nradius = 0.22')
+    with pytest.raises(InputError, match=r"obstacle 0 \(sphere\) lies in the material at rest: \d+ of 32 voxel centres"):
+        vf.simulate(Scene.from_toml_text(text), progress=False)
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
 def test_drop_box_on_a_plane(kind):
     """The drop test of the issue, default contact settings: the lowest drawn vertex never goes below the
     plane minus 0.1 % of the voxel size, and at rest the contact force equals the weight to 0.5 %

@@ -329,6 +329,30 @@ class ContactModel(OnePass, ModelLayer):
             p, o = np.unravel_index(int(np.argmin(d)), d.shape)
             raise InputError(f"the body at rest touches or enters obstacle {o} ({obstacles[o].kind}) at "
                              f"{self.points[p].tolist()}; move the obstacle or the object apart")
+        self._check_overlap(inner, obstacles)
+
+    @staticmethod
+    def _check_overlap(inner, obstacles, chunk: int = 1 << 16) -> None:
+        """InputError when an obstacle lies in the material at rest.  The collision points are on the surface,
+        so an obstacle wholly inside the body (a sphere in a beam) touched none of them: it was accepted and never
+        acted (contact force 0, exit 0).  Judged on the material voxels' centres, where the model has an image."""
+        image = getattr(inner, "image", None)
+        if image is None or not hasattr(image, "voxel_centers"):
+            return
+        X = image.voxel_centers()
+        for o, ob in enumerate(obstacles):
+            inside = 0
+            first = None
+            for a in range(0, len(X), chunk):
+                d = ob.signed_distance(X[a:a + chunk], 0.0)[0]
+                hit = np.flatnonzero(d <= 0)
+                inside += len(hit)
+                if first is None and len(hit):
+                    first = X[a + hit[0]]
+            if inside:
+                raise InputError(f"obstacle {o} ({ob.kind}) lies in the material at rest: {inside} of {len(X)} voxel "
+                                 f"centres are inside it (the first at {np.round(first, 6).tolist()}); an obstacle "
+                                 "must start outside the object: move it or the object apart")
 
     supported_by_contact = True  # the obstacles may hold the body: no static support check
 
