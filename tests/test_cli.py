@@ -19,7 +19,7 @@ def test_version(capsys):
 
 
 def test_no_command_prints_help(capsys):
-    assert main([]) == 1
+    assert main([]) == 2  # no command: the help, and a usage error's status
     out = capsys.readouterr().out
     assert "usage: voxflex" in out and "quick start" in out
 

@@ -60,7 +60,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
-        return 1
+        return 2  # a usage error, as argparse's own
     import warnings
 
     previous = warnings.formatwarning
