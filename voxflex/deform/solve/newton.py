@@ -191,6 +191,7 @@ class _Problem:
         self.shape = np.shape(model.rest)
         self.constant = bool(model.constant_tangent)
         self.elastic_diagonal = None
+        self._bulk = None  # bulk_ratio(), once
         self.negative_curvature = False  # set by Newton when a direction of negative curvature was met
         self.on_iteration = None  # optional callable(dict) told about every Newton iterate (progress, logs)
         # the lean static path of constant-tangent models: the free-DOF block (F, F) assembled once by the
@@ -216,6 +217,27 @@ class _Problem:
         self.projected = 0  # Hessians built from projected tangents
         self.chord = None  # a _Chord kept over the load or time steps (dense tangents), or None
         self.solution_energy = None  # the model's energy at the answer, once Newton has converged (_newton)
+
+    def bulk_ratio(self) -> float:
+        """The largest lambda / mu of the model's materials at rest (0 when none is known): a nearly
+        incompressible material's forces are sums of volumetric terms lambda / mu times larger than what they
+        add up to, so they lose that factor of digits (Newton's round-off floor, :data:`BULK_FLOOR`)."""
+        if self._bulk is None:
+            from ..materials.fbar import effective_lame
+
+            ratio = 0.0
+            inner = getattr(self.model, "inner", self.model)
+            for mat in dict(getattr(inner, "materials", None) or {}).values():
+                try:
+                    A0 = mat.evaluate(np.eye(3)[None], tangent=True)[2][0]
+                except Exception:  # noqa: BLE001 - a material without a rest tangent tells nothing here
+                    continue
+                if np.all(np.isfinite(A0)):
+                    lam, mu = effective_lame(A0.reshape(3, 3, 3, 3))
+                    if mu > 0 and lam > 0:
+                        ratio = max(ratio, lam / mu)
+            self._bulk = ratio
+        return self._bulk
 
     def roundoff_lengths(self, free) -> np.ndarray:
         """Per free DOF, the motion below which the elastic forces are round-off at the step's start
@@ -369,6 +391,12 @@ def _project_tangents(mode, step_length, indefinite, projected) -> bool:
     if mode != "auto":
         return mode == "always"
     return indefinite or (projected and step_length < 1.0)
+
+
+BULK_FLOOR = 64.0
+"""Newton's round-off floor includes ``BULK_FLOOR eps (lambda / mu) |r_0|``: a linear cantilever at nu = 0.49999999
+(lambda / mu = 5e7) stalled at relative residuals 2.4e-7 (voxels) and 1.3e-7 (frames), 22 and 12 eps lambda / mu,
+for 50 iterations and 8 load cuts, and was refused with "use more load steps" (which cannot help)."""
 
 
 def _forcing(rn, rn_prev, eta_prev, scale):
@@ -620,6 +648,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
     pot_start = None  # the potential at the attempt's first iterate
     indefinite = project = False  # the last tangent was indefinite along the step / was projected
     floor = 0.0  # the round-off floor of the residual, set from the first iterate's Hessian
+    bulk_floor = 0.0  # the relative floor of nearly incompressible materials (BULK_FLOOR), set with it
     chord = problem.chord if not lean else None
     chorded = False  # the last step was a chord step
     secant = None  # (free residual, step taken) of the last chord step: its curvature, measured by the next residual
@@ -663,6 +692,9 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             else:
                 diag = problem.elastic_diagonal if lean else problem.elastic_diagonal[free]
             floor = 16.0 * np.finfo(float).eps * vnorm(diag * problem.roundoff_lengths(free))
+            # and the cancellation of a nearly incompressible material's volumetric terms: relative to the forces'
+            # scale, BULK_FLOOR eps lambda / mu (dimensionless; ~1e-7 at nu = 0.49999999, 1e-11 at 0.4999)
+            bulk_floor = BULK_FLOOR * np.finfo(float).eps * problem.bulk_ratio()
         if it <= 1:
             scale = max(scale, vnorm(g[fixed]) if len(fixed) else 0.0)
         rel = rn / scale if scale > 0 else 0.0
@@ -672,7 +704,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
                                   "linear_solver": solver_used, "linear_iterations": last_lin,
                                   "seconds": now - t_last})
             t_last = now
-        if not moving and (scale == 0.0 or rn <= max(tol * scale, floor)):
+        if not moving and (scale == 0.0 or rn <= max(tol * scale, floor, bulk_floor * scale)):
             problem.solution_energy = E  # the model's energy at the answer (the caller's record need not redo it)
             return x, it, rel, lin_its, solver_used, halvings_total
         if it == options.max_iterations:
