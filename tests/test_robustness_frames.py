@@ -218,3 +218,23 @@ def test_reproducing_kernel_frames_at_nu_04999_keep_the_full_term_and_warn_with_
     assert r.model["volumetric"] == "full"
     voxel = vf.simulate(Scene.from_toml_text(beam("voxel", poisson="0.4999", h=0.25)), progress=False)
     assert 0.85 < robust.tip(r)[2] / robust.tip(voxel)[2] < 1.0  # stiffer than the voxel model, by < 15 %
+
+
+def test_frames_as_dense_as_the_voxels_are_refused_and_a_small_body_gets_fewer_by_default():
+    """The 16x4x4 cantilever (256 voxels, 425 corners: 1,275 DOF as voxels, converged tip about -0.39 m): 96
+    natural-neighbour frames sag -0.317 m, but 128 sagged -0.515 m and 256 -0.802 m with no warning (frames finer
+    than the voxels their weights are computed on).  Now more than (3 x corners - 1) / 12 = 106 frames are refused
+    before any weight is built, naming the limit; a body too small for the default 20 frames gets as many as the
+    limit allows (the 8x2x2 voxels of examples/cantilever.toml: 20 of 20)."""
+    def run(count):
+        text = beam("affine", h=0.25, nodes=f"count = {count}")
+        return vf.simulate(Scene.from_toml_text(text), progress=False, cache=False)
+
+    u = run(96).probes["tip"]
+    assert -0.40 < (u[-1] - u[0])[2] < -0.28
+    with pytest.raises(InputError, match=r"128 affine frames \(12 DOF each, 1,536\) would carry as many DOFs as the "
+                                         r"voxel model of this image \(256 voxels, 1,275 DOF\).*at most 106 frames"):
+        run(128)
+    tiny = beam("affine", size=(1.0, 0.5, 0.5), h=0.25)  # 4x2x2 voxels, 45 corners
+    model = vf.model(Scene.from_toml_text(tiny), cache=False)
+    assert model.n_nodes == (3 * 45 - 1) // 12 == 11
