@@ -74,3 +74,17 @@ def test_bad_scene_files_give_one_line_errors(tmp_path, capsys, text, message):
 def test_missing_scene_file(tmp_path, capsys):
     assert main(["simulate", str(tmp_path / "nope.toml")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+def test_a_scene_where_nothing_moves_says_so(tmp_path, capsys):
+    """The cantilever example without its gravity: a complete run whose every drawn point stays exactly at rest
+    (a forgotten load looked like a result); the summary says so.  With the load, no such note."""
+    text = (EXAMPLES / "cantilever.toml").read_text()
+    still = re.sub(r"vector = \[[^\]]*\]", "vector = [0.0, 0.0, 0.0]", text)
+    assert still != text
+    for body, noted in ((still, True), (text, False)):
+        scene = tmp_path / "c.toml"
+        scene.write_text(body)
+        assert main(["simulate", str(scene), "-o", str(tmp_path / "r.h5"), "--force"]) == 0
+        out = capsys.readouterr().out
+        assert ("note: nothing moved" in out) is noted

@@ -164,6 +164,8 @@ def check_outputs(args, scene, scene_path, output) -> None:
 
 def summary(result, *, scene_path, output, wall, extras=()) -> str:
     """The short report printed after a run."""
+    import numpy as np
+
     from ..result_text import field_lines
 
     totals = result.run_totals()
@@ -180,6 +182,10 @@ def summary(result, *, scene_path, output, wall, extras=()) -> str:
             f"displacement [{', '.join(f'{x:.6g}' for x in u)}]"
         )
     lines += field_lines(result)
+    if result.n_states > 1 and result.complete and not np.any(result.displacement(-1)):
+        # exactly zero everywhere drawn: a scene whose loads were forgotten looked like a result
+        lines.append("note: nothing moved: the scene applies no load, prescribed motion, cable pull or moving obstacle, "
+                     "so the result is its rest state")
     written = [str(output)] + [str(e) for e in extras if e]
     lines.append(f"wrote: {', '.join(written)}")
     return "\n".join(lines)
