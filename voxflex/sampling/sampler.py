@@ -151,13 +151,14 @@ class _Context:
         # placement does): its distances are the same bits for the scene in any unit, so the farthest points,
         # the Lloyd cells and the splits break their ties alike at 1 nm and 1 km (in metres, voxels equidistant
         # from two seeds went to either as the sums rounded at each scale)
-        h = float(np.min(image.spacing))
-        self.graph = VoxelGraph.from_mask(mask, np.round(np.asarray(image.spacing, dtype=np.float64) / h, 12))
+        from ..voronoi.geodesic import voxel_units
+
+        spacing_u, self.h = voxel_units(image.spacing)
+        self.graph = VoxelGraph.from_mask(mask, spacing_u)
         self.n = self.graph.n
         self.centres = image.index_to_world(self.graph.ijk + 0.5)
         self.occ = np.ones(self.n) if image.occupancy is None else image.occupancy[mask].astype(np.float64)
         self.labels = image.labels[mask].astype(np.int64)
-        self.h = float(np.min(image.spacing))
 
     def region_image(self, region_of_voxel):
         out = np.full(self.image.shape, -1, dtype=np.int64)

@@ -67,7 +67,7 @@ from .._ties import first_extreme
 
 from ..errors import InputError, check_choice
 from . import _march as M
-from .geodesic import _centres, _prepare, _seed_voxels
+from .geodesic import _centres, _prepare, _seed_voxels, voxel_units
 
 __all__ = ["place_frames", "pinned_frames", "strain_density", "STRAIN_EXPONENT", "STRAIN_CLIP"]
 
@@ -173,10 +173,9 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     """
     import dataclasses
 
-    spacing = np.asarray(image.spacing, dtype=np.float64)
-    h = float(spacing.min())
+    spacing_u, h = voxel_units(image.spacing)
     origin = np.asarray(image.origin, dtype=np.float64)
-    unit = dataclasses.replace(image, spacing=np.round(spacing / h, 12), origin=np.zeros(3))
+    unit = dataclasses.replace(image, spacing=spacing_u, origin=np.zeros(3))
 
     def to_unit(x):
         return (np.asarray(x, dtype=np.float64) - origin) / h

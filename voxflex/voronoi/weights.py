@@ -119,18 +119,18 @@ class ShapeFunction:
         return len(self.frames)
 
     def _units(self):
-        """(unit, h_u): the smallest voxel edge in metres and the fits' length scale in units of it."""
+        """(spacing in voxel units, the smallest voxel edge in metres, the fits' length scale in voxel units: the
+        one :func:`shape_function` fitted with)."""
         if "units" not in self._cache:
             spacing_u, unit = voxel_units(self.image.spacing)
-            self._cache["units"] = unit, float(np.round(self._scale / unit, 12))
+            self._cache["units"] = spacing_u, unit, _fit_scale(self._scale, unit)
         return self._cache["units"]
 
     def _unit_positions(self, points) -> np.ndarray:
         """World points (m, 3) in voxel units about the image's origin: the weights are evaluated there, so
         that two equal values (frames tied at the parents' cut) compare the same way in every unit of the
         scene (in metres their round-off decided which frame was kept: a cube's top moved 0.18 % at 1 mm)."""
-        spacing_u, _ = voxel_units(self.image.spacing)
-        return (voxel_coordinates(self.image, points) * spacing_u) @ np.asarray(self.image.direction, dtype=np.float64).T
+        return _unit_frame(self.image, points, self._units()[0])
 
     def _voxels_of(self, points):
         """Material voxel (m, 3) used for each point; InputError naming the first point too far outside."""
@@ -207,11 +207,11 @@ class ShapeFunction:
         ijk = np.argwhere(mask)
         # voxel centres in the nodes' frame (index coords: world = origin + (c * spacing) @ direction.T)
         # in voxel units (see _unit_positions): the same weights and the same kept parents in every unit
+        spacing_u, _, h_u = self._units()
         cn = voxel_coordinates(self.image, self._node_pos)
-        spacing_u, _ = voxel_units(self.image.spacing)
         index, w = _centre_kernel(ijk, self._node_of_voxel[mask], cn, spacing_u,
                                   np.asarray(self.image.direction, dtype=np.float64), self._node_frames,
-                                  self._node_coef, self._units()[1], int(self.parents))
+                                  self._node_coef, h_u, int(self.parents))
         if self._anchor is not None:
             own = self._anchor[mask]
             a = own >= 0
@@ -256,7 +256,7 @@ class ShapeFunction:
         dw = np.zeros((m, P, 3))
         ddw = np.zeros((m, P, 3, 3))
         pruned = 0.0
-        unit, h_u = self._units()
+        _, unit, h_u = self._units()
         if "unit_nodes" not in self._cache:
             self._cache["unit_nodes"] = self._unit_positions(self._node_pos)
         npos = self._cache["unit_nodes"]
@@ -270,6 +270,17 @@ class ShapeFunction:
             pruned = max(pruned, pr)
         self._cache["pruned"] = max(self._cache.get("pruned", 0.0), pruned)
         return ShapeValues(index=index, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=len(self.frames))
+
+
+def _unit_frame(image, points, spacing_u) -> np.ndarray:
+    """World points (m, 3) in voxel units about the image's origin (coordinates without the unit's round-off,
+    :func:`~voxflex.voronoi.geodesic.voxel_coordinates`): where the natural-neighbour fits are made and evaluated."""
+    return (voxel_coordinates(image, points) * spacing_u) @ np.asarray(image.direction, dtype=np.float64).T
+
+
+def _fit_scale(h, unit) -> float:
+    """The fits' length scale ``h`` (metres) in voxel units, rounded to 12 digits (the same bits at any unit)."""
+    return float(np.round(h / unit, 12))
 
 
 @njit
@@ -586,8 +597,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
     # nodes cannot see, and the ridge turns the round-off of positions in metres into coefficients ~1e-8 apart
     # between units, enough to swap two parents at the pruning (a cube's top moved 0.18 % at 1 mm)
     h = s * float(np.max(spacing_m))
-    pos_u = (voxel_coordinates(image, node_pos) * spacing) @ np.asarray(image.direction, dtype=np.float64).T
-    node_frames, node_coef = fit_nodes(pos_u, nf, nw, pa, pb, s * float(np.max(spacing)), n)
+    node_frames, node_coef = fit_nodes(_unit_frame(image, node_pos, spacing), nf, nw, pa, pb, _fit_scale(h, unit), n)
     node_of_voxel = -np.ones(image.shape, dtype=np.int64)
     node_of_voxel[material] = nown[mflat]
     return ShapeFunction(frames=F, kind="sibson" if kind == "natural-neighbour" else kind, parents=parents,

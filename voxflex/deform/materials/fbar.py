@@ -32,16 +32,25 @@ def effective_lame(A0) -> tuple[float, float]:
     return (a - 6.0 * mu) / 9.0, mu
 
 
+def rest_lame(material) -> tuple[float, float] | None:
+    """(lambda, mu) of ``material``'s tangent at F = I (its isotropic projection, :func:`effective_lame`), or None
+    when that tangent is not finite."""
+    A0 = material.evaluate(np.eye(3)[None], tangent=True)[2][0]
+    if not np.all(np.isfinite(A0)):
+        return None
+    return effective_lame(A0)
+
+
 def nearly_incompressible(material) -> bool:
     """Whether ``material``'s effective Poisson ratio at rest is >= :data:`AUTO_REDUCED_POISSON`.
 
     Read from its tangent at F = I (any material, anisotropic ones through
     their isotropic projection); a material without a finite rest tangent counts as not.
     """
-    A0 = material.evaluate(np.eye(3)[None], tangent=True)[2][0]
-    if not np.all(np.isfinite(A0)):
+    lame = rest_lame(material)
+    if lame is None:
         return False
-    lam, mu = effective_lame(A0)
+    lam, mu = lame
     nu_bound = AUTO_REDUCED_POISSON
     # nu = lam / (2 (lam + mu)) >= nu_bound  <=>  lam (1 - 2 nu_bound) >= 2 nu_bound mu (lam, mu > 0)
     # (a relative 1e-9 of slack so that a material given nu = 0.4 exactly is reduced despite round-off)

@@ -223,19 +223,17 @@ class _Problem:
         incompressible material's forces are sums of volumetric terms lambda / mu times larger than what they
         add up to, so they lose that factor of digits (Newton's round-off floor, :data:`BULK_FLOOR`)."""
         if self._bulk is None:
-            from ..materials.fbar import effective_lame
+            from ..materials.fbar import rest_lame
 
             ratio = 0.0
             inner = getattr(self.model, "inner", self.model)
             for mat in dict(getattr(inner, "materials", None) or {}).values():
                 try:
-                    A0 = mat.evaluate(np.eye(3)[None], tangent=True)[2][0]
+                    lame = rest_lame(mat)
                 except Exception:  # noqa: BLE001 - a material without a rest tangent tells nothing here
                     continue
-                if np.all(np.isfinite(A0)):
-                    lam, mu = effective_lame(A0.reshape(3, 3, 3, 3))
-                    if mu > 0 and lam > 0:
-                        ratio = max(ratio, lam / mu)
+                if lame is not None and lame[0] > 0 and lame[1] > 0:
+                    ratio = max(ratio, lame[0] / lame[1])
             self._bulk = ratio
         return self._bulk
 

@@ -84,10 +84,12 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
                              'give young (or use distance = "geodesic")')
     kind = nodes.weights  # the scene's family or the node kind's default
     fixed = [(np.asarray(f.min, dtype=float), np.asarray(f.max, dtype=float)) for f in scene.fixed]
+    limit = None  # (the most frames, the voxel corners): _frame_limit, once per build where it is needed
     if nodes.count is not None:
         count = nodes.count
     else:  # the default, on a body too small for it: as many as stay below the voxel model's DOFs (_check_density)
-        count = min(DEFAULT_FRAMES, int((image.labels > 0).sum()), _densest(image))
+        limit = _frame_limit(image)
+        count = min(DEFAULT_FRAMES, int((image.labels > 0).sum()), limit[0])
     quadrature = scene.elasticity.quadrature
     hourglass = scene.elasticity.hourglass if quadrature == "midpoint" else "none"
     occupancy = bool(scene.object.occupancy)
@@ -125,7 +127,7 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
 
     if stored is None:
         pre = _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass,
-                          weight_space=weight_space, density=density, make_model=make_model)
+                          weight_space=weight_space, density=density, make_model=make_model, limit=limit)
     sf = pre["sf"]
     info = {"shape_function": kind, "parents": int(sf.parents if untruncated else nodes.parents),
             "distance": nodes.distance, "precompute_cached": stored is not None,
@@ -294,14 +296,14 @@ def _free_zero_modes(scene, model, K) -> int:
 
 
 def _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass, *,
-                make_model, weight_space=None, density=None):
+                make_model, weight_space=None, density=None, limit=None):
     """Frames, blended shape functions and samples (pruned to ``parents``) of an image, with the sample
     count chosen (module docstring).  Returns a dict: frames, sf, samples (what the model integrates),
     regions (the sampler's, or None), tables and gauss (stabilised mid-point regions), chosen (str),
     K and softest (the checks of the chosen samples) and model (the frame model the check judged, made by
     ``make_model(pre)``: the caller's materials, so that it is built once).  ``weight_space``: the eigenmode weights' per-label
     stiffness and density (:func:`_weight_space`); ``density``: the relative frame density of
-    ``[nodes] placement = "strain"``."""
+    ``[nodes] placement = "strain"``; ``limit``: :func:`_frame_limit` of the image when the caller has it."""
     from ....voronoi import place_frames, shape_function
 
     positions = None if nodes.positions is None else np.asarray(nodes.positions, dtype=float)
@@ -310,14 +312,14 @@ def _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature,
         from ....voronoi.placement import pinned_frames
 
         given = pinned_frames(image, positions=positions, fixed=fixed)
-        _check_density(image, count + len(given))
+        _check_density(image, count + len(given), limit)
         sf = shape_function(image, given, kind=kind, count=count, seed_owner=_clamp_owners(image, given, fixed),
                             **(weight_space or {}))
         frames = sf.frames
     else:
         frames = place_frames(image, count, positions=positions, fixed=fixed, seed=nodes.seed,
                               distance=nodes.distance, compliance=compliance, density=density)
-        _check_density(image, len(frames))
+        _check_density(image, len(frames), limit)
         sf = shape_function(image, frames, kind=kind, parents=None if rk else nodes.parents, distance=nodes.distance,
                             compliance=compliance, seed_owner=_clamp_owners(image, frames, fixed),
                             **({"support": nodes.support} if rk else {}))
@@ -555,24 +557,23 @@ def _rebuild(image, d, kind, parents, occupancy) -> dict:
     return out
 
 
-def _densest(image) -> int:
-    """The most affine frames (12 DOF each) below the DOFs of the image's voxel model (3 per voxel corner):
-    :func:`_check_density`'s limit."""
+def _frame_limit(image) -> tuple[int, int]:
+    """(the most affine frames, 12 DOF each, below the DOFs of the image's voxel model, the number of voxel
+    corners): the voxel model has 3 DOF per corner.  The limit of :func:`_check_density`."""
     from ....image.grid import TrilinearGrid
 
-    return max(1, (3 * TrilinearGrid.from_image(image).n_nodes - 1) // 12)
+    corners = TrilinearGrid.from_image(image).n_nodes
+    return max(1, (3 * corners - 1) // 12), corners
 
 
-def _check_density(image, n: int) -> None:
+def _check_density(image, n: int, limit=None) -> None:
     """InputError when n affine frames (12 DOF each) would carry as many DOFs as the voxel model of the image (3
     per voxel corner): frames that dense are finer than the voxels their weights are computed on.  Measured on
     the 16x4x4 cantilever (256 voxels, 425 corners, converged tip -0.39 m): 96 natural-neighbour frames -0.317 m,
     128 frames -0.515 m, 256 frames -0.802 m, no warning; on a 4x4x4 cube 48 frames were 19 % softer than the
-    converged answer; reproducing kernels were refused for zero-energy modes from 128 frames on the beam."""
-    from ....image.grid import TrilinearGrid
-
-    corners = TrilinearGrid.from_image(image).n_nodes
-    top = max(1, (3 * corners - 1) // 12)
+    converged answer; reproducing kernels were refused for zero-energy modes from 128 frames on the beam.
+    ``limit``: :func:`_frame_limit` of the image when the caller has it."""
+    top, corners = _frame_limit(image) if limit is None else limit
     if n > top:
         raise InputError(
             f"{n} affine frames (12 DOF each, {12 * n:,}) would carry as many DOFs as the voxel model of this image "
