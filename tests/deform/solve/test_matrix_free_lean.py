@@ -49,6 +49,27 @@ def test_element_product_equals_its_numpy_twin_and_the_assembled_block():
     assert np.allclose(op.diagonal(), A.diagonal(), rtol=1e-13, atol=0)
 
 
+def test_element_product_with_its_energy_is_centred():
+    """The fused pass returns K x and x^T K x / 2 of the assembled matrix (1e-12), and with each voxel's values
+    taken relative to their mean a body translated by 1e8 times its strain keeps its strain energy and forces to
+    1e-6, where the global product x . K x loses them to the translation's round-off."""
+    model, _ = _two_material_body()
+    e = model.stiffness_elements()
+    conn = model.grid.element_nodes
+    rng = np.random.default_rng(4)
+    x = rng.standard_normal(3 * model.n_nodes)
+    K = model.hessian(model.rest)
+    y, energy = kern.element_matvec_energy(e.units, e.kind, e.scale, conn, x)
+    assert np.allclose(y, K @ x, rtol=0, atol=1e-12 * np.abs(K @ x).max())
+    assert energy == pytest.approx(0.5 * x @ (K @ x), rel=1e-12)
+    shift = np.tile([3e7, -2e7, 1e7], model.n_nodes)  # a translation 1e7-3e7 times the strain's size
+    ys, es = kern.element_matvec_energy(e.units, e.kind, e.scale, conn, x + shift)
+    assert es == pytest.approx(energy, rel=1e-6)
+    assert np.allclose(ys, y, rtol=0, atol=1e-6 * np.abs(y).max())
+    plain = 0.5 * (x + shift) @ (K @ (x + shift))
+    assert abs(plain - energy) > 1e-3 * energy  # what the centring saves
+
+
 def test_stencil_rows_from_the_elements_equal_the_stored_ones():
     """The stencil of the matrix-free block stores the rows it does not cover assembled from the element
     matrices of their voxels only: equal to the assembled block's rows, entry by entry (1e-13)."""

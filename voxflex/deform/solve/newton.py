@@ -640,7 +640,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
     scale = max(fnorm, scale0)
     rn_prev, eta_prev = None, None
     cached = None  # (x, problem(x)) of an accepted full step whose gradient the line search evaluated
-    step_length, last_lin, t_last = 0.0, 0, time.perf_counter()
+    step_length, last_lin, last_eta, t_last = 0.0, 0, 0.0, time.perf_counter()
     lean = problem.block is not None
     history = []  # residuals of the iterates so far (Newton's rate)
     pot_start = None  # the potential at the attempt's first iterate
@@ -700,6 +700,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             now = time.perf_counter()
             problem.on_iteration({"label": label, "iteration": it, "residual": rel, "step_length": step_length,
                                   "linear_solver": solver_used, "linear_iterations": last_lin,
+                                  "linear_rtol": last_eta,
                                   "seconds": now - t_last})
             t_last = now
         if not moving and (scale == 0.0 or rn <= max(tol * scale, floor, bulk_floor * scale)):
@@ -741,7 +742,7 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             if chord is not None and isinstance(Hff, np.ndarray) and not moving:  # dense (what Cholesky solved)
                 chord.store(Hff, problem.elastic_diagonal[free])
         lin_its += info.iterations
-        last_lin = info.iterations
+        last_lin, last_eta = info.iterations, (0.0 if chorded else eta)
         problem.solves += 1
         solver_used = info.method + (f" ({info.note})" if info.note else "")
         if options.linear_solver == "auto" and info.fell_back:

@@ -361,8 +361,9 @@ def solve(
     newton_callback : callable(dict), optional
         Called at every Newton iterate with ``label`` (the step), ``iteration``, ``residual``
         (relative), ``step_length`` (line-search factor of the step that led there, 0 at the
-        start), ``linear_solver`` and ``linear_iterations`` of that step, ``seconds`` since the
-        previous call.
+        start), ``linear_solver``, ``linear_iterations`` and ``linear_rtol`` of that step (the
+        relative residual asked of its linear solve, ``|A d - b| <= linear_rtol |b|``; 0 where none
+        was solved for it, e.g. a chord step), ``seconds`` since the previous call.
     q0, v0 : (n, d) float, optional
         Initial state (default: rest) and its velocity (implicit Euler; default 0).
         Fixed DOFs still follow their regions.

@@ -164,6 +164,7 @@ class VoxelModel(ConstantTangentPath):
         self._node_type = None
         self._constant = None  # (data, E0, g0, units) of the quadratic terms, built on first use
         self._quadratic = None  # (E0, g0, units) of the quadratic terms: what gradients need without the matrix
+        self._constant_kinds = None  # (units stack, kind per voxel) of the quadratic terms (_constant_apply)
         self.volumetric_option = volumetric
         self.volumetric = {}
         for label, _, _ in self._groups:
@@ -379,19 +380,16 @@ class VoxelModel(ConstantTangentPath):
         if hessian:
             self._ensure_pattern()
         if has_constant:
-            E0, g0, units = self._quadratic_terms()
+            E0, g0, _ = self._quadratic_terms()
             du = q - self.rest if u is None else u  # the displacement of the quadratic terms (the samples keep u)
             energy += E0
             if np.any(du):  # at rest (the first record, a step's start) no pass over the voxels
-                energy += vdot(g0.ravel(), du.ravel()) + self._constant_quadratic_energy(du, units)
-            if gradient and (hessian or self._constant is not None):
-                Hc = sp.csr_matrix((self._constant_part()[0], self._pattern[1], self._pattern[0]), shape=(3 * n, 3 * n))
-                grad += g0 + (Hc @ du.ravel()).reshape(n, 3)
-            elif gradient and not np.any(du):
-                grad += g0  # at rest: K u = 0 without a pass over the voxels
+                Ku, quadratic = self._constant_apply(du)
+                energy += vdot(g0.ravel(), du.ravel()) + quadratic
+                if gradient:
+                    grad += g0 + Ku
             elif gradient:
-                # no assembled stiffness cached: apply it voxel by voxel instead of building it (memory)
-                grad += g0 + self._constant_apply(du, units)
+                grad += g0
             if hessian:
                 data_c = self._constant_part()[0]
                 # an all-constant model returns the cached (read-only) data itself: no copy per call
@@ -460,23 +458,6 @@ class VoxelModel(ConstantTangentPath):
                     Ke = kern.element_stiffness(self._G, A, vol)
                 kern.scatter_blocks(Ke, conn[elements], blockmap[elements], indptr_b, data,
                                     ijk=self.grid.element_ijk[elements])
-        return energy
-
-    def _constant_quadratic_energy(self, u, units) -> float:
-        """``u^T K u / 2`` of the constant-tangent groups, voxel by voxel (J).
-
-        Each voxel's displacements are taken relative to their mean first: the
-        unit stiffness annihilates translations, and removing them before the
-        products keeps the round-off second order in the strain (a global
-        ``u . K u`` makes a translated, unstrained body show eps |K| |u|^2 of energy).
-        """
-        energy = 0.0
-        conn = self.grid.element_nodes
-        for label, elements, const in self._chunks(labels=units):
-            ue = u[conn[elements]]  # (k, 8, 3)
-            ue = (ue - ue.mean(axis=1, keepdims=True)).reshape(len(ue), 1, 24)
-            Ke_u = np.matmul(ue, units[label])  # (k, 1, 24), a batch of small products
-            energy += 0.5 * vdot(self.element_volume[elements], np.einsum("eri,eri->e", ue, Ke_u))
         return energy
 
     # -- points, mass, loads ---------------------------------------------------
