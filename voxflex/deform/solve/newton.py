@@ -772,11 +772,20 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
             step_length = alpha
             continue
         slope = vdot(r, d)
+        full_step = None  # the full step's iterate and its evaluation, when made here
         if use_chord and not problem.constant:
             # the kept factor is positive definite (its Cholesky passed), so d has positive curvature in it, and
             # the trials below are evaluated, not modelled: no product with the dense tangent (a twentieth of
             # an implicit-Euler iteration of 60 frames); the secant of the step judges the true curvature
             curvature = None
+        elif lean and problem.constant and not moving and options.line_search:
+            # the lean path's quadratic potential: the full step's iterate is evaluated now (its gradient is the
+            # next iteration's, reused from the cache), and the difference of the gradients is K d, so the
+            # curvature costs no product with the free block (0.5 s at 6.4 million DOF)
+            x_full = x.copy()
+            x_full[free] += d
+            full_step = (x_full, problem(x_full, hessian=False))
+            curvature = vdot(d, full_step[1][2][free] - r)
         elif Hff is not None:
             curvature = vdot(d, Hff @ d)
         else:
@@ -809,24 +818,28 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
         alpha = 1.0
         accepted = False
         for _ in range(MAX_HALVINGS):
-            x_try = x.copy()
-            x_try[free] += alpha * d
             # trials by their energy alone: a rejected full step costs no gradient nor Hessian (the
             # accepted iterate gets its gradient and Hessian at the top of the next iteration); a constant
             # tangent's potential is quadratic, so its value along d is known exactly without a model pass
             # (53 ms of a 1.3 s linear solve at 421k DOF)
-            if problem.constant:
-                pot_try = pot + alpha * slope + 0.5 * alpha**2 * curvature
-            else:
-                pot_try = problem(x_try, hessian=False, gradient=False)[0]
             trial = None
+            if full_step is not None and alpha == 1.0:
+                x_try, trial = full_step  # evaluated above
+                pot_try = trial[0]
+            else:
+                x_try = x.copy()
+                x_try[free] += alpha * d
+                if problem.constant:
+                    pot_try = pot + alpha * slope + 0.5 * alpha**2 * curvature
+                else:
+                    pot_try = problem(x_try, hessian=False, gradient=False)[0]
             if np.isfinite(pot_try) and pot_try <= pot + ARMIJO * alpha * slope + ROUNDOFF * mag:
                 accepted = True
             elif alpha == 1.0 and np.isfinite(pot_try) and pot_try - pot <= NOISE * mag:
                 # near a solution of a high-contrast problem the energy's decrease (~|r|^2 / k_soft) falls
                 # below the round-off of the stiff parts' energy (~eps E_stiff V): judge the full Newton
                 # step by the residual it leaves instead, when the energy stays flat to NOISE
-                trial = problem(x_try, hessian=False)
+                trial = problem(x_try, hessian=False) if trial is None else trial
                 accepted = vnorm(trial[2][free]) <= 0.9 * rn
             if accepted:
                 if trial is not None:

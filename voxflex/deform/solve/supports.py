@@ -60,7 +60,7 @@ def unsupported_components(model, fixed_dofs) -> list[dict]:
     nodes_of = [p.nodes for p in parts]
     d = model.dofs_per_node
     N = np.asarray(model.rest).size
-    B = np.asarray(model.rigid_modes(), dtype=float).copy()
+    B = np.asarray(model.rigid_modes(), dtype=float)  # read only: the rows a rank needs are scaled when taken
     held = np.zeros(N, dtype=bool)
     held[np.asarray(fixed_dofs, dtype=np.int64)] = True
     n_nodes = N // d
@@ -72,7 +72,7 @@ def unsupported_components(model, fixed_dofs) -> list[dict]:
     lo = np.min([p.lo for p in parts], axis=0)
     hi = np.max([p.hi for p in parts], axis=0)
     extent = float(np.max(hi - lo)) or 1.0
-    B[:, 3:] /= extent  # rotations in units comparable to translations
+    unit = np.array([1.0, 1.0, 1.0, 1.0 / extent, 1.0 / extent, 1.0 / extent])  # rotations comparable to translations
     ranks = np.zeros(n, dtype=np.int64)
     own = np.zeros(n, dtype=np.int64)
     changed = True
@@ -84,9 +84,9 @@ def unsupported_components(model, fixed_dofs) -> list[dict]:
             nodes = nodes_of[c]
             dofs = (d * nodes[:, None] + np.arange(d)).ravel()
             by_fixed = held[dofs]
-            own[c] = _rank(B[dofs[by_fixed]])
+            own[c] = _rank(B[dofs[by_fixed]] * unit)
             shared = np.repeat(support_node[nodes] & (owner_count[nodes] > 1), d)
-            ranks[c] = _rank(B[dofs[by_fixed | shared]])
+            ranks[c] = _rank(B[dofs[by_fixed | shared]] * unit)
             if ranks[c] == 6:
                 supported[c] = True
                 support_node[nodes] = True
