@@ -210,7 +210,7 @@ def test_friction_1e12_is_not_accepted_at_relative_residual_1(folder, capfd, mon
     kept, marked)."""
     import pathlib
 
-    import voxflex.scene as scene_module
+    import voxflex.scene_tables as scene_module
 
     text = pathlib.Path(robust.__file__).resolve().parents[2].joinpath("examples", "ball_on_plane.toml").read_text()
     text = text.replace("normal = [0.0, 0.0, 1.0]", "normal = [0.0, 0.0, 1.0]\nfriction = 1e12")
