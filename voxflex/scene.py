@@ -20,8 +20,8 @@ True
 Defaults: ``[nodes] kind = "affine"`` (frames); ``[elasticity] quadrature`` is the
 node kind's own (``"midpoint"`` for frames: regions with their mean F and the
 fluctuation energy, ``hourglass = "stiffness"``; ``"gauss-legendre"`` for voxels);
-``[nodes] parents = 6`` (not 4: measured, 4 parents were 9 % off on a
-cantilever where 6 were within 1 %).  Extensions: a top-level ``title``; ``[object]
+``[nodes] parents = 6`` (the cut to the largest weights is not conforming
+and softens the model: docs/scene.md, ``parents``).  Extensions: a top-level ``title``; ``[object]
 axis`` for cylinders; ``[[material]]`` model constants and a per-material
 ``strain``; ``[[load]] kind = "force"``; ``[solver]`` options mirroring the solver's.
 """
