@@ -169,13 +169,17 @@ def _bounds(scene):
     return np.minimum(lo, hi), np.maximum(lo, hi)
 
 
+PARENTS = None  # --parents: [nodes] parents of every frame row (the scene's default when not given)
+
+
 def configure(scene, *, kind="affine", count=None, sf=None, q=None, placement=None):
     """``scene`` with these nodes: sf / q None give RK + elastons, named explicitly (a scene that names no
     shape_function gets the frame builder's own fallback, natural-neighbour, whatever the kind declares)."""
     if kind == "voxel":
         return replace(scene, nodes=NodesSpec(kind="voxel"), elasticity=replace(scene.elasticity,
                                                                                  quadrature="gauss-legendre"))
-    nodes = NodesSpec(kind="affine", count=count, shape_function=sf or "reproducing-kernel", placement=placement)
+    nodes = NodesSpec(kind="affine", count=count, shape_function=sf or "reproducing-kernel", placement=placement,
+                      parents=PARENTS or NodesSpec.parents)
     return replace(scene, nodes=nodes, elasticity=replace(scene.elasticity, quadrature=q or "elaston"))
 
 
@@ -448,6 +452,8 @@ def main():
     ap.add_argument("--counts2", type=ints, default=[40, 80])
     ap.add_argument("--exact-counts2", type=ints, default=[40])
     ap.add_argument("--nn-counts2", type=ints, default=[40])
+    ap.add_argument("--parents", type=int, default=None,
+                    help="[nodes] parents of the frame rows (default: the scene's, 6; reproducing-kernel ignores it)")
     ap.add_argument("--dyn-voxel", type=float, default=0.003, help="dynamics: bunny voxel size (m)")
     ap.add_argument("--dyn-counts", type=ints, default=[60], help="dynamics: frame counts")
     ap.add_argument("--dyn-weights", default=["default"], type=lambda s: s.split(","),
@@ -463,6 +469,8 @@ def main():
     ap.add_argument("--repeat", type=int, default=3, help="runs of the cheap rows (min / median)")
     ap.add_argument("--top", type=int, default=25, help="profile: entries printed")
     args = ap.parse_args()
+    global PARENTS
+    PARENTS = args.parents
     print(f"machine: {_machine()}\n{_load()}")
     parts = ["bunny", "second", "dynamics", "profile"] if args.part == "all" else [args.part]
     for p in parts:

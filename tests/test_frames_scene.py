@@ -50,22 +50,31 @@ def test_affine_patch_test_through_frames_and_samples(tmp_path, quadrature):
 
 @pytest.mark.slow
 def test_sofa_frames_beam_against_the_voxel_model():
-    """Natural-neighbour frames (the figures below are theirs). Bar 0.4 x 0.4 x 2 (voxels 0.02: 40,000), clamped at z = 0, E = 1e5, nu = 0.3, 1 N at the tip, 40
-    frames.  Linear material, so the stabilised mid-point regions integrate exactly what Gauss-Legendre
-    does (tests/test_frame_model.py): the frames' own (kinematic) error against the voxel model remains,
-    measured +8.9 % stiff (it was +1.0 % with 1000 bare mid-point samples: under-integration cancelling
-    the frames' stiffness).  Required: within 10 % of the voxel model (SOFA's own test accepted 27 %) and
-    elastons within 1 % of the mid-point regions."""
+    """Natural-neighbour frames (the figures below are theirs). Bar 0.4 x 0.4 x 2 (voxels 0.02: 40,000), clamped at
+    z = 0, E = 1e5, nu = 0.3, 1 N at the tip, 40 frames.  Linear material, so the stabilised mid-point regions
+    integrate exactly what Gauss-Legendre does (tests/test_frame_model.py): the frames' own (kinematic) error
+    against the voxel model remains.  The weights cut to ``parents`` per point conformingly (the first dropped
+    weight subtracted before renormalising), so the model is stiffer than the voxel model and its error falls
+    as parents are added: measured +21.4 / +13.1 / +10.5 / +9.82 / +9.82 % stiff at 4 / 6 / 8 / 12 / 16 parents
+    (12: every natural neighbour, uncut).  The cut used to renormalise the largest weights as they were, which
+    jumps where the kept set changes and softened the default 6 parents to +8.9 %, below the uncut weights'
+    error: a cancellation (and +1.0 % with 1000 bare mid-point samples, under-integration cancelling too).
+    Required: stiff, the uncut weights within 10 % of the voxel model (SOFA's own test accepted 27 %), the
+    default 6 parents no closer than the uncut ones and within 15 %, and elastons within 1 % of the mid-point
+    regions."""
     scene = _bar(h=0.02, fixed=(FixedSpec(max=(1e9, 1e9, 1e-6)),),
                  loads=(LoadSpec(kind="force", vector=(1.0, 0.0, 0.0), min=(-1e9, -1e9, 2.0 - 1e-6)),))
     ref = vf.simulate(scene, progress=False).probe_displacements()["tip"][0]
     frames = replace(scene, nodes=NodesSpec(kind="affine", shape_function="natural-neighbour", count=40),
                      elasticity=ElasticitySpec(strain="linear", quadrature="midpoint", samples=1000))
     got = vf.simulate(frames, progress=False).probe_displacements()["tip"][0]
+    uncut = replace(frames, nodes=replace(frames.nodes, parents=12))
+    got_all = vf.simulate(uncut, progress=False).probe_displacements()["tip"][0]
     el = replace(frames, elasticity=ElasticitySpec(strain="linear", quadrature="elaston"))
     got_el = vf.simulate(el, progress=False).probe_displacements()["tip"][0]
     assert ref == pytest.approx(0.0127, rel=0.01)  # beam theory PL^3/3EI = 0.0125, plus shear
-    assert 0 < ref - got <= 0.10 * abs(ref)
+    assert 0 < ref - got_all <= 0.10 * abs(ref)
+    assert ref - got_all <= ref - got <= 0.15 * abs(ref)
     assert abs(got_el - got) <= 0.01 * abs(got)
 
 

@@ -248,15 +248,24 @@ class ShapeValues:
 
 
 def keep_largest(values: ShapeValues, parents: int, *, backend: str = "numba") -> ShapeValues:
-    """The ``parents`` largest weights of every child, renormalised to a partition of unity.
+    """The ``parents`` largest weights of every child, cut conformingly and renormalised to a partition of unity.
 
-    With ``S = sum of the kept w``: ``w' = w / S``, ``dw' = (dw - w' dS) / S`` and
-    ``ddw' = (ddw - dw' dS^T - dS dw'^T - w' ddS) / S`` — the exact derivatives of the
-    renormalised functions while the kept set does not change (it jumps where the
-    set changes: that is the cost of a bounded number of parents).  Ties keep the
-    lowest frame index (not the first slot: slot order comes from sorts on rounded
-    values and differs between units).  ``backend="numba"``: :func:`_keep_largest_kernel` (0.55 s of numpy on the
-    bunny's 94k voxel centres at 2 mm); ``"numpy"``: its twin.
+    Where a child has more than ``P = parents`` weights, the first one dropped (the (P+1)-th largest,
+    ``w_c``) is subtracted from the kept ones before they are renormalised:
+    ``w'_i = (w_i - w_c) / S`` with ``S = sum_kept (w_i - w_c)``.  A weight then reaches zero exactly
+    where it leaves the kept set (it is the (P+1)-th there), so the cut functions are as continuous as
+    the weights they cut: the model stays conforming, and with exact integration it cannot come out
+    softer than the weights give uncut.  Keeping the P largest and renormalising them as they are (what
+    this did before) jumps where the kept set changes, and the jumps soften the model (pure bending, 20
+    natural-neighbour frames with Gauss points: 1.283 at 6 parents against 1.376 uncut;
+    ``benchmarks/bench_weights_convergence.py --part parents``).  ``w_c`` is taken with its gradient and
+    Hessian, and with ``w~ = w - w_c``: ``w' = w~ / S``, ``dw' = (dw~ - w' dS) / S`` and
+    ``ddw' = (ddw~ - dw' dS^T - dS dw'^T - w' ddS) / S`` (``S``, ``dS``, ``ddS`` the sums over the kept
+    ones), the exact derivatives wherever the order of the P+1 largest does not change.  Where the P+1
+    largest are all equal (``S = 0``: a point of exact symmetry) the plain cut is used there.  Ties keep
+    the lowest frame index (not the first slot: slot order comes from sorts on rounded values and differs
+    between units).  ``backend="numba"``: :func:`_keep_largest_kernel` (0.55 s of numpy on the bunny's
+    94k voxel centres at 2 mm); ``"numpy"``: its twin.
     """
     parents = int(parents)
     if parents < 1:
@@ -266,9 +275,9 @@ def keep_largest(values: ShapeValues, parents: int, *, backend: str = "numba") -
     # weights equal to 1e-12 tie (the lowest frame wins): the same scene in other units rounds its weights
     # differently, and must keep the same parents (a 1 cm beam kept others than the 1 m beam: 0.05 % off)
     key = np.round(values.w, 12)
+    hess = values.ddw is not None
     if backend != "numpy":
         m = values.m
-        hess = values.ddw is not None
         idx = np.full((m, parents), -1, dtype=np.int64)
         w = np.zeros((m, parents))
         dw = np.zeros((m, parents, 3))
@@ -278,19 +287,34 @@ def keep_largest(values: ShapeValues, parents: int, *, backend: str = "numba") -
         return ShapeValues(index=idx, w=w, dw=dw, ddw=ddw if hess else None, rest=values.rest, n_nodes=values.n_nodes)
     big = np.iinfo(np.int64).max
     order = np.lexsort((np.where(values.index >= 0, values.index, big),
-                        -np.where(values.index >= 0, key, -np.inf)), axis=1)[:, :parents]
+                        -np.where(values.index >= 0, key, -np.inf)), axis=1)[:, :parents + 1]
     r = np.arange(values.m)[:, None]
-    idx = values.index[r, order]
+    idx_all = values.index[r, order]
+    valid = idx_all >= 0
+    w_all = np.where(valid, values.w[r, order], 0.0)
+    dw_all = np.where(valid[..., None], values.dw[r, order], 0.0)
+    ddw_all = np.where(valid[..., None, None], values.ddw[r, order], 0.0) if hess else None
+    idx = idx_all[:, :parents]
     keep = idx >= 0
-    w = np.where(keep, values.w[r, order], 0.0)
-    dw = np.where(keep[..., None], values.dw[r, order], 0.0)
+    cut = np.zeros(values.m) if order.shape[1] <= parents else w_all[:, parents]
+    S0 = np.where(keep, w_all[:, :parents] - cut[:, None], 0.0).sum(1)
+    ok = S0 > 0.0  # the P+1 largest not all equal (elsewhere: the plain cut)
+    c = np.where(ok, cut, 0.0)
+    w = np.where(keep, w_all[:, :parents] - c[:, None], 0.0)
+    dw = dw_all[:, :parents]
+    if order.shape[1] > parents:
+        dw = dw - np.where(ok[:, None, None], dw_all[:, parents:parents + 1], 0.0)
+    dw = np.where(keep[..., None], dw, 0.0)
     S = w.sum(1)
     dS = dw.sum(1)
     wn = w / S[:, None]
     dn = np.where(keep[..., None], (dw - wn[..., None] * dS[:, None, :]) / S[:, None, None], 0.0)
     ddn = None
-    if values.ddw is not None:
-        ddw = np.where(keep[..., None, None], values.ddw[r, order], 0.0)
+    if hess:
+        ddw = ddw_all[:, :parents]
+        if order.shape[1] > parents:
+            ddw = ddw - np.where(ok[:, None, None, None], ddw_all[:, parents:parents + 1], 0.0)
+        ddw = np.where(keep[..., None, None], ddw, 0.0)
         hS = ddw.sum(1)
         ddn = (ddw - dn[..., :, None] * dS[:, None, None, :] - dS[:, None, :, None] * dn[..., None, :]
                - wn[..., None, None] * hS[:, None]) / S[:, None, None, None]
@@ -302,12 +326,14 @@ def keep_largest(values: ShapeValues, parents: int, *, backend: str = "numba") -
 def _keep_largest_kernel(index, key, w, dw, ddw, hess, out_idx, out_w, out_dw, out_ddw):  # pragma: no cover
     """Compiled :func:`keep_largest` (the numpy path is its twin): per child, the slots sorted by
     decreasing ``key`` (the weights rounded to 12 digits; ties by increasing frame index), the first
-    ``out_idx.shape[1]`` kept and renormalised."""
+    ``out_idx.shape[1]`` kept, the first dropped one subtracted and the rest renormalised."""
     m, P = index.shape
     K = out_idx.shape[1]
     order = np.empty(P, np.int64)
     dS = np.empty(3)
+    dc = np.zeros(3)
     hS = np.empty((3, 3))
+    hc = np.zeros((3, 3))
     H = np.empty((3, 3))
     for s in range(m):
         nv = 0
@@ -322,6 +348,26 @@ def _keep_largest_kernel(index, key, w, dw, ddw, hess, out_idx, out_w, out_dw, o
             order[r + 1] = t
             nv += 1
         k = min(K, nv)
+        # the first dropped weight (and its derivatives), subtracted from the kept ones: the conforming cut
+        c = 0.0
+        for a in range(3):
+            dc[a] = 0.0
+            for b in range(3):
+                hc[a, b] = 0.0
+        if nv > K:
+            o = order[K]
+            c = w[s, o]
+            S0 = 0.0
+            for j in range(k):
+                S0 += w[s, order[j]] - c
+            if S0 > 0.0:
+                for a in range(3):
+                    dc[a] = dw[s, o, a]
+                    if hess:
+                        for b in range(3):
+                            hc[a, b] = ddw[s, o, a, b]
+            else:
+                c = 0.0  # the P+1 largest all equal: the plain cut at this point
         S = 0.0
         for a in range(3):
             dS[a] = 0.0
@@ -329,23 +375,23 @@ def _keep_largest_kernel(index, key, w, dw, ddw, hess, out_idx, out_w, out_dw, o
                 hS[a, b] = 0.0
         for j in range(k):
             o = order[j]
-            S += w[s, o]
+            S += w[s, o] - c
             for a in range(3):
-                dS[a] += dw[s, o, a]
+                dS[a] += dw[s, o, a] - dc[a]
                 if hess:
                     for b in range(3):
-                        hS[a, b] += ddw[s, o, a, b]
+                        hS[a, b] += ddw[s, o, a, b] - hc[a, b]
         for j in range(k):
             o = order[j]
             out_idx[s, j] = index[s, o]
-            wn = w[s, o] / S
+            wn = (w[s, o] - c) / S
             out_w[s, j] = wn
             for a in range(3):
-                out_dw[s, j, a] = (dw[s, o, a] - wn * dS[a]) / S
+                out_dw[s, j, a] = (dw[s, o, a] - dc[a] - wn * dS[a]) / S
             if hess:
                 for a in range(3):
                     for b in range(3):
-                        H[a, b] = (ddw[s, o, a, b] - out_dw[s, j, a] * dS[b] - dS[a] * out_dw[s, j, b]
+                        H[a, b] = (ddw[s, o, a, b] - hc[a, b] - out_dw[s, j, a] * dS[b] - dS[a] * out_dw[s, j, b]
                                    - wn * hS[a, b]) / S
                 for a in range(3):
                     for b in range(3):

@@ -28,7 +28,8 @@ nu = 0.3 / 0.45 / 0.49 / 0.4999): reproducing kernels, full, 20 frames -0.3862 /
 -0.3711 / -0.3633 / -0.3439, 40 frames -0.3685 (0.49) / -0.3601 (0.4999);
 projected -0.4106 / -0.4120 / -0.4121 / -0.4121 (20) and -0.4141 (40, both):
 7-11 % too soft.  Natural neighbours, projected: -0.3839 / -0.3922 / -0.3937 /
--0.3940 (full: -0.2965 at 0.3, -0.2172 at 0.45).  Projecting onto the weights
+-0.3940 (full: -0.2965 at 0.3, -0.2172 at 0.45; measured with the old cut to 6 parents, whose jumps
+softened them: with the conforming cut, ``benchmarks/bench_frames_quadrature.py --locking``).  Projecting onto the weights
 times (1, x - X_a) as well (4 per frame) behaves like full integration (-0.3873 at
 0.3, -0.3730 at 0.45) and lost Newton convergence at 0.49.  A sample cannot
 pass through zero volume (infinite energy where ``Jbar_s / J_s <= 0``).
