@@ -250,6 +250,9 @@ def test_field_names_are_one_vocabulary():
     with pytest.raises(vf.InputError, match="did you mean 'von-mises'"):
         Scene.from_toml_text(UNIAXIAL.replace('"von-mises", "strain"', '"vonmises", "strain"'))
     assert vff.check_field_names(["stress", "stress"]) == ("stress",)
+    # what every result records anyway is named as such, not as an unknown field (it came before a real typo)
+    with pytest.raises(vf.InputError, match="'displacement' is always recorded.*remove it"):
+        vff.check_field_names(["displacement", "bogus"])
     r = vf.simulate(Scene.from_toml_text(UNIAXIAL.split("[output]")[0].replace("steps = 2", "steps = 1")),
                     progress=False)
     assert r.fields == {} and r.cell_fields == {} and r.reactions is None  # computed only when asked

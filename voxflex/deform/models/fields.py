@@ -75,6 +75,9 @@ _TRAILING = {"stress": (3, 3), "von-mises": (), "strain": (3, 3), "stretches": (
              "volume-ratio": ()}
 
 
+_ALWAYS = ("displacement", "displacements", "position", "positions")
+
+
 def check_field_names(names, *, where: str = "fields") -> tuple[str, ...]:
     """Validate a list of field names; returns them as a tuple without repeats, in the given order.
 
@@ -87,6 +90,10 @@ def check_field_names(names, *, where: str = "fields") -> tuple[str, ...]:
         raise InputError(f"{where} must be a list of field names such as [\"von-mises\"], got {names!r}")
     out = []
     for name in names:
+        if isinstance(name, str) and name.strip().lower() in _ALWAYS:
+            raise InputError(f"{where}: '{name}' is always recorded (every result stores the positions of the "
+                             "nodes, surface and probes, and their displacements); remove it from the list, which "
+                             f"names the extra per-sample fields: {', '.join(FIELD_NAMES)}")
         check_choice(where, name, FIELD_NAMES)
         if name not in out:
             out.append(name)
