@@ -168,10 +168,12 @@ def test_compiled_kernels_match_numpy_twins():
 
 def test_small_support_is_grown_not_singular():
     """support = 0.6 frame spacings leaves corners that see fewer than four frames: the guard grows
-    the kernels there (no NaN, no fallback), and the result is exact."""
+    the kernels there (no NaN, no fallback), and the result is exact.  Here every kernel sits at its floor
+    (the frame's cell and two voxel diagonals), so the asked support acts nowhere: that is said."""
     image = _image("box")
     frames = place_frames(image, 10, seed=0)
-    sf = shape_function(image, frames, kind="reproducing-kernel", support=0.6)
+    with pytest.warns(RK.ReproducingKernelWarning, match="below every kernel's floor.*raise support"):
+        sf = shape_function(image, frames, kind="reproducing-kernel", support=0.6)
     assert sf.grown_frames > 0 and sf.fallback_corners == 0
     assert np.all(np.isfinite(sf.weights.data))
     assert np.all(sf.rho > 0.6 * sf.spacing - 1e-12)

@@ -827,6 +827,13 @@ def reproducing_kernel(image, frames, d, own, mask, cost, pshape, *, support=DEF
         nbrs[b_].append(a_)
     floor = cell_radius + 2.0 * diag
     rho = np.maximum(support * h, floor)
+    if n and np.all(support * h < floor):
+        # every kernel at its floor: the asked support changes nothing (0.01, 1.0 and 1.2 gave the same weights)
+        warnings.warn(
+            f"reproducing-kernel support = {support:g} frame spacings is below every kernel's floor (its frame's "
+            f"cell and two voxel diagonals); the kernels run at the floor, {float(np.median(rho / h)):.2g} frame "
+            "spacings on the median: raise support (default 2.5) for a setting that acts", ReproducingKernelWarning,
+            stacklevel=3)
 
     # seeds of each frame's march: its own point, and the voxels it owns outright (their centres)
     fc = voxel_coordinates(image, F) + M.PAD  # without the unit's round-off (geodesic.voxel_coordinates)
