@@ -183,16 +183,7 @@ class ConstantTangentPath:
         """
         from ._kernels import element_matvec_energy
 
-        if self._constant_kinds is None:
-            units = self._quadratic_terms()[2]
-            kind = np.full(len(self.element_volume), -1, dtype=np.int64)
-            stack = []
-            for label, ids, _ in self._groups:
-                if label in units:
-                    kind[ids] = len(stack)
-                    stack.append(units[label])
-            self._constant_kinds = (np.array(stack).reshape(-1, 24, 24), kind)
-        stack, kind = self._constant_kinds
+        stack, kind = self._quadratic_kinds()
         Ku, energy = element_matvec_energy(stack, kind, self.element_volume, self.grid.element_nodes,
                                            np.asarray(u, dtype=np.float64).ravel())
         return Ku.reshape(-1, 3), energy
@@ -209,14 +200,24 @@ class ConstantTangentPath:
 
         if not self.constant_tangent:
             return None
-        units = self._quadratic_terms()[2]
-        kind = np.full(len(self.element_volume), -1, dtype=np.int64)
-        stack = []
-        for label, ids, _ in self._groups:
-            if label in units:
-                kind[ids] = len(stack)
-                stack.append(units[label])
-        return ElementMatrices(np.array(stack).reshape(-1, 24, 24), kind, self.element_volume)
+        stack, kind = self._quadratic_kinds()
+        return ElementMatrices(stack, kind, self.element_volume)
+
+    def _quadratic_kinds(self):
+        """The quadratic terms' distinct unit matrices (k, 24, 24) and which one each voxel has (-1: none), cached."""
+        if self._constant_kinds is None:
+            units = self._quadratic_terms()[2]
+            kind = np.full(len(self.element_volume), -1, dtype=np.int64)
+            stack = []
+            for label, ids, _ in self._groups:
+                if label in units:
+                    kind[ids] = len(stack)
+                    stack.append(units[label])
+            stack = np.array(stack).reshape(-1, 24, 24)
+            stack.setflags(write=False)  # shared by every caller (stiffness_elements hands them out)
+            kind.setflags(write=False)
+            self._constant_kinds = (stack, kind)
+        return self._constant_kinds
 
     def constant_stiffness_block(self, free) -> sp.csr_matrix:
         """The free-DOF block ``K[free][:, free]`` (F, F) of a constant-tangent model's stiffness (N/m), lean.
