@@ -43,8 +43,9 @@ frames (Voronoi cells have ~14 faces, but far faces get tiny weights).  4
 (the default, the minimum for linear completeness in 3-D) keeps the
 assembly cheapest (cost ~ parents²) and drops weights of a few percent
 near cell corners; 6-8 keeps the weights closer to the exact natural-neighbour
-coordinates.  The pruned weight mass is reported by
-:meth:`ShapeFunction.pruned_mass`.
+coordinates.  The pruned weight mass of the unsmoothed evaluation is reported by
+:meth:`ShapeFunction.pruned_mass`.  (The frame model cuts its samples' blended weights itself, conformingly:
+:func:`~voxflex.voronoi.shape_functions.keep_largest`.)
 
 Example
 -------
@@ -244,7 +245,11 @@ class ShapeFunction:
         return self._cache["voxels"]
 
     def pruned_mass(self) -> float:
-        """Largest weight dropped by the pruning to ``parents`` over the voxel centres (before renormalising)."""
+        """Largest weight dropped by the pruning to ``parents`` in the unsmoothed evaluation (before renormalising).
+
+        0 when the weights are smoothed (``smooth=True``, what the frame builder uses): the blended values are
+        not cut here, and the frame model's own cut to its parents (conforming, see
+        :func:`~voxflex.voronoi.shape_functions.keep_largest`) happens when its samples are built."""
         self.voxel_values()
         return float(self._cache.get("pruned", 0.0))
 
