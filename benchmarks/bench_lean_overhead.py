@@ -110,7 +110,7 @@ def main():
     _, lean, full = _runs((16, 4, 4), a.operator)
     lean(), full()  # compile the kernels
     print(f"load average before: {os.getloadavg()[0]:.2f}")
-    print("| beam | DOF | solve()'s rtol | lean s (min / median) | CG its | lean, reused model s (min) "
+    print("| beam | DOF | solve()'s rtol | lean s (min / median) | CG its | lean, reused model s (min / median) "
           "| solve() s (min / median) | CG its | ratio (min) |")
     print("|---|---|---|---|---|---|---|---|---|")
     pts = []
@@ -125,7 +125,7 @@ def main():
             tk.append(lean(rtol, fresh=False)[0])
         pts.append((dof, min(tl), min(tf)))
         print(f"| {shape[0]}x{shape[1]}x{shape[2]} | {dof} | {rtol:.2g} | "
-              f"{min(tl):.2f} / {statistics.median(tl):.2f} | {il} | {min(tk):.2f} | "
+              f"{min(tl):.2f} / {statistics.median(tl):.2f} | {il} | {min(tk):.2f} / {statistics.median(tk):.2f} | "
               f"{min(tf):.2f} / {statistics.median(tf):.2f} | {jf} | {min(tf) / min(tl):.2f} |", flush=True)
     d, tl, tf = np.array(pts).T
     big = d >= 50000

@@ -832,7 +832,8 @@ def reproducing_kernel(image, frames, d, own, mask, cost, pshape, *, support=DEF
         warnings.warn(
             f"reproducing-kernel support = {support:g} frame spacings is below every kernel's floor (its frame's "
             f"cell and two voxel diagonals); the kernels run at the floor, {float(np.median(rho / h)):.2g} frame "
-            "spacings on the median: raise support (default 2.5) for a setting that acts", ReproducingKernelWarning,
+            f"spacings on the median: raise support (default {DEFAULT_SUPPORT:g}) for a setting that acts",
+            ReproducingKernelWarning,
             stacklevel=3)
 
     # seeds of each frame's march: its own point, and the voxels it owns outright (their centres)

@@ -226,8 +226,8 @@ class _Problem:
             from ..materials.fbar import rest_lame
 
             ratio = 0.0
-            inner = getattr(self.model, "inner", self.model)
-            for mat in dict(getattr(inner, "materials", None) or {}).values():
+            # layers (contact, cables) forward `materials` to the model they wrap, at any depth
+            for mat in dict(getattr(self.model, "materials", None) or {}).values():
                 try:
                     lame = rest_lame(mat)
                 except Exception:  # noqa: BLE001 - a material without a rest tangent tells nothing here
