@@ -508,6 +508,27 @@ def element_matvec_energy(units, kind, scale, conn, x, y=None, *, centred: bool 
     return y, float(energy)
 
 
+@njit
+def _element_diagonal_kernel(diag, kind, scale, conn, y):  # pragma: no cover - compiled
+    for e in range(conn.shape[0]):
+        k = kind[e]
+        if k < 0:
+            continue
+        s = scale[e]
+        for r in range(24):
+            y[3 * conn[e, r // 3] + r % 3] += s * diag[k, r]
+
+
+def element_diagonal(units, kind, scale, conn, n_dofs: int) -> np.ndarray:
+    """The diagonal (n_dofs,) of ``K = sum_e scale[e] * units[kind[e]]`` in one pass over the voxels (24 adds each;
+    the numpy twin with per-block ``bincount`` took 0.65 s at 6.4 million DOF, a full-length array per block)."""
+    diag = np.ascontiguousarray(np.diagonal(np.asarray(units, dtype=np.float64), axis1=1, axis2=2))
+    y = np.zeros(int(n_dofs))
+    _element_diagonal_kernel(diag, np.ascontiguousarray(kind), np.ascontiguousarray(scale, dtype=np.float64),
+                             np.ascontiguousarray(conn), y)
+    return y
+
+
 def element_matvec_numpy(units, kind, scale, conn, x, y=None):
     """Plain numpy twin of :func:`element_matvec` (reference for tests)."""
     x = np.asarray(x, dtype=float)

@@ -74,14 +74,9 @@ class FreeStiffness:
     def diagonal(self) -> np.ndarray:
         """The diagonal (F,) of the block (cached)."""
         if self._diagonal is None:
+            from ._kernels import element_diagonal
+
             e = self.elements
-            diag = np.ascontiguousarray(np.diagonal(e.units, axis1=1, axis2=2))  # (k, 24)
-            full = np.zeros(3 * self.n_nodes)
-            for s in range(0, len(self.conn), 1 << 16):  # by blocks of voxels: (block, 24) temporaries
-                blk = slice(s, s + (1 << 16))
-                used = e.kind[blk] >= 0
-                d = diag[e.kind[blk][used]] * e.scale[blk][used][:, None]
-                dof = ((3 * self.conn[blk][used])[:, :, None] + np.arange(3)).reshape(-1)
-                full += np.bincount(dof, weights=d.ravel(), minlength=3 * self.n_nodes)
+            full = element_diagonal(e.units, e.kind, e.scale, self.conn, 3 * self.n_nodes)
             self._diagonal = full[self.free]
         return self._diagonal
