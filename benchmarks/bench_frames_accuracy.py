@@ -53,7 +53,8 @@ def sofa(kinds, samplers):
     for kind in kinds:
         for q in samplers:
             s = replace(scene, nodes=NodesSpec(kind="affine", count=40, shape_function=kind),
-                        elasticity=ElasticitySpec(strain="linear", quadrature=q, samples=1000))
+                        elasticity=ElasticitySpec(strain="linear", quadrature=q,
+                                                    samples=1000 if q != "gauss-legendre" else None))
             try:
                 r, m, tp, ts = _run(s)
             except vf.VoxflexError as exc:

@@ -34,7 +34,8 @@ def test_affine_patch_test_through_frames_and_samples(tmp_path, quadrature):
     surface and probes follow it to 1e-10, with any sampler."""
     T = np.array([[1.1, 0.2, 0.0, 0.03], [-0.1, 0.95, 0.05, -0.02], [0.0, 0.1, 1.05, 0.04]])
     scene = _bar(nodes=NodesSpec(kind="affine", count=8), fixed=(FixedSpec(transform=tuple(map(tuple, T))),),
-                 elasticity=ElasticitySpec(strain="linear", quadrature=quadrature, samples=40))
+                 elasticity=ElasticitySpec(strain="linear", quadrature=quadrature,
+                                             samples=40 if quadrature != "gauss-legendre" else None))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # few samples for a free body: the rank check may warn
         result = vf.simulate(scene, progress=False, output=tmp_path / "patch.h5")

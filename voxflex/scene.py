@@ -40,6 +40,7 @@ from .deform.materials.catalogue import MATERIAL_NAMES, MODEL_CONSTANTS
 from .deform.models.kinds import node_kind, node_kinds
 from .deform.solve.boundary import PRESSURE_KIND
 from .errors import InputError, did_you_mean
+from .sampling.quadrature import REGION_RULES
 from .scene_tables import (  # noqa: F401  (the tables are part of this module's interface)
     DISTANCES,
     FRICTION_MAX,
@@ -110,6 +111,14 @@ def _check_kind(scene) -> None:
     if q not in kind.quadratures:
         raise InputError(f'[elasticity] quadrature = "{q}" does not apply to [nodes] kind = "{kind.name}" '
                          f"({kind.plural}); valid for it: {', '.join(kind.quadratures)}")
+    n = scene.elasticity.samples
+    if n is not None and not (kind.reduced and q in REGION_RULES):
+        raise InputError(
+            f"[elasticity] samples = {n} counts the integration regions of frames with quadrature = "
+            + " or ".join(f'"{r}"' for r in REGION_RULES) + "; "
+            + (f'[nodes] kind = "{kind.name}" integrates every voxel' if not kind.reduced else
+               f'"{q}" integrates every voxel with 2x2x2 points') + ", so it would be ignored; remove it"
+            + ("" if not kind.reduced else ' or set quadrature = "midpoint" or "elaston"'))
     if kind.reduced and kind.shape_functions and scene.nodes.parents < MIN_PARENTS:
         p = scene.nodes.parents
         raise InputError(

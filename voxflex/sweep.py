@@ -64,6 +64,7 @@ import numpy as np
 
 from .deform.models.kinds import default_kind, node_kind, reference_kind
 from .errors import ConvergenceError, InputError, VoxflexError, check_choice
+from .sampling.quadrature import REGION_RULES
 from .scene import OutputSpec, Scene
 
 __all__ = ["tradeoff", "TradeoffTable", "Configuration", "COLUMNS", "REFERENCES"]
@@ -115,11 +116,12 @@ class Configuration:
         nodes, elasticity = scene.nodes, scene.elasticity
         if node_kind(self.kind).reference:
             nodes = dataclasses.replace(nodes, kind=self.kind, shape_function=None, count=None, positions=None)
-            elasticity = dataclasses.replace(elasticity, quadrature=self.quadrature)
+            elasticity = dataclasses.replace(elasticity, quadrature=self.quadrature, samples=None)
         else:
             nodes = dataclasses.replace(nodes, kind=self.kind, count=self.count, shape_function=self.shape_function)
-            elasticity = dataclasses.replace(elasticity, quadrature=self.quadrature,
-                                             samples=self.samples if self.samples is not None else elasticity.samples)
+            samples = self.samples if self.samples is not None else elasticity.samples
+            elasticity = dataclasses.replace(elasticity, quadrature=self.quadrature,  # no region count for points
+                                             samples=samples if self.quadrature in REGION_RULES else None)
         return dataclasses.replace(scene, nodes=nodes, elasticity=elasticity, output=OutputSpec())
 
 
@@ -434,7 +436,7 @@ def _tradeoff_impl(scene, frames, samples, shape_functions, quadratures, referen
     for sf in shape_functions:
         for q in quadratures:
             for n in frames:
-                for m in (samples if q in ("midpoint", "elaston") else (None,)):
+                for m in (samples if q in REGION_RULES else (None,)):
                     configs.append(Configuration(swept.name, count=n, shape_function=sf, quadrature=q, samples=m))
     images = {0: base}
     for c in configs:

@@ -26,6 +26,9 @@ from ..errors import check_choice
 QUADRATURES = ("midpoint", "gauss-legendre", "elaston")
 """``[elasticity] quadrature`` values: one sample per region, 2x2x2 Gauss per voxel, elastons (regions with moments)."""
 
+REGION_RULES = ("midpoint", "elaston")
+"""The quadratures of a reduced model that integrate over regions (``[elasticity] samples`` of them)."""
+
 RULES = ("gauss-legendre", "midpoint")
 """The rules on one voxel (the voxel model's quadratures)."""
 
