@@ -239,7 +239,7 @@ def _cantilever(kind, h=0.25, count=10, **kw):
                  materials=(MaterialSpec(model="neo-hookean", young=1e3, poisson=0.3, density=1.0),),
                  nodes=NodesSpec(kind=kind, count=None if kind == "voxel" else count),
                  elasticity=ElasticitySpec(quadrature="gauss-legendre" if kind == "voxel" else "midpoint",
-                                           samples=200),
+                                           samples=None if kind == "voxel" else 200),
                  fixed=(FixedSpec(max=(1e-6, 1e9, 1e9)),),
                  loads=(LoadSpec(kind="gravity", vector=(0.0, 0.0, -9.81)),),
                  solver=SolverSpec(steps=4), probes=(ProbeSpec("tip", (4.0, 0.5, 0.5)),), **kw)
