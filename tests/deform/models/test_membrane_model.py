@@ -165,6 +165,24 @@ def test_hencky_under_refinement():
     assert abs(errors[2]) < 1e-4
 
 
+def test_one_free_vertex_converges_from_its_bubble():
+    """A disk of one ring (edge >= radius: 7 vertices, the 6 rim ones clamped) has one free vertex, and its
+    bubble start is the minimum itself.  Newton's scale is the residual before the lift (the pressure's
+    force), not the round-off left after it: the step converges at once to the minimum along the bubble,
+    where the in-plane forces cancel by symmetry, instead of stalling at 1e-5 of the round-off (refused
+    after 8 load cuts before)."""
+    q = 5e-5
+    model = _model(pressure=q * E * H, clamped="rim", edge=2.0)
+    assert model.n_nodes == 1
+    model.pressure_ramp, model.fraction = True, 0.0
+    rec = solve(model, options=SolverOptions(steps=1))[-1]
+    assert rec.newton_iterations <= 2 and rec.residual <= 1e-8 and rec.load_cuts == 0
+    x = rec.q[0]
+    assert abs(x[0]) < 1e-12 and abs(x[1]) < 1e-12 and x[2] > 0
+    pot = lambda z: model.energy(np.array([[0.0, 0.0, z]]))  # noqa: E731
+    assert pot(x[2]) <= min(pot(0.99 * x[2]), pot(1.01 * x[2]))
+
+
 def test_dynamics_under_gravity_sags_and_fixed_regions_hold():
     """Implicit Euler with gravity on a square sheet held along two edges by [[fixed]] boxes: it sags,
     the held vertices stay, and the consistent mass gives a finite, decaying motion."""

@@ -82,6 +82,20 @@ turns by linear updates; cutting the increment does not lower that count, so cut
 where continuing converges."""
 
 
+def _moved_start_scale(model, f, x, proposed, x_start, u, free, block) -> float:
+    """The free residual at the converged state ``x`` when the model moved the step's start away from it
+    (``begin_step``: a pressurised flat membrane lifted to its bubble), else 0: Newton's scale for the step.
+
+    A start the model chose well can be the answer itself (a membrane with one free vertex: the bubble is
+    its minimum), and Newton's scale -- its first residual when there are no external forces -- is then
+    round-off, which no iterate can go below (the solve stalled at 1e-5 of it).  The residual before the
+    move is the force the step has to balance.  Not finite there (a start inside an obstacle): 0."""
+    if x_start is proposed:
+        return 0.0
+    E, g = _Problem(model, f, x, block=block, u_base=u)(np.zeros(u.size), hessian=False)[1:3]
+    return vnorm(g[free]) if np.isfinite(E) and np.all(np.isfinite(g)) else 0.0
+
+
 def _static_increment(model, f_full, u, s0, s1, free, dofs, owner, fixed, options, near_null, reduce, label,
                       on_iteration=None, block=None, chord=None):
     """Equilibrium at load factor ``s1`` from the converged displacement ``u`` (q - X) at ``s0``, cutting the
@@ -110,7 +124,8 @@ def _static_increment(model, f_full, u, s0, s1, free, dofs, owner, fixed, option
         problem.chord = chord
         sub = label if s_next == s1 and s == s0 else f"{label}, sub-step to load factor {s_next:.4g}"
         try:
-            delta, scale0, spent, continued = np.zeros(N), 0.0, (0, 0, 0), 0
+            delta, scale0, spent, continued = np.zeros(N), _moved_start_scale(
+                model, s_next * f_full, x, proposed, x_start, u, free, block), (0, 0, 0), 0
             while True:
                 try:
                     delta, its, rel, lin_its, solver_used, halvings = _newton(
