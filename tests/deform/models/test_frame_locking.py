@@ -46,7 +46,11 @@ def layout():
 
 
 def _model(layout, materials, quadrature, volumetric):
+    """``quadrature`` "stabilised": mid-point regions with their fluctuation term (the library's default)."""
     image, frames, sf = layout
+    if quadrature == "stabilised":
+        return FrameModel.from_image(image, frames, sf, materials, quadrature="midpoint", hourglass="stiffness",
+                                     volumetric=volumetric)
     return FrameModel.from_image(image, frames, sf, materials, quadrature=quadrature, volumetric=volumetric)
 
 
@@ -61,7 +65,7 @@ MATERIALS = {
 }
 
 
-@pytest.mark.parametrize("quadrature", ["midpoint", "gauss-legendre"])
+@pytest.mark.parametrize("quadrature", ["midpoint", "stabilised", "gauss-legendre"])
 @pytest.mark.parametrize("case", sorted(MATERIALS))
 def test_gradient_and_hessian_match_finite_differences(layout, case, quadrature):
     """At a random state (3 % perturbation of every DOF): the directional derivative of the energy and
@@ -86,7 +90,7 @@ def test_gradient_and_hessian_match_finite_differences(layout, case, quadrature)
     assert abs(full.energy(q) - E) > 1e-3 * abs(E)
 
 
-@pytest.mark.parametrize("quadrature", ["midpoint", "gauss-legendre"])
+@pytest.mark.parametrize("quadrature", ["midpoint", "stabilised", "gauss-legendre"])
 @pytest.mark.parametrize("case", ["neo-hookean", "hooke-linear"])
 def test_patch_test_affine_states_equal_the_full_model(layout, case, quadrature):
     """Every frame moved by one affine map: every sample has the same det F (trace), which the projection
@@ -99,6 +103,26 @@ def test_patch_test_affine_states_equal_the_full_model(layout, case, quadrature)
     Ef, gf, _ = full.energy_gradient_hessian(q)
     assert abs(Er - Ef) <= 1e-10 * abs(Ef)
     assert np.max(np.abs(gr - gf)) <= 1e-10 * np.max(np.abs(gf))
+
+
+def test_stabilised_regions_integrate_the_projection_as_their_gauss_points(layout):
+    """Stabilised mid-point regions with the volume ratio projected: the weights' fluctuation moments in the
+    projection's matrix, the covariance of weights and strain in its right-hand side and the projected
+    ratio's fluctuation energy make a linear material's energy, gradient and Hessian those of the same
+    frames with Gauss-Legendre points to round-off (1e-12 relative) at any state; without them the regions'
+    projection (a discrete one over 54 region centroids) differed by percents.  For neo-Hooke, whose
+    fluctuation terms are first order, the energy at a 3 % random state is within 1 % (measured 0.61 %)."""
+    rng = np.random.default_rng(5)
+    for case, tol in (("hooke-linear", 1e-12), ("neo-hookean", 1e-2)):
+        mid = _model(layout, MATERIALS[case], "stabilised", "reduced")
+        gl = _model(layout, MATERIALS[case], "gauss-legendre", "reduced")
+        q = mid.rest + 0.03 * rng.standard_normal(mid.rest.shape)
+        Em, gm, Hm = mid.energy_gradient_hessian(q)
+        Eg, gg, Hg = gl.energy_gradient_hessian(q)
+        assert abs(Em - Eg) <= tol * abs(Eg)
+        if case == "hooke-linear":
+            assert np.max(np.abs(gm - gg)) <= tol * np.max(np.abs(gg))
+            assert np.max(np.abs(Hm - Hg)) <= tol * np.max(np.abs(Hg))
 
 
 def test_bbar_energy_is_exactly_quadratic(layout):

@@ -444,8 +444,9 @@ def test_two_materials_assemble_like_the_generic_chain():
 
 
 def test_gauss_moment_kernel_equals_its_numpy_twin():
-    """The compiled accumulation of sum_q v_q G_q G_q^T per region (over each point's own parents) equals
-    its numpy twin to 1e-13 relative, on random tables with padded parents and ragged regions."""
+    """The compiled accumulations of sum_q v_q G_q G_q^T and of the weights' moments per region (over each
+    point's own parents) equal their numpy twins to 1e-13 relative, on random tables with padded parents and
+    ragged regions."""
     from voxflex.deform.models.frames.stabilise import _gauss_moments, _gauss_moments_numpy
 
     rng = np.random.default_rng(6)
@@ -462,6 +463,16 @@ def test_gauss_moment_kernel_equals_its_numpy_twin():
     b = np.zeros_like(a)
     _gauss_moments(region, slot, Gq, vol, offset, size, a)
     _gauss_moments_numpy(region, slot, Gq, vol, offset, size, b)
+    assert np.abs(b).max() > 0 and np.max(np.abs(a - b)) <= 1e-13 * np.abs(b).max()
+    # the weights' moments (rows a: [w_a w_b | w_a G_b]) over the same points
+    from voxflex.deform.models.frames.stabilise import _weight_moments, _weight_moments_numpy
+
+    w = rng.uniform(0.0, 1.0, (K, Pq))
+    woff = np.concatenate([[0], np.cumsum(13 * sizes ** 2)[:-1]])
+    a = np.zeros(int((13 * sizes ** 2).sum()))
+    b = np.zeros_like(a)
+    _weight_moments(region, slot, Gq, w, vol, woff, sizes, a)
+    _weight_moments_numpy(region, slot, Gq, w, vol, woff, sizes, b)
     assert np.abs(b).max() > 0 and np.max(np.abs(a - b)) <= 1e-13 * np.abs(b).max()
 
 

@@ -525,7 +525,7 @@ class FrameModel(OnePass):
         """Energy, gradient, Hessian at q; F from the displacement ``u`` when given; ``d`` = q - rest (the gauge pin)."""
         F = self._gradients_at(q, u)
         if any(self.volumetric.values()):
-            energy, grad, H = self._projected_pass(F, gradient, hessian)
+            energy, grad, H = self._projected_pass(F, gradient, hessian, d)
         else:
             energy, grad, H = self._point_pass(F, gradient, hessian)
         if self._fluct is not None and np.isfinite(energy):
@@ -604,10 +604,10 @@ class FrameModel(OnePass):
         """Per projected label, the projection's operators (:func:`.volumetric.volumetric_projection`), made once."""
         return volumetric_projection(self)
 
-    def _projected_pass(self, F, gradient, hessian):
+    def _projected_pass(self, F, gradient, hessian, d=None):
         """Energy, gradient and Hessian with the projected labels' volumetric term
-        (:func:`.volumetric.projected_pass`)."""
-        return projected_pass(self, F, gradient, hessian)
+        (:func:`.volumetric.projected_pass`; ``d`` = q - rest)."""
+        return projected_pass(self, F, gradient, hessian, d)
 
     # -- mass and gravity --------------------------------------------------------
     def _mass_points(self):

@@ -46,7 +46,9 @@ the Hessian ``T^T K T + Jbar^T C + C^T Jbar + Jbar^T D Jbar`` with
 Data: per region, its parents (the union of its Gauss points' parents), the
 mean tables ``Gbar`` (the frame model's point tables, see ``_kernels``), the
 mean weights and ``Gamma_r = sum_q v_q dG_q dG_q^T`` (12P x 12P), grouped by
-parent count so that the dense per-region work is batched.  Built from the
+parent count so that the dense per-region work is batched; and the weights' moments ``sum_q v_q dw_q
+dw_q^T`` and ``sum_q v_q dw_q dG_q^T``, with which a projected volume ratio is integrated over the
+regions as over their Gauss points (:mod:`~voxflex.deform.models.frames.volumetric`).  Built from the
 Gauss points' shape values, which the precompute caches.
 """
 
@@ -72,12 +74,18 @@ class RegionTables:
     buckets : list of (regions (Rb,) int64, P_b, Gamma (Rb, P_b, 4, 3, P_b, 4, 3)), regions grouped by
         parent count; ``Gamma[p, c, j, p', c', l] = sum_q v_q dG_q[p, c, j] dG_q[p', c', l]``
         over the first P_b parents of each region (the others are padding)
+    weight_moments : list of (regions (Rb,) int64, P_b, Omega (Rb, P_b, P_b), C (Rb, P_b, P_b, 4, 3)), the same
+        groups: the weights' fluctuation moments ``Omega[a, b] = sum_q v_q dw_q[a] dw_q[b]`` and their cross
+        moments with the tables ``C[a, p, c, j] = sum_q v_q dw_q[a] dG_q[p, c, j]`` (``dw_q = w_q - wbar``,
+        ``dG_q = G_q - Gbar``): what the volume ratio's projection needs to integrate the regions as their
+        Gauss points do (:mod:`voxflex.deform.models.frames.volumetric`)
     """
 
-    def __init__(self, index, G, w, volume, buckets):
+    def __init__(self, index, G, w, volume, buckets, weight_moments=()):
         self.index = index
         self.G = G
         self.w = w
+        self.weight_moments = list(weight_moments)
         self.volume = volume
         self.buckets = buckets
 
@@ -145,7 +153,23 @@ def region_tables(values, volume, region, n_regions, frames) -> RegionTables:
         Gam -= V[regs, None, None] * g[:, :, None] * g[:, None, :]
         Gam = 0.5 * (Gam + Gam.transpose(0, 2, 1))
         buckets.append((regs, Pb, Gam.reshape(len(regs), Pb, 4, 3, Pb, 4, 3)))
-    return RegionTables(index, Gbar, wbar, V, buckets)
+    # the weights' moments: per region a (P_r, 13 P_r) block, row a: [sum v w_a w_b (b) | sum v w_a G_b (b, c, j)]
+    wsize = 13 * counts ** 2
+    woff = np.concatenate([[0], np.cumsum(wsize)[:-1]]).astype(np.int64)
+    wbuf = np.zeros(int(wsize.sum()))
+    _weight_moments(region, np.ascontiguousarray(slot), np.ascontiguousarray(Gq),
+                    np.ascontiguousarray(values.w, dtype=np.float64), volume, woff, counts.astype(np.int64), wbuf)
+    moments = []
+    for regs, Pb, _ in buckets:
+        idx = woff[regs][:, None] + np.arange(13 * Pb * Pb)[None, :]
+        Wm = wbuf[idx].reshape(len(regs), Pb, 13 * Pb)
+        wb = wbar[regs, :Pb]
+        Om = Wm[:, :, :Pb] - V[regs, None, None] * wb[:, :, None] * wb[:, None, :]
+        Om = 0.5 * (Om + Om.transpose(0, 2, 1))
+        Cr = Wm[:, :, Pb:].reshape(len(regs), Pb, Pb, 4, 3) - V[regs, None, None, None, None] * \
+            wb[:, :, None, None, None] * Gbar[regs, None, :Pb]
+        moments.append((regs, Pb, Om, Cr))
+    return RegionTables(index, Gbar, wbar, V, buckets, moments)
 
 
 def _small_strain(material) -> bool:
@@ -187,6 +211,49 @@ def _gauss_moments(region, slot, Gq, volume, offset, size, buf):  # pragma: no c
                         base = row + sb * 12
                         for e in range(12):
                             buf[base + e] += ga * Gq[q, b, e // 3, e % 3]
+
+
+@njit
+def _weight_moments(region, slot, Gq, w, volume, offset, count, buf):  # pragma: no cover - compiled
+    """``buf[offset[r] + a L + b] += v_q w_q[a] w_q[b]`` and ``buf[offset[r] + a L + P + 12 b + e] += v_q w_q[a]
+    G_q[b, e]`` over each Gauss point's own parents (a, b their slots in region r, P = count[r], L = 13 P);
+    numpy twin: :func:`_weight_moments_numpy`."""
+    K, Pq = slot.shape
+    for q in range(K):
+        r = region[q]
+        P = count[r]
+        L = 13 * P
+        v = volume[q]
+        for a in range(Pq):
+            sa = slot[q, a]
+            if sa < 0:
+                continue
+            wa = v * w[q, a]
+            if wa == 0.0:
+                continue
+            row = offset[r] + sa * L
+            for b in range(Pq):
+                sb = slot[q, b]
+                if sb < 0:
+                    continue
+                buf[row + sb] += wa * w[q, b]
+                base = row + P + 12 * sb
+                for e in range(12):
+                    buf[base + e] += wa * Gq[q, b, e // 3, e % 3]
+
+
+def _weight_moments_numpy(region, slot, Gq, w, volume, offset, count, buf):
+    """The numpy twin of :func:`_weight_moments`."""
+    K, Pq = slot.shape
+    for q in range(K):
+        r = region[q]
+        P = int(count[r])
+        ok = np.flatnonzero(slot[q] >= 0)
+        sa = slot[q, ok]
+        outer = volume[q] * np.outer(w[q, ok], np.concatenate([w[q, ok][:, None], Gq[q, ok].reshape(-1, 12)],
+                                                              axis=1).reshape(-1))
+        cols = np.concatenate([sa[:, None], P + 12 * sa[:, None] + np.arange(12)[None, :]], axis=1).reshape(-1)
+        buf[offset[r] + (sa[:, None] * 13 * P + cols[None, :]).ravel()] += outer.ravel()
 
 
 def _gauss_moments_numpy(region, slot, Gq, volume, offset, size, buf):
