@@ -63,7 +63,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._ties import first_extreme
+from .._ties import TIE, first_extreme
 
 from ..errors import InputError, check_choice
 from . import _march as M
@@ -276,6 +276,9 @@ def _place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="g
         if not np.all(np.isfinite(density[material])) or np.any(density[material] <= 0):
             raise InputError("density must be finite and positive in every material voxel")
         d = np.where(material, density, 1.0) / float(np.mean(density[material]))
+        # rounded to TIE: a density from a solve carries its round-off (1e-13), which decided the ties of the
+        # marches (voxels equidistant from two frames) differently at each unit of the same scene
+        d = np.maximum(np.round(d / TIE) * TIE, TIE)
         cost = cost * M.pad_grid(material, np.cbrt(d))[1]
         weight = d[material]
     ijk = np.argwhere(material)
@@ -349,7 +352,9 @@ def _place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="g
         wc = centres if weight is None else centres * weight[:, None]
         cen = np.stack([np.bincount(own, weights=wc[:, a], minlength=n) for a in range(3)], axis=1)
         cen /= np.where(wsum > 0, wsum, 1.0)[:, None]
-        cijk = np.floor(image.world_to_index(cen)).astype(np.int64)
+        # a symmetric cell's centroid lies on a voxel face, where the density's round-off (1e-13) decided the
+        # voxel (1 m and 1 um beams put a frame on mirror voxels): within TIE of a face it counts as on it
+        cijk = np.floor(image.world_to_index(cen) + TIE).astype(np.int64)
         inside = np.all((cijk >= 0) & (cijk < np.array(image.shape)), axis=1)
         cvox = np.full(n, -1, dtype=np.int64)
         cvox[inside] = vox_id[tuple(cijk[inside].T)]
@@ -382,7 +387,7 @@ def _place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="g
         else:
             _repropagate(mask, cost, pshape, spacing, dist, owner, changed, mflat[cur_vox[changed]])
     for i in movable:
-        ijk = np.floor(image.world_to_index(pos[i][None])[0]).astype(np.int64)
+        ijk = np.floor(image.world_to_index(pos[i][None])[0] + TIE).astype(np.int64)
         frames[i] = image.index_to_world((ijk + 0.5)[None])[0]
     return np.array(frames, dtype=np.float64).reshape(-1, 3)
 

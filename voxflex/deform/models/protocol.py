@@ -263,6 +263,15 @@ class FromDisplacement(Protocol):
 
 
 @runtime_checkable
+class DisplacementGradients(Protocol):
+    """The displacement's gradient at the samples without the identity added: ``H = F - I``, every digit of a
+    strain however small (``F = I + H`` keeps ``eps / |H|`` of it: 2e-9 of a 1e-7 strain)."""
+
+    def displacement_gradients(self, u) -> np.ndarray:
+        """H (m, 3, 3) at the samples of :meth:`Model.sample_fields`, in its order, of the displacement u."""
+
+
+@runtime_checkable
 class InternalVariables(Protocol):
     """Internal variables (plastic strains, a friction lag) updated after every converged step."""
 

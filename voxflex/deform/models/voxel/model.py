@@ -309,6 +309,13 @@ class VoxelModel(ConstantTangentPath):
         q = self._check_q(q)
         return self._deformation_gradient(q, np.arange(self.n_elements))
 
+    def displacement_gradients(self, u) -> np.ndarray:
+        """H = F - I (m * Q, 3, 3) at every sample, element-major, of the displacement ``u`` (n, 3), the identity
+        never added (:class:`~voxflex.deform.models.protocol.DisplacementGradients`)."""
+        X = self._check_q(u)[self.grid.element_nodes]
+        k = len(X)
+        return np.matmul(X.transpose(0, 2, 1), self._Gm).reshape(k, 3, -1, 3).transpose(0, 2, 1, 3).reshape(-1, 3, 3)
+
     def sample_volumes(self) -> np.ndarray:
         """Volume weight (m * Q,) of every sample (m^3), element-major."""
         return self._sample_volumes(np.arange(self.n_elements))
