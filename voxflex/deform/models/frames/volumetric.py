@@ -243,7 +243,9 @@ def projected_pass(model, F, gradient, hessian, d=None):
         local = []  # per group of regions: (group, D, cof, F^-1, F)
         if R is not None:
             if rows is None:
-                du = np.zeros((n, 12)) if d is None else np.asarray(d, dtype=float).reshape(n, 12)
+                if d is None:
+                    raise ValueError("projected_pass over stabilised regions needs d, the DOFs minus rest")
+                du = np.asarray(d, dtype=float).reshape(n, 12)
                 rows = np.concatenate([du[:, :9].reshape(-1, 3, 3), du[:, 9:, None]], axis=2)  # (n, 3, 4)
             for g in R["groups"]:
                 D = _region_D(rows[g["frames"]], g["C"])  # (Rb, Pb, 3, 3)
