@@ -89,6 +89,26 @@ def test_drop_box_on_a_plane(kind):
     assert np.abs(force[-1, :2]).max() < 5e-3 * weight
 
 
+def test_a_body_resting_on_a_frictionless_plane_alone_has_three_free_motions():
+    """The example's ball lowered onto the plane (its lowest point 0.5 mm above it, inside the 1 mm barrier):
+    the tangent holds the motion into the plane and the two tilts, and leaves the two slides along it and the
+    spin about its normal free (``free_rigid_motions`` = 3: a static answer held so is arbitrary along them,
+    which ``solve`` warns about with a FreeMotionWarning); with the lowest layer's x and y held, none."""
+    from pathlib import Path
+
+    from voxflex.deform.solve.boundary import FixedRegion, fixed_dofs
+    from voxflex.deform.solve.supports import free_rigid_motions
+
+    text = (Path(__file__).resolve().parents[1] / "examples" / "ball_on_plane.toml").read_text()
+    model = vf.model(Scene.from_toml_text(text), cache=False)
+    q = np.array(model.rest, dtype=float)
+    q[:, 2] -= q[:, 2].min() - 0.0005
+    assert free_rigid_motions(model, q, np.arange(q.size)) == 3
+    held, _ = fixed_dofs(model, [FixedRegion(np.array([-1e9, -1e9, -1e9]), np.array([1e9, 1e9, 0.15]),
+                                             components="xy")])
+    assert free_rigid_motions(model, q, np.setdiff1d(np.arange(q.size), held)) == 0
+
+
 @pytest.mark.parametrize("kind", ["voxel", "affine"])
 def test_the_corner_of_a_box_does_not_enter_a_tilted_plane(kind):
     """A plane tilted by 22 degrees: the box lands on a corner, which the face points alone let sink 6.8 %

@@ -59,7 +59,7 @@ from .boundary import (
 from .linear import DIRECT_FALLBACK_MAX
 from .newton import _Chord, _FreeBlock, _grid_of, _newton, _PatternAdd, _Problem
 from .options import SolverOptions, StepRecord
-from .supports import check_supports
+from .supports import FreeMotionWarning, check_supports, free_rigid_motions
 
 __all__ = ["solve"]
 
@@ -471,6 +471,15 @@ def solve(
     except ConvergenceError as exc:
         exc.records = records  # the converged steps survive a later failure (partial results)
         raise
+    if not dynamic and model.supported_by_contact:  # held by obstacles, unchecked before: is the answer unique?
+        k = free_rigid_motions(model, records[-1].q, free)
+        if k > 0:
+            import warnings
+
+            warnings.warn(f"the static answer is held by the obstacles only, and {k} rigid motion(s) of the body "
+                          "(sliding or spinning along a frictionless obstacle) are held by nothing: its position "
+                          "along them is arbitrary; hold them with [[fixed]] components, add friction, or simulate "
+                          "implicit-euler", FreeMotionWarning, stacklevel=2)
     return records
 
 

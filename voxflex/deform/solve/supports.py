@@ -18,7 +18,17 @@ import numpy as np
 
 from ...errors import InputError
 
-__all__ = ["check_supports", "unsupported_components"]
+__all__ = ["check_supports", "unsupported_components", "free_rigid_motions", "FreeMotionWarning"]
+
+
+class FreeMotionWarning(UserWarning):
+    """A static answer held by obstacles only that some rigid motion leaves in equilibrium: its position along
+    that motion is arbitrary (e.g. a ball on a frictionless plane can slide and spin)."""
+
+
+FREE_MOTION_RATIO = 1e-8
+"""A rigid motion of a static answer whose stiffness is below this fraction of the free DOFs' mean diagonal
+stiffness (both per unit motion, dimensionless) is held by nothing."""
 
 _RANK_TOL = 1e-10
 
@@ -116,3 +126,37 @@ def check_supports(model, fixed_dofs) -> None:
         f"{b['free']} free rigid motion(s){more}; fix it with a [[fixed]] region covering it, drop islands with "
         '[object] keep = "largest" or min_component_voxels, or simulate dynamics (implicit-euler)'
     )
+
+
+def free_rigid_motions(model, q, free) -> int:
+    """How many independent rigid motions (of the six at rest) the tangent at ``q`` leaves without stiffness
+    over the ``free`` DOFs: those an equilibrium held by frictionless obstacles alone can drift along.
+
+    The six motions (rotations scaled by the body's extent, as :func:`unsupported_components` does) projected
+    on the tangent, ``R = B^T H B``; a motion counts as free where R's eigenvalue is below
+    :data:`FREE_MOTION_RATIO` of the mean diagonal stiffness times the motion's squared norm."""
+    import scipy.sparse as sp
+
+    from ..chain.rigid_modes import rigid_body_modes
+
+    if model.dofs_per_node != 3:
+        return 0  # the motions of the state are those of its points: only models whose DOFs are positions
+    q = np.asarray(q, dtype=float).reshape(-1, 3)
+    H = model.energy_gradient_hessian(q)[2]
+    H = sp.csr_matrix(H) if sp.issparse(H) else np.asarray(H)
+    free = np.asarray(free, dtype=np.int64)
+    # about the state, not the rest: a motion about the rest shape strains the deformed body (a spin of a
+    # ball resting on a plane measured 3e-4 of the scale about the rest, round-off about the state)
+    B = rigid_body_modes(q)[free]
+    extent = float(np.max(np.ptp(q, axis=0))) or 1.0
+    B = B * np.array([1.0, 1.0, 1.0, 1.0 / extent, 1.0 / extent, 1.0 / extent])
+    Hf = H[free][:, free]
+    R = B.T @ (Hf @ B)
+    R = 0.5 * (R + R.T)
+    scale = float(np.abs(Hf.diagonal()).mean()) * float((B * B).sum(axis=0).max())
+    if not scale > 0:
+        return 0
+    Q, _ = np.linalg.qr(B)  # the motions' span (independent ones only)
+    rank = int(np.sum(np.abs(np.diag(_)) > 1e-12 * np.abs(np.diag(_)).max()))
+    ev = np.linalg.eigvalsh(R)
+    return int(np.sum(ev < FREE_MOTION_RATIO * scale)) - (6 - rank)
