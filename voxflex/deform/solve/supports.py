@@ -129,7 +129,7 @@ def check_supports(model, fixed_dofs) -> None:
 
 
 def free_rigid_motions(model, q, free) -> int:
-    """How many independent rigid motions (of the six at rest) the tangent at ``q`` leaves without stiffness
+    """How many independent rigid motions (of the six about the shape at ``q``) the tangent there leaves without stiffness
     over the ``free`` DOFs: those an equilibrium held by frictionless obstacles alone can drift along.
 
     The six motions (rotations scaled by the body's extent, as :func:`unsupported_components` does) projected
@@ -139,24 +139,26 @@ def free_rigid_motions(model, q, free) -> int:
 
     from ..chain.rigid_modes import rigid_body_modes
 
-    if model.dofs_per_node != 3:
+    free = np.asarray(free, dtype=np.int64)
+    if model.dofs_per_node != 3 or len(free) == 0:
         return 0  # the motions of the state are those of its points: only models whose DOFs are positions
     q = np.asarray(q, dtype=float).reshape(-1, 3)
     H = model.energy_gradient_hessian(q)[2]
     H = sp.csr_matrix(H) if sp.issparse(H) else np.asarray(H)
-    free = np.asarray(free, dtype=np.int64)
     # about the state, not the rest: a motion about the rest shape strains the deformed body (a spin of a
     # ball resting on a plane measured 3e-4 of the scale about the rest, round-off about the state)
-    B = rigid_body_modes(q)[free]
     extent = float(np.max(np.ptp(q, axis=0))) or 1.0
-    B = B * np.array([1.0, 1.0, 1.0, 1.0 / extent, 1.0 / extent, 1.0 / extent])
-    Hf = H[free][:, free]
-    R = B.T @ (Hf @ B)
+    B = rigid_body_modes(q) * np.array([1.0, 1.0, 1.0, 1.0 / extent, 1.0 / extent, 1.0 / extent])
+    held = np.ones(len(B), dtype=bool)
+    held[free] = False
+    B[held] = 0.0  # the motions over the free DOFs only (no copy of the free block)
+    R = B.T @ (H @ B)
     R = 0.5 * (R + R.T)
-    scale = float(np.abs(Hf.diagonal()).mean()) * float((B * B).sum(axis=0).max())
+    B = B[free]
+    scale = float(np.abs(H.diagonal()[free]).mean()) * float((B * B).sum(axis=0).max())
     if not scale > 0:
         return 0
-    Q, _ = np.linalg.qr(B)  # the motions' span (independent ones only)
-    rank = int(np.sum(np.abs(np.diag(_)) > 1e-12 * np.abs(np.diag(_)).max()))
+    tri = np.abs(np.diag(np.linalg.qr(B, mode="r")))  # the motions' span over the free DOFs: its rank
+    rank = int(np.sum(tri > 1e-12 * tri.max()))
     ev = np.linalg.eigvalsh(R)
     return int(np.sum(ev < FREE_MOTION_RATIO * scale)) - (6 - rank)
