@@ -129,8 +129,9 @@ def check_supports(model, fixed_dofs) -> None:
 
 
 def free_rigid_motions(model, q, free) -> int:
-    """How many independent rigid motions (of the six about the shape at ``q``) the tangent there leaves without stiffness
-    over the ``free`` DOFs: those an equilibrium held by frictionless obstacles alone can drift along.
+    """How many independent rigid motions (of the six about the shape at ``q``) the tangent there leaves
+    without stiffness over the ``free`` DOFs: those an equilibrium held by frictionless obstacles alone can
+    drift along.
 
     The six motions (rotations scaled by the body's extent, as :func:`unsupported_components` does) projected
     on the tangent, ``R = B^T H B``; a motion counts as free where R's eigenvalue is below

@@ -57,6 +57,7 @@ import scipy.sparse as sp
 
 from ...._linalg import vdot
 from ...materials.fbar import bar_scalar
+from .stabilise import _dofs, _rows
 
 __all__ = ["volumetric_projection", "projected_pass", "dof_rows"]
 
@@ -125,22 +126,14 @@ def _region_moments(model, ids, active) -> dict | None:
             continue
         r = regs[sel]
         idx = tables.index[r, :Pb]
-        a = col[np.where(idx >= 0, idx, 0)]
+        frames = np.where(idx >= 0, idx, 0)
+        a = col[frames]
         ok = (idx >= 0) & (a >= 0)  # a parent the label's weights never reach has no moments (zero rows)
-        Oms = np.where(ok[:, :, None] & ok[:, None, :], Om[sel], 0.0)
-        np.add.at(Omega, (np.where(ok, a, 0)[:, :, None], np.where(ok, a, 0)[:, None, :]), Oms)
-        Crs = np.where(ok[:, :, None, None, None], Cr[sel], 0.0)
-        groups.append({"pos": pos[r], "regions": r, "frames": np.where(idx >= 0, idx, 0), "cols": np.where(ok, a, 0),
-                       "C": Crs, "dofs": _frame_dofs(np.where(idx >= 0, idx, 0))})
+        cols = np.where(ok, a, 0)
+        np.add.at(Omega, (cols[:, :, None], cols[:, None, :]), np.where(ok[:, :, None] & ok[:, None, :], Om[sel], 0.0))
+        groups.append({"pos": pos[r], "frames": frames, "cols": cols, "dofs": _dofs(idx),
+                       "C": np.where(ok[:, :, None, None, None], Cr[sel], 0.0), "G": tables.G[r, :Pb]})
     return {"Omega": 0.5 * (Omega + Omega.T), "groups": groups}
-
-
-def _frame_dofs(frames) -> np.ndarray:
-    """(..., 3, 4) flat DOF of (frame, row i, column c): ``12 a + 3 i + c`` for the matrix, ``12 a + 9 + i`` for t."""
-    a = frames[..., None, None]
-    i = np.arange(3)[:, None]
-    c = np.arange(4)[None, :]
-    return np.where(c < 3, 12 * a + 3 * i + c, 12 * a + 9 + i)
 
 
 def _rest_bulk(material, linear) -> float:
@@ -245,8 +238,7 @@ def projected_pass(model, F, gradient, hessian, d=None):
             if rows is None:
                 if d is None:
                     raise ValueError("projected_pass over stabilised regions needs d, the DOFs minus rest")
-                du = np.asarray(d, dtype=float).reshape(n, 12)
-                rows = np.concatenate([du[:, :9].reshape(-1, 3, 3), du[:, 9:, None]], axis=2)  # (n, 3, 4)
+                rows = _rows(np.asarray(d, dtype=float).reshape(n, 12))  # (n, 3, 4)
             for g in R["groups"]:
                 D = _region_D(rows[g["frames"]], g["C"])  # (Rb, Pb, 3, 3)
                 Fr = Fl[g["pos"]]
@@ -299,15 +291,16 @@ def projected_pass(model, F, gradient, hessian, d=None):
                 for (g, D, cof, Fi, Fr), (Y, T) in zip(local, Yl):  # y . d2c: the third derivative of det [Y]
                     Al[g["pos"]] += (Y.reshape(-1, 9) @ _EPS2).reshape(-1, 3, 3, 3, 3) / v[g["pos"], None, None, None,
                                                                                               None]
+                d2l = [d2[g["pos"]] for g, *_ in local]  # the regions' d2 det, for the cross term below
             A[ids] = Al
-            extra.append((pr, c, out[4], out[5], local, Yl))
+            extra.append((pr, c, out[4], out[5], local, Yl, None if linear else d2l))
     if not want:
         return energy, None, None
     grad = (model._forces(P) + gextra.reshape(n, 12)) if gradient else None
     H = None
     if hessian:
         H = model._stiffness(A)
-        for pr, c, HFJ, HJJ, local, Yl in extra:
+        for pr, c, HFJ, HJJ, local, Yl, d2l in extra:
             ids, N, NT, cho = pr["ids"], pr["N"], pr["NT"], pr["M"]
             R = pr.get("regions")
             v = vol[ids]
@@ -319,8 +312,7 @@ def projected_pass(model, F, gradient, hessian, d=None):
                 if Fi is not None:
                     S = _d2det(np.repeat(Fr, D.shape[1], axis=0), np.repeat(Fi, D.shape[1], axis=0),
                                D.reshape(-1, 3, 3)).reshape(D.shape)
-                    Gbar = model.tables.G[g["regions"], :D.shape[1]]  # (Rb, Pb, 4, 3): dF_r / d d_p
-                    rows_c = rows_c + np.einsum("raij,rpcj->rapic", S, Gbar, optimize=True)
+                    rows_c = rows_c + np.einsum("raij,rpcj->rapic", S, g["G"], optimize=True)  # G: dF_r / d d_p
                 flat = np.broadcast_to(g["cols"][:, :, None, None, None], rows_c.shape) * Z.shape[1] + \
                     np.broadcast_to(g["dofs"][:, None], rows_c.shape)
                 Z += np.bincount(flat.ravel(), weights=rows_c.ravel(), minlength=Z.size).reshape(Z.shape)
@@ -331,14 +323,9 @@ def projected_pass(model, F, gradient, hessian, d=None):
             if R is not None:
                 ND = ND + R["kappa"] * R["Omega"]
             H += XQ + XQ.T + Q.T @ (ND @ Q)
-            for (g, D, cof, Fi, Fr), (Y, T) in zip(local, Yl):  # y . d2c: d2 det [dF_r, dY_r] both ways
-                if Fi is None:
-                    continue
-                J = np.linalg.det(Fr)
-                d2 = J[:, None, None, None, None] * (np.einsum("rji,rlk->rijkl", Fi, Fi)
-                                                     - np.einsum("rli,rjk->rijkl", Fi, Fi))
-                Gbar = model.tables.G[g["regions"], :T.shape[1]]
-                M1 = np.einsum("rpcj,rijkl,rqdl->rpicqkd", Gbar, d2, T, optimize=True)
+            for k, (g, D, cof, Fi, Fr) in enumerate(local if d2l is not None else ()):  # y . d2c: d2 det [dF, dY]
+                T = Yl[k][1]
+                M1 = np.einsum("rpcj,rijkl,rqdl->rpicqkd", g["G"], d2l[k], T, optimize=True)
                 Pb = T.shape[1]
                 M1 = M1.reshape(len(Fr), 12 * Pb, 12 * Pb)
                 M1 = M1 + M1.transpose(0, 2, 1)

@@ -290,12 +290,7 @@ class VoxelModel(ConstantTangentPath):
         """F (k * Q, 3, 3) at the samples of ``elements`` (element-major): ``sum_a x_a G_a`` of the positions,
         or ``I + sum_a u_a G_a`` of the displacement ``u`` when given (the same in exact arithmetic, since
         the corner gradients sum to zero; without the round-off of the positions, eps |x| / h)."""
-        X = (q if u is None else u)[self.grid.element_nodes[elements]]  # (k, 8, 3)
-        # F[e, q] = X[e]^T G[q] as one batch of small products: each stays single-threaded in BLAS
-        # (einsum's optimised path makes one large threaded product, 5-10x slower on a busy 2-core machine)
-        k = len(X)
-        F = np.matmul(X.transpose(0, 2, 1), self._Gm).reshape(k, 3, -1, 3).transpose(0, 2, 1, 3)
-        F = F.reshape(-1, 3, 3)  # a fresh array (the product's, reordered)
+        F = self._gradients_of(q if u is None else u, elements)
         if u is not None:
             for i in range(3):  # in place, the diagonal only (no second (k * Q, 3, 3) array per chunk)
                 F[:, i, i] += 1.0
@@ -309,12 +304,18 @@ class VoxelModel(ConstantTangentPath):
         q = self._check_q(q)
         return self._deformation_gradient(q, np.arange(self.n_elements))
 
+    def _gradients_of(self, x, elements) -> np.ndarray:
+        """``sum_a x_a G_a`` (k * Q, 3, 3) at the samples of ``elements`` of the node values x (n, 3), a fresh array."""
+        X = x[self.grid.element_nodes[elements]]  # (k, 8, 3)
+        # F[e, q] = X[e]^T G[q] as one batch of small products: each stays single-threaded in BLAS
+        # (einsum's optimised path makes one large threaded product, 5-10x slower on a busy 2-core machine)
+        k = len(X)
+        return np.matmul(X.transpose(0, 2, 1), self._Gm).reshape(k, 3, -1, 3).transpose(0, 2, 1, 3).reshape(-1, 3, 3)
+
     def displacement_gradients(self, u) -> np.ndarray:
         """H = F - I (m * Q, 3, 3) at every sample, element-major, of the displacement ``u`` (n, 3), the identity
         never added (:class:`~voxflex.deform.models.protocol.DisplacementGradients`)."""
-        X = self._check_q(u)[self.grid.element_nodes]
-        k = len(X)
-        return np.matmul(X.transpose(0, 2, 1), self._Gm).reshape(k, 3, -1, 3).transpose(0, 2, 1, 3).reshape(-1, 3, 3)
+        return self._gradients_of(self._check_q(u), np.arange(self.n_elements))
 
     def sample_volumes(self) -> np.ndarray:
         """Volume weight (m * Q,) of every sample (m^3), element-major."""
