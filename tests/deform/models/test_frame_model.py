@@ -378,6 +378,60 @@ def test_pair_tables_sort_parents_and_list_each_coupled_pair_once():
     assert np.allclose(K.frame_stiffness_dense(index, G, A, n), ref, rtol=0, atol=1e-12 * np.abs(ref).max())
 
 
+def test_isotropic_dense_products_equal_the_pair_kernel(monkeypatch):
+    """isotropic_stiffness_dense (dense products of the tables, parents in any order, padding anywhere) against
+    the pair-block kernel with the isotropic tangent, from tables and from point arrays, with positive weights
+    (the symmetric product of sqrt-scaled rows) and signed ones, in chunks of 7 samples: to 1e-12 relative
+    (round-off).  isotropic_moduli reads (mu, lambda) back and refuses an anisotropic tangent; the choice of path
+    prefers dense products where most frames are parents of every sample and the pairs where few are."""
+    from voxflex.deform.models.frames import _kernels as K
+
+    rng = np.random.default_rng(11)
+    n, m, P = 9, 40, 6
+    frames = rng.standard_normal((n, 3))
+    index = np.array([rng.choice(n, size=P, replace=False) for _ in range(m)])
+    index[::5, -1] = -1
+    index[1::7, 0] = -1  # padding first
+    ok = index >= 0
+    w = rng.random((m, P)) * ok
+    dw = rng.standard_normal((m, P, 3)) * ok[..., None]
+    rest = rng.standard_normal((m, 3))
+    mu, lam = 0.7, 2.3
+    I = np.eye(3)
+    A1 = mu * (np.einsum("ik,jl->ijkl", I, I) + np.einsum("il,jk->ijkl", I, I)) + lam * np.einsum("ij,kl->ijkl", I, I)
+    assert K.isotropic_moduli(A1) == pytest.approx((mu, lam), rel=1e-15)
+    A2 = A1.copy()
+    A2[0, 0, 0, 0] *= 1.01
+    assert K.isotropic_moduli(A2) is None
+    A = np.ascontiguousarray(np.broadcast_to(A1, (m, 3, 3, 3, 3)))
+    from voxflex.voronoi.shape_functions import ShapeValues
+
+    G = K.frame_tables(ShapeValues(rest=rest, index=index, w=w, dw=dw, ddw=None), frames)
+    full = np.array([rng.permutation(40) for _ in range(3000)])  # every frame a parent of every sample
+    few = np.array([rng.choice(40, size=4, replace=False) for _ in range(3000)])
+    assert K.isotropic_worth_dense(full, 40) and not K.isotropic_worth_dense(few, 40)
+    monkeypatch.setattr(K, "ISO_CHUNK", 7)
+    for weight in (rng.random(m) + 0.1, rng.standard_normal(m)):
+        ref = K.frame_stiffness_numpy(index, G, A, weight, n)
+        tol = 1e-12 * np.abs(ref).max()
+        np.testing.assert_allclose(K.isotropic_stiffness_dense(index, n, weight, mu, lam, G=G), ref, rtol=0, atol=tol)
+        np.testing.assert_allclose(K.isotropic_stiffness_dense(index, n, weight, mu, lam, points=(w, dw, rest, frames)),
+                                   ref, rtol=0, atol=tol)
+    # a model's rest stiffness by either path: two labels (a product per label), tables and point samples
+    labels = np.ones((6, 2, 2), dtype=np.uint8)
+    labels[3:] = 2
+    image = LabelImage(labels, spacing=(0.5, 0.5, 0.5))
+    mats = {1: material("neo-hookean", young=1e3, poisson=0.3), 2: material("stvk", young=3e3, poisson=0.2)}
+    for quadrature, hourglass in (("midpoint", "stiffness"), ("gauss-legendre", "none")):
+        model = FrameModel.from_image(image, FRAMES, ShepardSF(image, FRAMES), mats, quadrature=quadrature,
+                                      hourglass=hourglass)
+        out = []
+        for dense in (True, False):
+            monkeypatch.setattr(K, "isotropic_worth_dense", lambda index, n, dense=dense: dense)
+            out.append(model.rest_stiffness())
+        np.testing.assert_allclose(out[0], out[1], rtol=0, atol=1e-12 * np.abs(out[1]).max())
+
+
 def test_sorted_point_tables_equal_the_tables_sorted_afterwards():
     """The point arrays in frame order (sorted_parents, point_arrays) and the tables made from them against
     frame_tables then frame_pairs' permutation, and the compiled tables against their defining formula

@@ -44,7 +44,7 @@ PAD = 40
 __all__ = ["PAD", "frame_tables", "frame_pairs", "frame_F", "frame_forces", "frame_F_points", "frame_forces_points",
            "points_F", "points_forces",
            "frame_stiffness_pairs", "frame_pairs_to_dense",
-           "frame_stiffness_dense"]
+           "frame_stiffness_dense", "isotropic_moduli", "isotropic_worth_dense", "isotropic_stiffness_dense"]
 
 
 def frame_tables(values, frames, order=None) -> np.ndarray:
@@ -582,6 +582,118 @@ def frame_stiffness_dense(index, G, A, n, weight=None, tables=None, points=None)
     H = np.zeros((12 * n, 12 * n))
     frame_pairs_to_dense(pairs, B, H)
     return H
+
+
+DENSE_GAIN = 10.0
+"""How many more multiply-adds per second a dense matrix product (BLAS) does than the pair-block kernel
+(:func:`frame_stiffness_pairs`, bound by its loads and stores of the blocks): 44 against 4.4 G/s on the
+2-core benchmark machine.  :func:`isotropic_worth_dense` compares the two paths' counts with it (both give
+the same stiffness to round-off; only the time differs)."""
+
+ISO_CHUNK = 2048
+"""Samples per dense product of :func:`isotropic_stiffness_dense` (a chunk's rows: 2048 x 12 x its frames)."""
+
+
+def isotropic_worth_dense(index, n) -> bool:
+    """Whether :func:`isotropic_stiffness_dense` beats the pair-block kernel on these samples: the dense
+    products' ``m (12 u)^2 / 2`` multiply-adds (u: the frames of a chunk of :data:`ISO_CHUNK` samples) against
+    the pair blocks' ``432 P (P + 1) / 2`` per sample, weighed by :data:`DENSE_GAIN` (reproducing-kernel weights,
+    most frames parents of every sample: dense; natural neighbours' 6 parents: pairs)."""
+    index = np.asarray(index)
+    m = len(index)
+    if m == 0:
+        return False
+    dense = 0.0
+    for s0 in range(0, m, ISO_CHUNK):
+        idx = index[s0:s0 + ISO_CHUNK]
+        u = len(np.unique(idx[idx >= 0]))
+        dense += len(idx) * (12.0 * u) ** 2 / 2  # a symmetric product
+    P = (index >= 0).sum(axis=1).astype(np.float64)
+    pairs = float((432.0 * P * (P + 1) / 2).sum())
+    return dense < DENSE_GAIN * pairs
+
+
+def isotropic_moduli(A):
+    """(mu, lambda) of a tangent A (3, 3, 3, 3) equal to ``mu (d_ik d_jl + d_il d_jk) + lambda d_ij d_kl`` to
+    1e-12 of its largest entry, else None."""
+    A = np.asarray(A, dtype=np.float64)
+    mu, lam = float(A[0, 1, 0, 1]), float(A[0, 0, 1, 1])
+    I = np.eye(3)
+    iso = (mu * (np.einsum("ik,jl->ijkl", I, I) + np.einsum("il,jk->ijkl", I, I))
+           + lam * np.einsum("ij,kl->ijkl", I, I))
+    top = float(np.abs(A).max())
+    return (mu, lam) if np.all(np.isfinite(A)) and np.abs(A - iso).max() <= 1e-12 * top else None
+
+
+def isotropic_stiffness_dense(index, n, weight, mu, lam, G=None, points=None, H=None) -> np.ndarray:
+    """H (12n, 12n) += ``sum_s weight_s J_s^T A J_s`` with the isotropic A = mu (d_ik d_jl + d_il d_jk) + lam d_ij d_kl,
+    by dense matrix products.
+
+    An isotropic tangent reads the samples' tables only through their products: with the moments
+    ``M[(a, c, j), (b, d, l)] = sum_s weight_s G_s[a, c, j] G_s[b, d, l]`` (G_s[a]: sample s's table of parent
+    frame a, zero where a is not a parent), the block of DOF (a, i, c) and (b, k, d) is
+    ``mu delta_ik sum_j M[(a, c, j), (b, d, j)] + mu M[(a, c, k), (b, d, i)] + lam M[(a, c, i), (b, d, k)]``.  M is
+    summed over chunks of :data:`ISO_CHUNK` samples as ``X^T (weight X)``, X the chunk's tables laid out on the
+    columns of the frames the chunk touches (rows scaled by sqrt(weight) where no weight is negative: then
+    ``Y^T Y``, a symmetric product of half the cost): a dense product that runs near the machine's peak where
+    the pair kernel is bound by memory.  Parents in any order, padding anywhere.  ``G`` the tables (m, P, 4, 3) or ``points`` =
+    (w, dw, rest, frames) in the order of ``index``."""
+    index = np.ascontiguousarray(index, dtype=np.int64)
+    m, P = index.shape
+    if points is None:
+        points = (np.zeros((0, P)), np.zeros((0, P, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
+        G = np.ascontiguousarray(G, dtype=np.float64)
+    else:
+        points = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in points)
+        G = np.zeros((0, P, 4, 3))
+    weight = np.ascontiguousarray(weight, dtype=np.float64)
+    signed = bool(m and weight.min() < 0)  # else rows scaled by sqrt(weight): M = Y^T Y, half the products (syrk)
+    scale = np.ones(m) if signed else np.sqrt(weight)
+    M = np.zeros((12 * n, 12 * n))
+    loc = np.full(n, -1, dtype=np.int64)
+    for s0 in range(0, m, ISO_CHUNK):
+        s1 = min(m, s0 + ISO_CHUNK)
+        idx = index[s0:s1]
+        U = np.unique(idx[idx >= 0])
+        loc[U] = np.arange(len(U))
+        X = np.zeros((s1 - s0, 12 * len(U)))
+        _iso_rows(index, G, *points, scale, loc, s0, s1, X)
+        cols = (12 * U[:, None] + np.arange(12)).ravel()
+        M[np.ix_(cols, cols)] += X.T @ (weight[s0:s1, None] * X) if signed else X.T @ X
+        loc[U] = -1
+    M6 = M.reshape(n, 4, 3, n, 4, 3)  # a, c, j, b, d, l
+    K6 = mu * np.einsum("ackbdi->aicbkd", M6) + lam * np.einsum("acibdk->aicbkd", M6)
+    K6 += mu * np.einsum("ik,acbd->aicbkd", np.eye(3), np.einsum("acjbdj->acbd", M6))
+    r = np.array([[3 * i + c if c < 3 else 9 + i for c in range(4)] for i in range(3)]).ravel()
+    perm = np.empty(12, dtype=np.int64)
+    perm[r] = np.arange(12)  # DOF 3 i + c (c < 3), 9 + i (c = 3) of the (i, c) order
+    K = K6.reshape(n, 12, n, 12)[:, perm][:, :, :, perm].reshape(12 * n, 12 * n)
+    if H is None:
+        return K
+    H += K
+    return H
+
+
+@njit
+def _iso_rows(index, G, pw, pdw, prest, pframes, scale, loc, s0, s1, X):  # pragma: no cover - compiled
+    """X[s - s0, 12 loc[a] + 3 c + j] = scale[s] times sample s's table of parent a
+    (:func:`isotropic_stiffness_dense`)."""
+    P = index.shape[1]
+    points = G.shape[0] == 0
+    T = np.zeros((4, 3))
+    for s in range(s0, s1):
+        for p in range(P):
+            a = index[s, p]
+            if a < 0:
+                continue
+            if points:
+                _parent_table(pw[s, p], pdw[s, p], prest[s], pframes[a], T)
+            else:
+                T[:, :] = G[s, p]
+            o = 12 * loc[a]
+            for c in range(4):
+                for j in range(3):
+                    X[s - s0, o + 3 * c + j] = scale[s] * T[c, j]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -386,12 +386,23 @@ class FrameModel(OnePass):
         fluctuation included, volumetric terms in full (a sound quadrature's free body has six
         zero-energy modes: :mod:`voxflex.deform.models.frames.modes`)."""
         mats = self.materials if materials is None else {int(k): v for k, v in dict(materials).items()}
-        m = self.n_samples
-        A = np.empty((m, 3, 3, 3, 3))
-        for label, ids in self._groups:
-            A[ids] = _rest_tangent(mats[label])
-        H = K.frame_stiffness_dense(self._index, self._Gtab, A, self.n_nodes, self._volume,
-                                    (self._index, self._Gtab, self._pairs, self._pair_id), self._points)
+        tangents = [_rest_tangent(mats[label]) for label, _ in self._groups]
+        moduli = [K.isotropic_moduli(A) for A in tangents]
+        if all(x is not None for x in moduli) and K.isotropic_worth_dense(self._index, self.n_nodes):
+            # isotropic at rest (every material this package has): dense products, not the pair blocks
+            H = np.zeros((12 * self.n_nodes, 12 * self.n_nodes))
+            one = len(self._groups) == 1
+            for (label, ids), (mu, lam) in zip(self._groups, moduli):
+                sub = slice(None) if one else ids
+                pts = None if self._points is None else tuple(a[sub] for a in self._points[:3]) + (self._points[3],)
+                K.isotropic_stiffness_dense(self._index[sub], self.n_nodes, self._volume[sub], mu, lam,
+                                            G=None if pts is not None else self._Gtab[sub], points=pts, H=H)
+        else:
+            A = np.empty((self.n_samples, 3, 3, 3, 3))
+            for (label, ids), At in zip(self._groups, tangents):
+                A[ids] = At
+            H = K.frame_stiffness_dense(self._index, self._Gtab, A, self.n_nodes, self._volume,
+                                        (self._index, self._Gtab, self._pairs, self._pair_id), self._points)
         if self.tables is not None:
             from .stabilise import Fluctuation
 

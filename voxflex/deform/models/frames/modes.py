@@ -318,10 +318,15 @@ def dimensionless(K, samples) -> np.ndarray:
 
 def _point_stiffness(frames, values, volume, C) -> np.ndarray:
     """``sum_s V_s J_s^T C J_s`` (12n, 12n) of point samples by the frame model's compiled pair-block
-    kernel (equal to the sparse product ``J^T blockdiag(V C) J`` to round-off, 5x faster at 800 samples)."""
+    kernel (equal to the sparse product ``J^T blockdiag(V C) J`` to round-off, 5x faster at 800 samples), or by
+    dense products where most frames are parents of every sample (:func:`~._kernels.isotropic_worth_dense`)."""
     from . import _kernels as K
 
     n = len(frames)
+    moduli = K.isotropic_moduli(C.reshape(3, 3, 3, 3))
+    if moduli is not None and K.isotropic_worth_dense(values.index, n):
+        return K.isotropic_stiffness_dense(values.index, n, volume, *moduli,
+                                           points=(values.w, values.dw, values.rest, frames))
     index, order = K.sorted_parents(values)
     points = K.point_arrays(values, frames, order)  # each sample's tables made on the fly, no (m, P, 4, 3) array
     A = np.ascontiguousarray(np.broadcast_to(C.reshape(3, 3, 3, 3), (len(volume), 3, 3, 3, 3)))
