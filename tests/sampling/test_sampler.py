@@ -138,6 +138,40 @@ def test_dijkstra_kernel_matches_scipy():
         assert dd[v] == pytest.approx(d1[v], rel=1e-12)
 
 
+@pytest.mark.parametrize("shape, spacing", [((12, 6, 5), (1.0, 1.0, 1.0)), ((20, 15, 10), (0.5, 1.0, 2.0))])
+def test_farthest_points_pick_the_seeds_of_full_scans(shape, spacing):
+    """The compiled farthest-point search (block maxima, :func:`farthest_points`) against its definition: a
+    loop that propagates each seed and takes the next as voxflex._ties.first_extreme of the whole field (-1:
+    not a candidate).  Same seeds, distances and owners bit for bit, on a box full of exact ties and on a
+    random body with anisotropic voxels (9 blocks of 256), two groups (each seed reaches only its own)."""
+    from voxflex._ties import TIE, first_extreme
+    from voxflex.sampling import _geodesic
+
+    rng = np.random.default_rng(1)
+    mask = np.ones(shape, dtype=bool) if shape[0] == 12 else rng.random(shape) < 0.7
+    g = VoxelGraph.from_mask(mask, spacing)
+    labels = rng.integers(1, 3, g.n).astype(np.int64)
+    labels[rng.random(g.n) < 0.05] = -1  # not candidates
+    cand = np.flatnonzero(labels >= 0)
+    for k in (1, 7, len(cand) // 5, len(cand)):
+        first = int(cand[rng.integers(len(cand))])
+        dist = np.where(labels >= 0, np.inf, -1.0)
+        owner = np.full(g.n, -1, dtype=np.int64)
+        seeds = [first]
+        g.propagate(labels, [first], [0], dist, owner)
+        while True:
+            v = first_extreme(dist, "max", floor=0.0)
+            if dist[v] <= 0.0 or (len(seeds) >= k and np.isfinite(dist[v])):
+                break
+            seeds.append(v)
+            g.propagate(labels, [v], [len(seeds) - 1], dist, owner)
+        d2 = np.where(labels >= 0, np.inf, -1.0)
+        o2 = np.full(g.n, -1, dtype=np.int64)
+        s2 = _geodesic.farthest_points(g.lut, g.ijk, g.shape, g.steps, g.lengths, labels, d2, o2, first, k, TIE)
+        assert np.array_equal(s2, seeds) and np.array_equal(d2, dist) and np.array_equal(o2, owner)
+        assert len(seeds) >= min(k, len(cand)) and np.all(np.isfinite(dist[cand]))
+
+
 def test_input_errors(body):
     image, sf = body
     with pytest.raises(InputError, match="did you mean 'elaston'"):

@@ -68,6 +68,14 @@ class VoxelGraph:
 @njit
 def dijkstra_kernel(lut, ijk, shape, steps, lengths, group, seeds, seed_owner, dist, owner):
     """Seeded Dijkstra on the implicit voxel graph; updates dist/owner where a shorter path is found."""
+    _dijkstra(lut, ijk, shape, steps, lengths, group, seeds, seed_owner, dist, owner, np.zeros(0, dtype=np.uint8))
+
+
+@njit
+def _dijkstra(lut, ijk, shape, steps, lengths, group, seeds, seed_owner, dist, owner, dirty):
+    """:func:`dijkstra_kernel`; where ``dirty`` is not empty, each voxel whose distance falls marks its block
+    ``dirty[v >> BLOCK_SHIFT]`` (:func:`farthest_points` keeps the blocks' maxima)."""
+    record = dirty.shape[0] > 0
     heap = [(0.0, np.int64(0))]
     heap.pop()
     for s in range(seeds.shape[0]):
@@ -75,6 +83,8 @@ def dijkstra_kernel(lut, ijk, shape, steps, lengths, group, seeds, seed_owner, d
         dist[v] = 0.0
         owner[v] = seed_owner[s]
         heapq.heappush(heap, (0.0, v))
+        if record:
+            dirty[v >> BLOCK_SHIFT] = 1
     nx, ny, nz = shape[0], shape[1], shape[2]
     while len(heap) > 0:
         d, v = heapq.heappop(heap)
@@ -96,6 +106,75 @@ def dijkstra_kernel(lut, ijk, shape, steps, lengths, group, seeds, seed_owner, d
                 dist[u] = nd
                 owner[u] = owner[v]
                 heapq.heappush(heap, (nd, u))
+                if record:
+                    dirty[u >> BLOCK_SHIFT] = 1
+
+
+BLOCK_SHIFT = 8
+"""Voxels per block of :func:`farthest_points`' maxima: 2^8."""
+
+
+@njit
+def _block_max(dist, b, top):  # pragma: no cover - compiled
+    lo = b << BLOCK_SHIFT
+    hi = min(lo + (1 << BLOCK_SHIFT), dist.shape[0])
+    m = -np.inf
+    for v in range(lo, hi):
+        if dist[v] > m:
+            m = dist[v]
+    top[b] = m
+
+
+@njit
+def farthest_points(lut, ijk, shape, steps, lengths, group, dist, owner, first, k, tie):  # pragma: no cover
+    """Geodesic farthest-point seeds from ``first``: each next seed is the candidate farthest from the seeds so
+    far, ties within ``tie`` of the largest distance going to the lowest index (as
+    :func:`voxflex._ties.first_extreme` breaks them), until ``k`` seeds are placed and every candidate is
+    reached, or every candidate is a seed.  Returns the seeds (int64).
+
+    Candidates are the voxels with ``dist`` >= 0 (inf: unreached; the others -1, never chosen).  ``dist`` and
+    ``owner`` come out as the seeds' distance field and Voronoi owner.  The maxima of blocks of 2^BLOCK_SHIFT
+    voxels are kept (a seed's Dijkstra marks the blocks it lowers; only those are scanned again), so a seed
+    costs its Dijkstra and a pass over the blocks, not a pass over the image (the bunny's 9,430 seeds of
+    94k voxels: 0.64 s as a Python loop of full-array maxima)."""
+    n = dist.shape[0]
+    nb = (n + (1 << BLOCK_SHIFT) - 1) >> BLOCK_SHIFT
+    seeds = np.empty(n, dtype=np.int64)
+    seeds[0] = first
+    one = np.full(1, first, dtype=np.int64)
+    _dijkstra(lut, ijk, shape, steps, lengths, group, one, np.zeros(1, dtype=np.int64), dist, owner,
+              np.zeros(0, dtype=np.uint8))
+    top = np.empty(nb)
+    for b in range(nb):
+        _block_max(dist, b, top)
+    dirty = np.zeros(nb, dtype=np.uint8)
+    ns = 1
+    while True:
+        best = -np.inf
+        for b in range(nb):
+            if top[b] > best:
+                best = top[b]
+        floor = best if best == np.inf else best - tie * best  # the first candidate at least this far wins
+        v = -1
+        for b in range(nb):
+            if top[b] >= floor:
+                lo = b << BLOCK_SHIFT
+                for u in range(lo, min(lo + (1 << BLOCK_SHIFT), n)):
+                    if dist[u] >= floor:
+                        v = u
+                        break
+                break
+        if v < 0 or dist[v] <= 0.0 or (ns >= k and dist[v] < np.inf):
+            break
+        seeds[ns] = v
+        one[0] = v
+        _dijkstra(lut, ijk, shape, steps, lengths, group, one, np.full(1, ns, dtype=np.int64), dist, owner, dirty)
+        ns += 1
+        for b in range(nb):
+            if dirty[b]:
+                _block_max(dist, b, top)
+                dirty[b] = 0
+    return seeds[:ns].copy()
 
 
 def _csgraph(graph: VoxelGraph, group):

@@ -43,11 +43,11 @@ import warnings
 
 import numpy as np
 
-from .._ties import first_extreme, tie_key
+from .._ties import TIE, first_extreme, tie_key
 from ..errors import InputError, check_choice
 from ..image import LabelImage
 from ..voronoi.shape_functions import ShapeValues
-from ._geodesic import VoxelGraph
+from ._geodesic import VoxelGraph, farthest_points
 from .quadrature import gauss_legendre_cube, voxel_rule_points
 from .samples import KINDS, Samples
 from .volume_moments import (
@@ -248,15 +248,9 @@ def _farthest_point_lloyd(ctx, cand, k, seed, iterations=None):
     dist[cand] = np.inf
     owner = np.full(ctx.n, -1, dtype=np.int64)
     rng = np.random.default_rng(seed)
-    seeds = [int(cand[rng.integers(len(cand))])]
-    g.propagate(group, seeds[-1:], [0], dist, owner)
-    while True:
-        v = first_extreme(dist, "max", floor=0.0)  # ties broken scale-free (voxflex._ties); -1: not a candidate
-        if dist[v] <= 0.0 or (len(seeds) >= k and np.isfinite(dist[v])):
-            break
-        seeds.append(v)
-        g.propagate(group, [v], [len(seeds) - 1], dist, owner)
-    seeds = np.array(seeds, dtype=np.int64)
+    # ties broken scale-free, as voxflex._ties.first_extreme breaks them; -1: not a candidate
+    seeds = farthest_points(g.lut, g.ijk, g.shape, g.steps, g.lengths, group, dist, owner,
+                            int(cand[rng.integers(len(cand))]), int(k), TIE)
     k = len(seeds)
     x, wt = ctx.centres[cand], ctx.occ[cand]
     for _ in range(iterations):
