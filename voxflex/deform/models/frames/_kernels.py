@@ -606,7 +606,7 @@ def isotropic_worth_dense(index, n) -> bool:
     dense = 0.0
     for s0 in range(0, m, ISO_CHUNK):
         idx = index[s0:s0 + ISO_CHUNK]
-        u = len(np.unique(idx[idx >= 0]))
+        u = int(np.count_nonzero(np.bincount(idx[idx >= 0], minlength=n)))
         dense += len(idx) * (12.0 * u) ** 2 / 2  # a symmetric product
     P = (index >= 0).sum(axis=1).astype(np.float64)
     pairs = float((432.0 * P * (P + 1) / 2).sum())
@@ -654,12 +654,16 @@ def isotropic_stiffness_dense(index, n, weight, mu, lam, G=None, points=None, H=
     for s0 in range(0, m, ISO_CHUNK):
         s1 = min(m, s0 + ISO_CHUNK)
         idx = index[s0:s1]
-        U = np.unique(idx[idx >= 0])
+        U = np.flatnonzero(np.bincount(idx[idx >= 0], minlength=n))
         loc[U] = np.arange(len(U))
         X = np.zeros((s1 - s0, 12 * len(U)))
         _iso_rows(index, G, *points, scale, loc, s0, s1, X)
         cols = (12 * U[:, None] + np.arange(12)).ravel()
-        M[np.ix_(cols, cols)] += X.T @ (weight[s0:s1, None] * X) if signed else X.T @ X
+        Mc = X.T @ (weight[s0:s1, None] * X) if signed else X.T @ X
+        if len(U) == n:
+            M += Mc
+        else:
+            M[np.ix_(cols, cols)] += Mc
         loc[U] = -1
     M6 = M.reshape(n, 4, 3, n, 4, 3)  # a, c, j, b, d, l
     K6 = mu * np.einsum("ackbdi->aicbkd", M6) + lam * np.einsum("acibdk->aicbkd", M6)
