@@ -220,10 +220,22 @@ def _copy_rows(old_indptr, old_w, new_indptr, todo, new_w):  # pragma: no cover
             new_w[b + k] = old_w[a + k]
 
 
-@njit
+@njit(parallel=True)
 def _rk_corners(indptr, fidx, phi, frames, rho, corners, eps, lebesgue_max, todo, w, lam, delta2, dropped,
                 lebesgue):  # pragma: no cover
-    """Linearly corrected weights at the corners (CSR rows of kernel values; see the module docstring).
+    """:func:`_rk_corners_range` over every corner, in chunks of 4096 over the threads (each corner's row is
+    its own: the same bits for any thread count)."""
+    nc = corners.shape[0]
+    step = 4096
+    for c in prange((nc + step - 1) // step):
+        _rk_corners_range(indptr, fidx, phi, frames, rho, corners, eps, lebesgue_max, todo, w, lam, delta2, dropped,
+                          lebesgue, c * step, min(nc, (c + 1) * step))
+
+
+@njit
+def _rk_corners_range(indptr, fidx, phi, frames, rho, corners, eps, lebesgue_max, todo, w, lam, delta2, dropped,
+                      lebesgue, lo, hi):  # pragma: no cover
+    """Linearly corrected weights at the corners ``lo..hi`` (CSR rows of kernel values; see the module docstring).
 
     Only the rows where ``todo`` is true.  Writes ``w`` (like ``phi``), ``lam`` = lambda_min / lambda_max
     of C (-1 where no kernel reaches), ``delta2`` = (c - Xbar)^T C^-1 (c - Xbar) over the corrected
@@ -231,13 +243,12 @@ def _rk_corners(indptr, fidx, phi, frames, rho, corners, eps, lebesgue_max, todo
     where no kernel reaches): those with eigenvalue below ``eps`` times the largest (numerically
     singular), then the weakest while ``sum |w| > lebesgue_max``.
     """
-    nc = corners.shape[0]
     C = np.empty((3, 3))
     ev = np.empty(3)
     V = np.empty((3, 3))
     u = np.empty(3)
     keep = np.empty(3, dtype=np.bool_)
-    for q in range(nc):
+    for q in range(lo, hi):
         if not todo[q]:
             continue
         a, b = indptr[q], indptr[q + 1]
