@@ -36,13 +36,13 @@ BUNNY = SHARED / "meshes" / "stanford-bunny.obj"
 
 STAGES = [
     ("placement", "placement.py", "place_frames"),
-    ("weights (nodes, fits)", "shape_function.py", "shape_function"),
-    ("weights (reproducing kernel)", "reproducing_kernel.py", "reproducing_kernel"),
-    ("blend at the voxel centres", "shape_function.py", "voxel_values"),
-    ("reproducing kernel at the voxel centres", "reproducing_kernel.py", "voxel_values"),
-    ("samples", "sampler.py", "sample"),
-    ("soft-mode check", "build.py", "_softest_mode"),
-    ("rank check", "modes.py", "check_modes"),
+    ("weights", "weights.py", "shape_function"),
+    ("  of which reproducing kernels", "reproducing_kernel.py", "reproducing_kernel"),
+    ("samples (regions and their values)", "build.py", "_samples"),
+    ("  of which mid-point regions", "sampler.py", "sample"),
+    ("  of which elaston sub-rules", "quadrature.py", "elaston_samples"),
+    ("checks (modes, soft modes)", "build.py", "_check"),
+    ("  of which the soft-mode check", "build.py", "_softest"),
 ]
 
 
