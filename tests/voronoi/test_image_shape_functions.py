@@ -9,6 +9,8 @@ no leak, and derivatives against finite differences anywhere."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -273,6 +275,36 @@ def test_compiled_blend_equals_its_numpy_twin():
     ref = _dense_all(SmoothWeights(img, c.index, c.w, n, backend="numpy")(X), n)
     for a, b in zip(got, ref):
         assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
+
+
+def test_values_without_hessians_are_the_same_bits():
+    """hessians=False (what the elastons' and stabilised regions' Gauss points ask for) leaves ddw None and gives
+    the parents, weights and gradients of the full evaluation bit for bit: the compiled blend with and without a
+    prune, its numpy twin, and the frame families' shape functions (blended, and reproducing kernels)."""
+    from voxflex.voronoi.smoothing import SmoothWeights
+
+    labels = np.ones((14, 10, 8), np.uint8)
+    labels[4:10, 5, :5] = 0
+    img = LabelImage(labels, spacing=(0.01, 0.02, 0.015))
+    rng = np.random.default_rng(0)
+    frames = np.unique(img.index_to_world(rng.integers(1, 7, size=(6, 3)) + 0.5), axis=0)
+    ijk = np.argwhere(labels > 0)
+    X = img.index_to_world(np.concatenate([ijk[rng.integers(0, len(ijk), 300)] + rng.random((300, 3)),
+                                           ijk[:20] + 0.5, ijk[20:40].astype(float)]))
+    sf = shape_function(img, frames, parents=4)
+    c = sf.centre_values()
+    n = len(frames)
+    calls = [lambda h, b=b, p=p: SmoothWeights(img, c.index, c.w, n, backend=b)(X, prune=p, hessians=h)
+             for b in ("numba", "numpy") for p in (0.0, 0.05)]
+    calls += [lambda h, k=k: shape_function(img, frames, kind=k)(X, hessians=h)
+              for k in ("natural-neighbour", "reproducing-kernel")]
+    for call in calls:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # six frames: reproducing kernels warn about corners with too few
+            full, lean = call(True), call(False)
+        assert full.ddw is not None and lean.ddw is None
+        for name in ("index", "w", "dw", "rest"):
+            assert np.array_equal(getattr(full, name), getattr(lean, name)), name
 
 
 def _dense_all(sv, n):

@@ -53,22 +53,26 @@ def _bspline2(t):
 
 
 def _finish(idx, w, dw, ddw, prune):
-    """Drop parents below ``prune`` (renormalising with exact derivatives) and symmetrise the Hessians."""
+    """Drop parents below ``prune`` (renormalising with exact derivatives) and symmetrise the Hessians
+    (``ddw`` None: values and gradients only)."""
+    hess = ddw is not None
     if prune > 0:
         keep = (idx >= 0) & (w >= prune)
         w = np.where(keep, w, 0.0)
         dw = np.where(keep[..., None], dw, 0.0)
-        ddw = np.where(keep[..., None, None], ddw, 0.0)
         idx = np.where(keep, idx, -1)
         s = w.sum(1)
         ds = dw.sum(1)
-        hs = ddw.sum(1)
         wn = w / s[:, None]
         dn = (dw - wn[..., None] * ds[:, None, :]) / s[:, None, None]
-        hn = (ddw - dn[..., :, None] * ds[:, None, None, :] - ds[:, None, :, None] * dn[..., None, :]
-              - wn[..., None, None] * hs[:, None]) / s[:, None, None, None]
-        w, dw, ddw = wn, np.where(keep[..., None], dn, 0.0), np.where(keep[..., None, None], hn, 0.0)
-    return idx, w, dw, 0.5 * (ddw + ddw.transpose(0, 1, 3, 2))
+        if hess:
+            ddw = np.where(keep[..., None, None], ddw, 0.0)
+            hs = ddw.sum(1)
+            hn = (ddw - dn[..., :, None] * ds[:, None, None, :] - ds[:, None, :, None] * dn[..., None, :]
+                  - wn[..., None, None] * hs[:, None]) / s[:, None, None, None]
+            ddw = np.where(keep[..., None, None], hn, 0.0)
+        w, dw = wn, np.where(keep[..., None], dn, 0.0)
+    return idx, w, dw, (0.5 * (ddw + ddw.transpose(0, 1, 3, 2)) if hess else None)
 
 
 @njit
@@ -83,9 +87,11 @@ def _b2(t):  # pragma: no cover - compiled
 
 
 @njit
-def _blend_range(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts, J, lo, hi, n_frames):  # pragma: no cover
+def _blend_range(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts, J, lo, hi, n_frames,
+                 hess):  # pragma: no cover
     """:func:`_blend_kernel` for the points ``lo..hi``, with its own scratch (a frame's slot found by a
-    table, not a search; no allocation per point)."""
+    table, not a search; no allocation per point).  Without ``hess`` no Hessian is summed or written (the
+    parents, values and gradients are the same bits)."""
     nx, ny, nz = vid.shape
     fr = np.empty(n_frames, np.int64)
     slot_of = np.full(n_frames, -1, np.int64)
@@ -140,20 +146,19 @@ def _blend_range(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts, J, l
                             and bx * hy * bz == 0.0 and bx * by * hz == 0.0 and dx * dy * bz == 0.0 \
                             and dx * by * dz == 0.0 and bx * dy * dz == 0.0:
                         continue
-                    for p in range(3):
-                        for q in range(3):
-                            f = 1.0
-                            for r in range(3):
-                                o = (1 if p == r else 0) + (1 if q == r else 0)
-                                f *= bv[r] if o == 0 else (dv[r] if o == 1 else hv[r])
-                            H[p, q] = f
+                    if hess:
+                        for p in range(3):
+                            for q in range(3):
+                                f = 1.0
+                                for r in range(3):
+                                    o = (1 if p == r else 0) + (1 if q == r else 0)
+                                    f *= bv[r] if o == 0 else (dv[r] if o == 1 else hv[r])
+                                H[p, q] = f
+                                HS[p, q] += f
                     S += val
                     dS[0] += g0
                     dS[1] += g1
                     dS[2] += g2
-                    for p in range(3):
-                        for q in range(3):
-                            HS[p, q] += H[p, q]
                     for e in range(indptr[v], indptr[v + 1]):
                         f_id = indices[e]
                         wv = data[e]
@@ -172,9 +177,10 @@ def _blend_range(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts, J, l
                         dN[slot, 0] += g0 * wv
                         dN[slot, 1] += g1 * wv
                         dN[slot, 2] += g2 * wv
-                        for p in range(3):
-                            for q in range(3):
-                                HN[slot, p, q] += H[p, q] * wv
+                        if hess:
+                            for p in range(3):
+                                for q in range(3):
+                                    HN[slot, p, q] += H[p, q] * wv
         for t in range(nf):
             slot_of[fr[t]] = -1
         if S <= 0.0:
@@ -200,11 +206,13 @@ def _blend_range(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts, J, l
             w[s, t] = wv
             for p in range(3):
                 gl[p] = (dN[o, p] - wv * dS[p]) / S
+            for a in range(3):
+                dw[s, t, a] = J[a, 0] * gl[0] + J[a, 1] * gl[1] + J[a, 2] * gl[2]
+            if not hess:
+                continue
             for p in range(3):
                 for q in range(3):
                     Hl[p, q] = (HN[o, p, q] - gl[p] * dS[q] - dS[p] * gl[q] - wv * HS[p, q]) / S
-            for a in range(3):
-                dw[s, t, a] = J[a, 0] * gl[0] + J[a, 1] * gl[1] + J[a, 2] * gl[2]
             for a in range(3):
                 for b in range(a, 3):
                     acc = 0.0
@@ -216,21 +224,22 @@ def _blend_range(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts, J, l
 
 
 @njit(parallel=True)
-def _blend_kernel(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts, J, n_frames):  # pragma: no cover
+def _blend_kernel(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts, J, n_frames, hess):  # pragma: no cover
     """Blend of the voxel-centre weights (CSR rows per material voxel) at lattice points u (m, 3).
 
     With ``P == 0`` it only counts the parents of each point into ``counts`` (-1: no material in the
     stencil); otherwise it fills idx/w/dw/ddw, the derivatives mapped to world ones by ``J`` (3, 3)
     (``d/dx = J d/du``, ``J = direction / spacing``): in the kernel, because the einsum doing it
     afterwards took 1.8 s of the bunny's precompute (94k points, 2 mm, 40 frames).  Points in
-    chunks of 4096 over the threads (each point's result does not depend on the chunking).
+    chunks of 4096 over the threads (each point's result does not depend on the chunking).  ``hess``: sum
+    and write the Hessians (else ``ddw`` is not touched).
     """
     m = u.shape[0]
     step = 4096
     nchunk = (m + step - 1) // step
     for c in prange(nchunk):
         _blend_range(u, vid, indptr, indices, data, P, idx, w, dw, ddw, counts, J, c * step,
-                     min(m, (c + 1) * step), n_frames)
+                     min(m, (c + 1) * step), n_frames, hess)
 
 
 class SmoothWeights:
@@ -278,15 +287,21 @@ class SmoothWeights:
         self._dir = np.asarray(image.direction, dtype=float)
         return self
 
-    def __call__(self, points, *, prune: float = 0.0, chunk: int = 20000) -> ShapeValues:
+    def __call__(self, points, *, prune: float = 0.0, chunk: int = 20000, hessians: bool = True) -> ShapeValues:
         """Values, gradients and Hessians at world points (m, 3) inside (or on) the material.
 
         ``prune``: weights below it are dropped and the rest renormalised (0 keeps every
         non-zero weight; pruning makes the functions discontinuous where the set changes).
+        ``hessians=False``: no Hessians (``ddw`` None; values and gradients the same bits).
         """
         X = np.asarray(points, dtype=float)
         if self.backend != "numpy" and len(X):
-            return self._compiled(X, prune)
+            return self._compiled(X, prune, bool(hessians))
+        sv = self._numpy_values(X, prune, chunk)
+        return sv if hessians else ShapeValues(index=sv.index, w=sv.w, dw=sv.dw, ddw=None, rest=sv.rest,
+                                               n_nodes=sv.n_nodes)
+
+    def _numpy_values(self, X, prune, chunk):
         out = [self._chunk(X[a:a + chunk], prune) for a in range(0, len(X), chunk)]
         if not out:
             z = np.zeros((0, 1))
@@ -304,7 +319,7 @@ class SmoothWeights:
         ddw = np.concatenate([pad(o[3], 0.0) for o in out])
         return ShapeValues(index=index, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=self.n_frames)
 
-    def _compiled(self, X, prune):
+    def _compiled(self, X, prune, hess=True):
         """All points at once: one kernel pass counting the parents, one filling the output in place
         (the chunks' padding and concatenation took 1.2 s of the bunny's precompute)."""
         u = np.ascontiguousarray(self.image.world_to_index(X) - 0.5)
@@ -313,7 +328,7 @@ class SmoothWeights:
         J = np.ascontiguousarray(self._dir / self._step[None, :])
         ip, ix = W.indptr.astype(np.int64), W.indices.astype(np.int64)
         _blend_kernel(u, self._vid, ip, ix, W.data, 0, np.zeros((0, 1), np.int64), np.zeros((0, 1)),
-                      np.zeros((0, 1, 3)), np.zeros((0, 1, 3, 3)), counts, J, max(self.n_frames, 1))
+                      np.zeros((0, 1, 3)), np.zeros((0, 1, 3, 3)), counts, J, max(self.n_frames, 1), False)
         if np.any(counts < 0):
             bad = int(np.flatnonzero(counts < 0)[0])
             raise InputError(f"point {X[bad].tolist()} lies outside the material; evaluate shape functions inside the object")
@@ -321,8 +336,10 @@ class SmoothWeights:
         idx = np.full((len(X), P), -1, dtype=np.int64)
         w = np.zeros((len(X), P))
         dw = np.zeros((len(X), P, 3))
-        ddw = np.zeros((len(X), P, 3, 3))
-        _blend_kernel(u, self._vid, ip, ix, W.data, P, idx, w, dw, ddw, counts, J, max(self.n_frames, 1))
+        ddw = np.zeros((len(X), P, 3, 3)) if hess else np.zeros((1, 1, 3, 3))
+        _blend_kernel(u, self._vid, ip, ix, W.data, P, idx, w, dw, ddw, counts, J, max(self.n_frames, 1), hess)
+        if not hess:
+            ddw = None
         if prune > 0:
             idx, w, dw, ddw = _finish(idx, w, dw, ddw, prune)
         return ShapeValues(index=idx, w=w, dw=dw, ddw=ddw, rest=X, n_nodes=self.n_frames)

@@ -164,7 +164,9 @@ class ShapeFunction:
             ijk[bad] = cand[np.arange(len(bad)), j]
         return ijk
 
-    def __call__(self, points) -> ShapeValues:
+    def __call__(self, points, *, hessians: bool = True) -> ShapeValues:
+        """Values, gradients and (unless ``hessians=False``: ``ddw`` None) Hessians at world points (m, 3) inside
+        the material."""
         try:
             X = np.asarray(points, dtype=np.float64)
         except (TypeError, ValueError):
@@ -173,8 +175,10 @@ class ShapeFunction:
             raise InputError(f"points must be a finite (m, 3) array of world positions, got shape {X.shape}")
         ijk = self._voxels_of(X)
         if self.smooth:
-            return self._smoothed()(X)
-        return self._evaluate(X, self._node_of_voxel[tuple(ijk.T)])
+            return self._smoothed()(X, hessians=hessians)
+        sv = self._evaluate(X, self._node_of_voxel[tuple(ijk.T)])
+        return sv if hessians else ShapeValues(index=sv.index, w=sv.w, dw=sv.dw, ddw=None, rest=sv.rest,
+                                               n_nodes=sv.n_nodes)
 
     def centre_values(self) -> ShapeValues:
         """The weights computed at every material voxel centre (before blending), pruned to
