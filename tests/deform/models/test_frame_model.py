@@ -528,6 +528,35 @@ def test_gauss_moment_kernel_equals_its_numpy_twin():
     _weight_moments(region, slot, Gq, w, vol, woff, sizes, a)
     _weight_moments_numpy(region, slot, Gq, w, vol, woff, sizes, b)
     assert np.abs(b).max() > 0 and np.max(np.abs(a - b)) <= 1e-13 * np.abs(b).max()
+    # regions over the threads (chunks of REGION_CHUNK): 1 and 2 threads give the same bits on 300 regions
+    import numba
+
+    R = 300
+    region = rng.integers(0, R, 5000)
+    sizes = rng.integers(3, 7, R)
+    slot = np.stack([rng.choice(sizes[r], Pq, replace=False) for r in region])
+    Gq = rng.standard_normal((len(region), Pq, 4, 3))
+    w = rng.uniform(0.0, 1.0, (len(region), Pq))
+    vol = rng.uniform(0.1, 1.0, len(region))
+    size = 12 * sizes
+    offset = np.concatenate([[0], np.cumsum(size ** 2)[:-1]])
+    woff = np.concatenate([[0], np.cumsum(13 * sizes ** 2)[:-1]])
+    threads = numba.get_num_threads()
+    out = []
+    try:
+        for t in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(t)
+            a = np.zeros(int((size ** 2).sum()))
+            c = np.zeros(int((13 * sizes ** 2).sum()))
+            _gauss_moments(region, slot, Gq, vol, offset, size, a)
+            _weight_moments(region, slot, Gq, w, vol, woff, sizes, c)
+            out.append((a, c))
+    finally:
+        numba.set_num_threads(threads)
+    assert np.array_equal(out[0][0], out[-1][0]) and np.array_equal(out[0][1], out[-1][1])
+    b = np.zeros_like(out[0][0])
+    _gauss_moments_numpy(region, slot, Gq, vol, offset, size, b)
+    assert np.max(np.abs(out[0][0] - b)) <= 1e-13 * np.abs(b).max()
 
 
 def test_a_state_evaluated_for_its_energy_gives_its_gradient_from_the_kept_stress():

@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...._jit import njit
+from ...._jit import njit, prange
 from ._kernels import frame_tables
 
 __all__ = ["RegionTables", "Fluctuation", "region_tables"]
@@ -185,61 +185,94 @@ def _small_strain(material) -> bool:
 
 
 @njit
+def _by_region(region, n_regions):  # pragma: no cover - compiled
+    """(order, start): the points of region r are ``order[start[r]:start[r + 1]]``, increasing (a counting sort:
+    each region's sums then run in the serial loop's order, the same bits)."""
+    start = np.zeros(n_regions + 1, dtype=np.int64)
+    for q in range(region.shape[0]):
+        start[region[q] + 1] += 1
+    for r in range(n_regions):
+        start[r + 1] += start[r]
+    fill = start[:-1].copy()
+    order = np.empty(region.shape[0], dtype=np.int64)
+    for q in range(region.shape[0]):
+        order[fill[region[q]]] = q
+        fill[region[q]] += 1
+    return order, start
+
+
+REGION_CHUNK = 64
+"""Regions per task of the moment kernels (each region's buffer is written by one thread)."""
+
+
+@njit(parallel=True)
 def _gauss_moments(region, slot, Gq, volume, offset, size, buf):  # pragma: no cover - compiled
     """``buf[offset[r] + a N + b] += v_q G_q[a] G_q[b]`` over each Gauss point's own parents (a, b the
-    entries (slot, c, j) of its region's table, N = size[r] = 12 P_r); numpy twin: :func:`_gauss_moments_numpy`."""
+    entries (slot, c, j) of its region's table, N = size[r] = 12 P_r); regions in chunks over the threads, each
+    region's points in increasing order (the same bits for any thread count); numpy twin:
+    :func:`_gauss_moments_numpy`."""
+    R = offset.shape[0]
+    order, start = _by_region(region, R)
     K, Pq = slot.shape
-    for q in range(K):
-        r = region[q]
-        off = offset[r]
-        N = size[r]
-        v = volume[q]
-        for a in range(Pq):
-            sa = slot[q, a]
-            if sa < 0:
-                continue
-            for c in range(4):
-                for j in range(3):
-                    ga = v * Gq[q, a, c, j]
-                    if ga == 0.0:
+    Gf = Gq.reshape(K, Pq, 12)  # entry e = 3 c + j, contiguous: the inner loop vectorises
+    for ch in prange((R + REGION_CHUNK - 1) // REGION_CHUNK):
+        for r in range(ch * REGION_CHUNK, min(R, (ch + 1) * REGION_CHUNK)):
+            off = offset[r]
+            N = size[r]
+            for t in range(start[r], start[r + 1]):
+                q = order[t]
+                v = volume[q]
+                for a in range(Pq):
+                    sa = slot[q, a]
+                    if sa < 0:
                         continue
-                    row = off + ((sa * 4 + c) * 3 + j) * N
+                    for c in range(4):
+                        for j in range(3):
+                            ga = v * Gq[q, a, c, j]
+                            if ga == 0.0:
+                                continue
+                            row = off + ((sa * 4 + c) * 3 + j) * N
+                            for b in range(Pq):
+                                sb = slot[q, b]
+                                if sb < 0:
+                                    continue
+                                base = row + sb * 12
+                                for e in range(12):
+                                    buf[base + e] += ga * Gf[q, b, e]
+
+
+@njit(parallel=True)
+def _weight_moments(region, slot, Gq, w, volume, offset, count, buf):  # pragma: no cover - compiled
+    """``buf[offset[r] + a L + b] += v_q w_q[a] w_q[b]`` and ``buf[offset[r] + a L + P + 12 b + e] += v_q w_q[a]
+    G_q[b, e]`` over each Gauss point's own parents (a, b their slots in region r, P = count[r], L = 13 P);
+    regions over the threads as :func:`_gauss_moments`; numpy twin: :func:`_weight_moments_numpy`."""
+    R = offset.shape[0]
+    order, start = _by_region(region, R)
+    K, Pq = slot.shape
+    Gf = Gq.reshape(K, Pq, 12)
+    for ch in prange((R + REGION_CHUNK - 1) // REGION_CHUNK):
+        for r in range(ch * REGION_CHUNK, min(R, (ch + 1) * REGION_CHUNK)):
+            P = count[r]
+            L = 13 * P
+            for t in range(start[r], start[r + 1]):
+                q = order[t]
+                v = volume[q]
+                for a in range(Pq):
+                    sa = slot[q, a]
+                    if sa < 0:
+                        continue
+                    wa = v * w[q, a]
+                    if wa == 0.0:
+                        continue
+                    row = offset[r] + sa * L
                     for b in range(Pq):
                         sb = slot[q, b]
                         if sb < 0:
                             continue
-                        base = row + sb * 12
+                        buf[row + sb] += wa * w[q, b]
+                        base = row + P + 12 * sb
                         for e in range(12):
-                            buf[base + e] += ga * Gq[q, b, e // 3, e % 3]
-
-
-@njit
-def _weight_moments(region, slot, Gq, w, volume, offset, count, buf):  # pragma: no cover - compiled
-    """``buf[offset[r] + a L + b] += v_q w_q[a] w_q[b]`` and ``buf[offset[r] + a L + P + 12 b + e] += v_q w_q[a]
-    G_q[b, e]`` over each Gauss point's own parents (a, b their slots in region r, P = count[r], L = 13 P);
-    numpy twin: :func:`_weight_moments_numpy`."""
-    K, Pq = slot.shape
-    for q in range(K):
-        r = region[q]
-        P = count[r]
-        L = 13 * P
-        v = volume[q]
-        for a in range(Pq):
-            sa = slot[q, a]
-            if sa < 0:
-                continue
-            wa = v * w[q, a]
-            if wa == 0.0:
-                continue
-            row = offset[r] + sa * L
-            for b in range(Pq):
-                sb = slot[q, b]
-                if sb < 0:
-                    continue
-                buf[row + sb] += wa * w[q, b]
-                base = row + P + 12 * sb
-                for e in range(12):
-                    buf[base + e] += wa * Gq[q, b, e // 3, e % 3]
+                            buf[base + e] += wa * Gf[q, b, e]
 
 
 def _weight_moments_numpy(region, slot, Gq, w, volume, offset, count, buf):
