@@ -282,3 +282,24 @@ def test_reproducing_kernels_build_when_every_frame_is_fixed():
     expect = result.surface_rest @ T[:, :3].T + T[:, 3]
     assert np.max(np.abs(result.surface_positions[-1] - expect)) < 1e-10
 
+
+
+@pytest.mark.parametrize("weights, expected", [(None, "midpoint"), ("natural-neighbour", "midpoint"),
+                                               ("shepard", "midpoint"), ("reproducing-kernel", "elaston"),
+                                               ("eigenmode", "elaston")])
+def test_a_scene_without_a_quadrature_gets_the_one_its_weights_need(weights, expected):
+    """Frames default to stabilised mid-point regions, and weights never cut to their parents (reproducing kernels,
+    eigenmodes: a region's fluctuation term would carry the union of its points' parents) to elastons; a
+    quadrature the scene names is kept, and voxels keep Gauss-Legendre."""
+    nodes = NodesSpec(kind="affine", count=8, shape_function=weights)
+    box = ObjectSpec(shape="box", size=(4.0, 1.0, 1.0), voxel_size=0.25)
+    mats = (MaterialSpec(model="hooke", young=1e3, poisson=0.3),)
+    scene = Scene(object=box, materials=mats, nodes=nodes)
+    assert scene.elasticity.quadrature == expected
+    named = Scene(object=box, materials=mats, nodes=nodes, elasticity=ElasticitySpec(quadrature="gauss-legendre"))
+    assert named.elasticity.quadrature == "gauss-legendre"
+    text = '[object]\nshape = "box"\nsize = [4.0, 1.0, 1.0]\nvoxel_size = 0.25\n[[material]]\nmodel = "hooke"\n' \
+        'young = 1e3\npoisson = 0.3\n[nodes]\nkind = "affine"\ncount = 8\n' + \
+        (f'shape_function = "{weights}"\n' if weights else "")
+    assert Scene.from_toml_text(text).elasticity.quadrature == expected
+    assert Scene(object=box, materials=mats, nodes=NodesSpec(kind="voxel")).elasticity.quadrature == "gauss-legendre"

@@ -197,8 +197,8 @@ class Scene:
             raise InputError(f"[[probe]] name '{dup[0]}' is used more than once; give each probe its own name")
         if self.title is not None:
             _string("scene", "title", self.title)
-        if self.elasticity.quadrature is None:  # the node kind's own quadrature
-            own = node_kind(self.nodes.kind).default_quadrature
+        if self.elasticity.quadrature is None:  # the node kind's own quadrature (or its weight family's)
+            own = node_kind(self.nodes.kind).quadrature_for(self.nodes.weights)
             object.__setattr__(self, "elasticity", replace(self.elasticity, quadrature=own))
         if not isinstance(self.contact, ContactSpec):
             raise InputError("Scene.contact must be a ContactSpec (the [contact] table)")

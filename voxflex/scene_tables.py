@@ -258,7 +258,7 @@ class NodesSpec:
     reference) or ``"rigid"`` (6-DOF frames: static scenes only).  The frame keys: ``count`` frames in all
     (default 20, or the number of material voxels when the object has fewer),
     ``positions`` (frames given by the user, world, placed first),
-    ``shape_function`` (default: the kind's own, ``"reproducing-kernel"`` for affine
+    ``shape_function`` (default: the kind's own, ``"natural-neighbour"`` for affine
     frames; :attr:`weights` names it), ``parents`` (at most this
     many frames influence a material point; not applied to
     ``"reproducing-kernel"``, whose weights are never truncated), ``support``
@@ -333,7 +333,8 @@ class ElasticitySpec:
 
     ``quadrature`` defaults to the node kind's own (resolved by :class:`Scene`):
     ``"gauss-legendre"`` (2x2x2 per voxel) for voxel nodes, ``"midpoint"``
-    (``samples`` regions) for frames.  ``samples`` (frames' regions) defaults to a count
+    (``samples`` regions) for frames, ``"elaston"`` for frames with weights never cut to their parents
+    (``"reproducing-kernel"``, ``"eigenmode"``: :data:`voxflex.voronoi.families.UNTRUNCATED`).  ``samples`` (frames' regions) defaults to a count
     the frame builder chooses from the frames and checks for soft modes
     (``voxflex.deform.models.frames.build.REGIONS_PER_FRAME``, resolved where the frame count is known)."""
 

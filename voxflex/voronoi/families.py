@@ -7,7 +7,8 @@ Each node kind (:mod:`voxflex.deform.models.kinds`) names the families it takes.
 
 from __future__ import annotations
 
-__all__ = ["FRAME_SHAPE_FUNCTIONS", "VOXEL_SHAPE_FUNCTIONS", "SHAPE_FUNCTIONS", "ALIASES", "PLACEMENTS"]
+__all__ = ["FRAME_SHAPE_FUNCTIONS", "VOXEL_SHAPE_FUNCTIONS", "SHAPE_FUNCTIONS", "ALIASES", "PLACEMENTS",
+           "UNTRUNCATED"]
 
 FRAME_SHAPE_FUNCTIONS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard", "reproducing-kernel",
                          "eigenmode")
@@ -18,6 +19,12 @@ hull, so blended affine frames lock in bending; reproducing-kernel weights are l
 small or thin bodies with frames on a line they lose precision and can leave mechanisms, which are
 refused); eigenmode weights are global, from the lowest modes of the elastic energy
 (:mod:`voxflex.voronoi.eigenmode`)."""
+
+UNTRUNCATED = ("reproducing-kernel", "eigenmode")
+"""Frame families never cut to ``[nodes] parents`` (cutting breaks their linear precision and conformity): every
+point keeps all the frames whose kernels reach it (34 of 40 on the bunny), so their default quadrature is the
+elastons' (a stabilised mid-point region carries the union of its points' parents in its fluctuation term:
+80 reproducing-kernel frames of the 32x8x8 cantilever solved in 15.8 s against 2.6 s with elastons)."""
 
 VOXEL_SHAPE_FUNCTIONS = ("trilinear",)
 """Weights of the voxel model's corner nodes (:mod:`voxflex.voronoi.trilinear`)."""

@@ -114,10 +114,16 @@ class NodeKind:
     tables: dict = field(default_factory=dict)
     load_kinds: tuple[str, ...] = ()
     check_scene: str | None = None
+    quadrature_by_weights: dict = field(default_factory=dict)
 
     @property
     def default_quadrature(self) -> str:
         return self.quadratures[0]
+
+    def quadrature_for(self, shape_function: str | None) -> str:
+        """The quadrature a scene gets when it names none: the kind's own, or the one its weight family
+        needs (``quadrature_by_weights``)."""
+        return self.quadrature_by_weights.get(shape_function, self.default_quadrature)
 
     @property
     def default_shape_function(self) -> str | None:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ....errors import InputError
+from ....voronoi.families import UNTRUNCATED
 from ..kinds import NodeEstimate
 from .kind import DEFAULT_FRAMES
 
@@ -53,8 +54,6 @@ MAX_DOUBLINGS = 3
 """Times the builder doubles a default region count whose samples leave a (near-)zero-energy mode."""
 
 
-UNTRUNCATED = ("reproducing-kernel", "eigenmode")
-"""Weight families never truncated to ``parents`` (conforming; linearly precise or global)."""
 
 
 def build(scene, image, materials, *, cache: bool = True, placement_energy=None):

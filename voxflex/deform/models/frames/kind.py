@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ....errors import InputError
 from ....sampling.quadrature import QUADRATURES
-from ....voronoi.families import FRAME_SHAPE_FUNCTIONS
+from ....voronoi.families import FRAME_SHAPE_FUNCTIONS, UNTRUNCATED
 from ..kinds import NodeKind
 
 __all__ = ["AFFINE", "DEFAULT_FRAMES", "check_scene"]
@@ -34,6 +34,7 @@ AFFINE = NodeKind(
     plural="frames",
     dofs_per_node=12,
     quadratures=("midpoint", *(q for q in QUADRATURES if q != "midpoint")),  # the first is the default
+    quadrature_by_weights={sf: "elaston" for sf in UNTRUNCATED},  # weights never cut: elastons (families.py)
     shape_functions=FRAME_SHAPE_FUNCTIONS,
     description="affine frames (12 DOF each: the matrix A row-major, then t) skinned over the image",
     builder="voxflex.deform.models.frames.build:build",
