@@ -2,16 +2,14 @@
 
 The scene: ``../shared/meshes/stanford-bunny.obj`` (y-up, ``[object] up = "y"``, ``keep =
 "largest"``) at 2 mm, linear Hooke E = 3e4, nu = 0.3, density 100, base (lowest 10 % of its
-height) clamped, gravity; ``[nodes] count = 40``, the scene's default quadrature (mid-point, 20
-samples per frame).  The precompute is what ``vf.model`` spends building the frame model with the
-on-disk cache off: placement, weights, samples and the soft-mode check (``precompute_seconds``).
+height) clamped, gravity; ``[nodes] count = 40``, the scene's default quadrature for the weights
+(stabilised mid-point regions, 5 per frame, for natural neighbours; elastons, 10 per frame, for reproducing
+kernels).  The precompute is what ``vf.model`` spends building the frame model with the on-disk cache off:
+placement, weights, samples and the checks of their modes (``precompute_seconds``).
 
 Printed: min / median over ``--repeat`` runs (after one warm-up run that compiles the kernels),
 the cost per material voxel and per frame, and the profile of one further run (cumulative seconds
-of the stages, the top functions by own time).  ``--kinds`` also times other weight families
-(reproducing-kernel weights are timed up to their voxel values: with the default mid-point samples
-the scene is refused by the soft-mode check, see the module docstring of
-``voxflex.voronoi.reproducing_kernel`` and docs/scene.md).
+of the stages, the top functions by own time).  ``--kinds``: the weight families timed.
 
 Usage: python benchmarks/bench_precompute.py [--repeat 3] [--kinds natural-neighbour,reproducing-kernel]
 """
@@ -85,21 +83,6 @@ def _precompute(scene, image, materials):
         return time.perf_counter() - t, model
 
 
-def _rk_weights(scene, image):
-    """Placement, reproducing-kernel weights and their values at the voxel centres (no samples)."""
-    from voxflex.deform.models.frames.build import _clamp_owners
-    from voxflex.voronoi import place_frames, shape_function
-
-    fixed = [(np.asarray(f.min, float), np.asarray(f.max, float)) for f in scene.fixed]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        t = time.perf_counter()
-        frames = place_frames(image, scene.nodes.count, fixed=fixed, seed=scene.nodes.seed)
-        sf = shape_function(image, frames, kind="reproducing-kernel", seed_owner=_clamp_owners(image, frames, fixed))
-        sf.voxel_values()
-        return time.perf_counter() - t, sf
-
-
 def _stage_table(stats, total):
     rows = []
     for name, fname, func in STAGES:
@@ -134,10 +117,9 @@ def main():
             image = build_image(scene)
         nvox = int((image.labels > 0).sum())
         materials = build_materials(scene, np.unique(image.labels[image.labels > 0]))
-        rk = kind == "reproducing-kernel"
-        run = (lambda: _rk_weights(scene, image)) if rk else (lambda: _precompute(scene, image, materials))
-        print(f"\n### {kind}: bunny 2 mm, {nvox} voxels {image.shape}, {args.count} frames"
-              + (" (placement, weights and voxel-centre values only)" if rk else " (the whole precompute)") + "\n")
+        run = (lambda: _precompute(scene, image, materials))
+        print(f"\n### {kind} + {scene.elasticity.quadrature}: bunny 2 mm, {nvox} voxels {image.shape}, {args.count} "
+              "frames (the whole precompute)\n")
         run()  # warm-up: compiles
         times = [run()[0] for _ in range(args.repeat)]
         tmin, tmed = min(times), statistics.median(times)
@@ -146,11 +128,8 @@ def main():
               f"per frame {tmin / args.count:.3f} s (min)\n")
         pr = cProfile.Profile()
         pr.enable()
-        t, out = run()
+        t, _ = run()
         pr.disable()
-        if rk:
-            print(f"parents {out.parents}, grown frames {out.grown_frames}, fallback corners {out.fallback_corners} of "
-                  f"{out.grid.n_nodes}, max sum|w| {out.max_lebesgue:.1f}\n")
         stats = pstats.Stats(pr)
         _stage_table(stats, t)
         print(f"\nTop {args.top} functions by own time (profiled run, {t:.2f} s):\n")

@@ -147,7 +147,9 @@ def test_compiled_kernels_match_numpy_twins():
     local = rng.random((50, 3))
     sv = sf.evaluate(elem, local)
     Wd = sf.weights.toarray()
-    w, dw, ddw = RK._interpolate_numpy(elem, local, grid.element_nodes, Wd, sf._Dw(), True)
+    from voxflex.voronoi.corner_weights import _interpolate_numpy
+
+    w, dw, ddw = _interpolate_numpy(elem, local, grid.element_nodes, Wd, sf._Dw(), True)
     dense = np.zeros_like(w)
     rows_ = np.repeat(np.arange(50), sv.n_parents).reshape(sv.index.shape)
     ok = sv.index >= 0

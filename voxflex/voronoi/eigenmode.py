@@ -83,7 +83,7 @@ import scipy.sparse as sp
 
 from ..errors import InputError
 from ..image.grid import TrilinearGrid, trilinear_weights
-from .reproducing_kernel import CornerWeights
+from .corner_weights import CornerWeights
 
 __all__ = ["EigenmodeWeights", "EigenmodeWarning", "eigenmode", "scalar_operators", "lowest_modes",
            "DENSE_MAX", "MODE_TOL", "CONDITION_MAX"]

@@ -49,7 +49,7 @@ def _values(sf, points, parents):
     """Values and gradients of ``sf`` at points: the sub-rules' and Gauss points read no Hessians, so the package's
     weight families skip them (230 MB for the bunny's 93k elaston points with 34 reproducing-kernel parents, 1 GB
     for its 754k Gauss points with natural neighbours; other callables are asked as they are)."""
-    from ....voronoi.reproducing_kernel import CornerWeights
+    from ....voronoi.corner_weights import CornerWeights
     from ....voronoi.weights import ShapeFunction
 
     values = sf(points, hessians=False) if isinstance(sf, (CornerWeights, ShapeFunction)) else sf(points)
