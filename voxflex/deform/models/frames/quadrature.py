@@ -45,7 +45,7 @@ def region_of_gauss_points(image, samples, voxel) -> np.ndarray:
     return reg[voxel].astype(np.int64)
 
 
-def _values(sf, points, parents):
+def point_values(sf, points, parents):
     """Values and gradients of ``sf`` at points: the sub-rules' and Gauss points read no Hessians, so the package's
     weight families skip them (230 MB for the bunny's 93k elaston points with 34 reproducing-kernel parents, 1 GB
     for its 754k Gauss points with natural neighbours; other callables are asked as they are)."""
@@ -82,7 +82,7 @@ def elaston_samples(image, sf, regions, *, parents=None, use_occupancy=True, deg
     sel, frac = moment_fitted_rule(index, fraction, reg, m, h=1.0, degree=degree)
     points, wts = image.index_to_world(index[sel]), frac * float(image.voxel_volume)
     label = np.asarray(regions.label, dtype=np.int64)[reg[sel]]
-    return VoxelSamples("elaston", points, wts, label, _values(sf, points, parents), region=reg[sel])
+    return VoxelSamples("elaston", points, wts, label, point_values(sf, points, parents), region=reg[sel])
 
 
 def midpoint_tables(image, sf, regions, frames, *, parents=None, use_occupancy=True, values=None):
@@ -96,5 +96,5 @@ def midpoint_tables(image, sf, regions, frames, *, parents=None, use_occupancy=T
     points, volume, voxel = gauss_points(image, use_occupancy=use_occupancy)
     reg = region_of_gauss_points(image, regions, voxel)
     if values is None:
-        values = _values(sf, points, parents)
+        values = point_values(sf, points, parents)
     return region_tables(values, volume, reg, len(regions.volume), frames), (values, volume, reg)
