@@ -679,6 +679,34 @@ def test_reproducing_kernel_gauge_motions_are_pinned_and_move_no_point():
         assert np.abs(moved).max() <= 1e-12 * np.ptp(pts, axis=0).max()
 
 
+def test_gauge_motions_of_frames_on_a_line_are_found_without_a_singular_solve():
+    """Frames on a line (a 16x1x1 bar, 4 reproducing-kernel frames) make the gauge candidates dependent: the search
+    solved with their singular QR triangle and the build died with a LinAlgError traceback.  It now takes an
+    orthonormal basis of the candidates' span: the model builds, its gauge basis is orthonormal and its motions
+    move no voxel centre (1e-12 of the body)."""
+    import warnings
+
+    from voxflex.image import LabelImage
+    from voxflex.scene import ElasticitySpec, MaterialSpec, NodesSpec, ObjectSpec, Scene
+
+    image = LabelImage(np.ones((16, 1, 1), dtype=np.uint8), spacing=(1.0, 1.0, 1.0))
+    scene = Scene(object=ObjectSpec(shape="box", size=(16.0, 1.0, 1.0), voxel_size=1.0),
+                  materials=(MaterialSpec(model="neo-hookean", young=1e3, poisson=0.3),),
+                  nodes=NodesSpec(kind="affine", count=4, shape_function="reproducing-kernel"),
+                  elasticity=ElasticitySpec(quadrature="elaston"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # frames on a line: the kernels warn (partly linear precision)
+        model = vf.model(scene, image=image, cache=False)
+    G = model.gauge_modes()
+    assert G.shape[1] > 0
+    np.testing.assert_allclose(G.T @ G, np.eye(G.shape[1]), rtol=0, atol=1e-12)
+    pts = image.index_to_world(np.argwhere(image.labels > 0) + 0.5)
+    pmap = model.point_mapping(pts)
+    for k in range(G.shape[1]):
+        moved = pmap.apply(model.rest + G[:, k].reshape(model.rest.shape)) - pts
+        assert np.abs(moved).max() <= 1e-12 * np.ptp(pts, axis=0).max()
+
+
 def test_the_gauge_pin_reads_the_rest_diagonal_without_assembling_it():
     """The pin's alpha (the rest stiffness's mean matrix-entry diagonal) from the point samples' weights equals
     the assembled stiffness's to 1e-12 relative (sums of positive terms in another order), for reproducing

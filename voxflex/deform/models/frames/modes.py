@@ -52,11 +52,22 @@ def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 8192) ->
     nodes = AffineFrames(X)
     B = nodes.gauge_candidates()
     Z, Rz = np.linalg.qr(B)  # Z = B Rz^-1: the responses of Z are those of B times Rz^-1
+    d = np.abs(np.diag(Rz))
+    if not d.min(initial=1.0) > 1e-12 * d.max(initial=0.0):
+        # dependent candidates (frames on a line or a plane): an orthonormal basis of their span, Z = B Tz with
+        # Tz = V_r S_r^-1 (the QR's triangle is singular there)
+        U, S, Vt = np.linalg.svd(B, full_matrices=False)
+        r = int(np.count_nonzero(S > 1e-12 * S.max(initial=0.0)))
+        if r == 0:
+            return np.zeros((B.shape[0], 0))
+        Z, Tz = U[:, :r], Vt[:r].T / S[:r]
+    else:
+        Tz = None
     phi, Cb = nodes.gauge_basis()  # dA_a of candidate k = sum_m Cb[k, m] phi_a[m]
     C2 = Cb.transpose(0, 2, 1, 3).reshape(18 * 3, 12)  # rows (k, i), columns (m, j)
     L = float(np.ptp(X, axis=0).max()) if n > 1 else 1.0
     L = L if L > 0 else 1.0
-    R = np.zeros((0, 18))
+    R = np.zeros((0, Z.shape[1]))
     for a in range(0, values.m, chunk):
         b = min(values.m, a + chunk)
         # per sample, over its parents: S[m, j] = sum w phi_m r_j (the motion), T[m, j, l] = sum phi_m (w I + r (x) dw)
@@ -70,8 +81,9 @@ def gauge_modes(frames, values, *, tol: float = GAUGE_TOL, chunk: int = 8192) ->
         x = np.matmul(C2, S.reshape(-1, 12, 1))  # (c, (k, i), 1): candidate k's motion x_i
         F = F.reshape(-1, 18, 9).transpose(0, 2, 1).reshape(-1, 18)
         x = x.reshape(-1, 18, 3).transpose(0, 2, 1).reshape(-1, 18)
-        rows = sla.solve_triangular(Rz, np.concatenate([F, x / L]).T, trans="T", check_finite=False).T  # @ Rz^-1
-        R = sla.qr(np.concatenate([R, rows]), mode="r", check_finite=False)[0][:18]
+        FX = np.concatenate([F, x / L])
+        rows = FX @ Tz if Tz is not None else sla.solve_triangular(Rz, FX.T, trans="T", check_finite=False).T  # @ Rz^-1
+        R = sla.qr(np.concatenate([R, rows]), mode="r", check_finite=False)[0][:Z.shape[1]]
     _, sv, Vt = np.linalg.svd(R, full_matrices=False)
     ref = np.sqrt(max(values.m, 1) / n)  # |F| over the samples of the unit dilation A_a = I / sqrt(3n)
     return Z @ Vt[sv <= tol * ref].T
