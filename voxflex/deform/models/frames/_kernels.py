@@ -345,11 +345,37 @@ def frame_pairs(index, G, n):
 
 def sorted_parents(values):
     """(index, order): the samples' parents in increasing frame order (padding last) and the order (m, P)
-    (parent p is the values' parent ``order[s, p]``), without tables."""
-    index = np.asarray(values.index)
-    key = np.where(index >= 0, index, np.iinfo(np.int64).max)
-    order = np.ascontiguousarray(np.argsort(key, axis=1, kind="stable"), dtype=np.int64)
-    return np.ascontiguousarray(np.take_along_axis(index, order, axis=1), dtype=np.int64), order
+    (parent p is the values' parent ``order[s, p]``), without tables: a stable sort of each row, compiled
+    (numpy's argsort and gather took 0.35 s for the bunny's 93k points with 34 parents)."""
+    index = np.ascontiguousarray(values.index, dtype=np.int64)
+    order = np.empty(index.shape, dtype=np.int64)
+    out = np.empty(index.shape, dtype=np.int64)
+    _sort_rows(index, order, out)
+    return out, order
+
+
+@njit
+def _sort_rows(index, order, out):  # pragma: no cover - compiled
+    """Per row, ``order`` = the stable argsort of the frames (padding -1 last) and ``out`` = the sorted row
+    (insertion sort: rows are short)."""
+    m, P = index.shape
+    big = np.iinfo(np.int64).max
+    for s in range(m):
+        for p in range(P):
+            order[s, p] = p
+        for p in range(1, P):
+            o = order[s, p]
+            k = index[s, o] if index[s, o] >= 0 else big
+            r = p - 1
+            while r >= 0:
+                c = index[s, order[s, r]]
+                if (c if c >= 0 else big) <= k:
+                    break
+                order[s, r + 1] = order[s, r]
+                r -= 1
+            order[s, r + 1] = o
+        for p in range(P):
+            out[s, p] = index[s, order[s, p]]
 
 
 def point_arrays(values, frames, order):
