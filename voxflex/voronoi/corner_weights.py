@@ -14,7 +14,7 @@ import numpy as np
 from .._jit import njit, prange
 from ..errors import InputError
 from ..image.grid import trilinear_weights
-from .shape_functions import ShapeValues
+from .shape_functions import ShapeValues, world_points
 
 __all__ = ["CornerWeights"]
 
@@ -183,12 +183,7 @@ class CornerWeights:
         return ShapeValues(index=index, w=w, dw=dw, ddw=ddw if hessians else None, rest=X, n_nodes=len(self.frames))
 
     def __call__(self, points, *, hessians=True) -> ShapeValues:
-        try:
-            X = np.asarray(points, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError("points must be an (m, 3) array of world positions") from None
-        if X.ndim != 2 or X.shape[1] != 3 or not np.all(np.isfinite(X)):
-            raise InputError(f"points must be a finite (m, 3) array of world positions, got shape {X.shape}")
+        X = world_points(points)
         elem, local = self.grid.locate(X, tolerance=1e-6)
         if np.any(elem < 0):
             b = int(np.flatnonzero(elem < 0)[0])

@@ -28,7 +28,7 @@ import numpy as np
 from .._jit import njit
 from ..errors import InputError
 
-__all__ = ["ShapeValues", "shepard", "keep_largest"]
+__all__ = ["ShapeValues", "shepard", "keep_largest", "world_points"]
 
 
 _VALUE_ERRORS = {
@@ -195,6 +195,11 @@ class ShapeValues:
     def has_hessians(self) -> bool:
         return self.ddw is not None
 
+    def without_hessians(self) -> "ShapeValues":
+        """The same values and gradients, ``ddw`` None (the arrays shared, not copied)."""
+        return self if self.ddw is None else ShapeValues(index=self.index, w=self.w, dw=self.dw, ddw=None,
+                                                         rest=self.rest, n_nodes=self.n_nodes)
+
     def partition_of_unity_error(self) -> float:
         """Largest deviation from a partition of unity over all children.
 
@@ -245,6 +250,18 @@ class ShapeValues:
         mask = self.index >= 0
         rows = np.broadcast_to(np.arange(self.m)[:, None], self.index.shape)[mask]
         return sp.csr_matrix((self.w[mask], (rows, self.index[mask])), shape=(self.m, n))
+
+
+def world_points(points) -> np.ndarray:
+    """``points`` as a finite (m, 3) float array of world positions, or an InputError saying what they are (the
+    check every weight family makes before evaluating)."""
+    try:
+        X = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError("points must be an (m, 3) array of world positions") from None
+    if X.ndim != 2 or X.shape[1] != 3 or not np.all(np.isfinite(X)):
+        raise InputError(f"points must be a finite (m, 3) array of world positions, got shape {X.shape}")
+    return X
 
 
 def keep_largest(values: ShapeValues, parents: int, *, backend: str = "numba") -> ShapeValues:

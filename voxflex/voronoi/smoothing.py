@@ -298,8 +298,7 @@ class SmoothWeights:
         if self.backend != "numpy" and len(X):
             return self._compiled(X, prune, bool(hessians))
         sv = self._numpy_values(X, prune, chunk)
-        return sv if hessians else ShapeValues(index=sv.index, w=sv.w, dw=sv.dw, ddw=None, rest=sv.rest,
-                                               n_nodes=sv.n_nodes)
+        return sv if hessians else sv.without_hessians()
 
     def _numpy_values(self, X, prune, chunk):
         out = [self._chunk(X[a:a + chunk], prune) for a in range(0, len(X), chunk)]

@@ -73,7 +73,7 @@ from .geodesic import _centres, _prepare, _seed_voxels, voxel_coordinates, voxel
 from .natural_neighbour import keep_largest_insert, natural_weights, normalise_first
 from .placement import _compliance_for
 from ._node_fits import _adjacency, _basis, _fit_nodes, fit_nodes  # noqa: F401 - importable here as before
-from .shape_functions import ShapeValues
+from .shape_functions import ShapeValues, world_points
 
 __all__ = ["ShapeFunction", "shape_function"]
 
@@ -167,18 +167,12 @@ class ShapeFunction:
     def __call__(self, points, *, hessians: bool = True) -> ShapeValues:
         """Values, gradients and (unless ``hessians=False``: ``ddw`` None) Hessians at world points (m, 3) inside
         the material."""
-        try:
-            X = np.asarray(points, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError("points must be an (m, 3) array of world positions") from None
-        if X.ndim != 2 or X.shape[1] != 3 or not np.all(np.isfinite(X)):
-            raise InputError(f"points must be a finite (m, 3) array of world positions, got shape {X.shape}")
+        X = world_points(points)
         ijk = self._voxels_of(X)
         if self.smooth:
             return self._smoothed()(X, hessians=hessians)
         sv = self._evaluate(X, self._node_of_voxel[tuple(ijk.T)])
-        return sv if hessians else ShapeValues(index=sv.index, w=sv.w, dw=sv.dw, ddw=None, rest=sv.rest,
-                                               n_nodes=sv.n_nodes)
+        return sv if hessians else sv.without_hessians()
 
     def centre_values(self) -> ShapeValues:
         """The weights computed at every material voxel centre (before blending), pruned to
