@@ -334,3 +334,30 @@ def test_regions_whose_centroid_lies_outside_the_material_are_evaluated_inside(q
     rijk = np.floor(image.world_to_index(rest) + 1e-9).astype(int)
     assert np.all(image.labels[tuple(rijk.T)] > 0)  # evaluated inside
     assert np.all(np.isfinite(model.energy_gradient_hessian(model.rest)[1]))
+
+
+def test_gauss_legendre_frames_with_zero_energy_modes_are_refused_and_the_fix_works():
+    """Affine frames on corner weights move a voxel by a field 2x2x2 Gauss points under-integrate: 6 eigenmode
+    frames (and one at the clamp) on an 8x2x2 bar leave 9 zero-energy modes that move the material.  Gauss-Legendre
+    frames skipped the mode check and solved on them; a static scene is now refused with the cause and the fix,
+    a dynamic one warned, and the fixes it names (fewer frames, a finer image) build."""
+    from voxflex.deform.models.frames.modes import SpuriousModesWarning
+    from voxflex.scene import SolverSpec
+
+    def scene(count, voxel, kind="static"):
+        return Scene(object=ObjectSpec(shape="box", size=(8.0, 2.0, 2.0), voxel_size=voxel),
+                     materials=(MaterialSpec(model="neo-hookean", young=1e4, poisson=0.3, density=1.0),),
+                     nodes=NodesSpec(kind="affine", count=count, shape_function="eigenmode"),
+                     elasticity=ElasticitySpec(quadrature="gauss-legendre"),
+                     fixed=(FixedSpec(min=(-1.0, -1.0, -1.0), max=(0.5, 99.0, 99.0)),),
+                     loads=(LoadSpec(kind="gravity", vector=(0.0, 0.0, -9.81)),),
+                     solver=SolverSpec(kind=kind, **({"dt": 0.01, "steps": 1} if kind != "static" else {})))
+
+    with pytest.raises(vf.InputError, match=r"2x2x2 Gauss points per voxel leave 9 zero-energy mode.*use fewer frames"):
+        vf.model(scene(6, 1.0), cache=False)
+    with pytest.warns(SpuriousModesWarning, match="2x2x2 Gauss points"):
+        vf.model(scene(6, 1.0, "implicit-euler"), cache=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SpuriousModesWarning)
+        for count, voxel in ((3, 1.0), (6, 0.5)):
+            assert vf.model(scene(count, voxel), cache=False).n_nodes >= count

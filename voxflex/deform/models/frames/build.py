@@ -145,7 +145,9 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
     model.info.update(info)
     if pre["regions"] is not None and model.regions is None:
         model.regions = pre["regions"]
-    if quadrature != "gauss-legendre":
+    if quadrature == "gauss-legendre":
+        _check_gauss_modes(scene, model)
+    else:
         import warnings
 
         from .modes import SpuriousModesWarning, check_modes
@@ -267,6 +269,31 @@ def _refuse_static_mechanism(scene, model, K, samples, spurious: int) -> None:
             f"the {len(samples.volume)} {samples.kind} samples leave {zero} zero-energy mode(s) among the frames "
             f"the scene does not hold ({spurious} in the free body), so static equilibrium is not unique; raise "
             '[elasticity] samples, use fewer frames, or quadrature = "gauss-legendre"')
+
+
+def _check_gauss_modes(scene, model) -> None:
+    """Refuse (static affine scenes) or warn about zero-energy modes that 2x2x2 Gauss points leave.
+
+    Gauss points are exact for the voxel model's trilinear fields, not for affine frames: a frame moves a voxel by
+    its weight times an affine field, a quadratic or higher field per voxel that 2x2x2 points under-integrate
+    (as they do a 20-node hexahedron), so frames nearly as dense as the voxels can have deformations of zero
+    energy at every point (6 eigenmode frames on an 8x2x2 bar: 9 of them, each moving the material).  The
+    unit stiffness at the Gauss points is the model's own here; the gauge motions of linearly precise weights
+    (which move nothing) are not counted."""
+    import warnings
+
+    from .modes import SpuriousModesWarning, zero_energy_modes
+
+    K = _unit_stiffness(model)
+    zero = zero_energy_modes(model.frames, model.samples, stiffness=K, gauge=model.gauge_modes())
+    if zero <= 6:
+        return
+    what = (f"2x2x2 Gauss points per voxel leave {zero - 6} zero-energy mode(s) of the {model.n_nodes} frames "
+            f"(frames nearly as dense as the voxels move a voxel by a field the points under-integrate)")
+    fix = "use fewer frames ([nodes] count) or a finer image"
+    if _static_frames(scene) and _free_zero_modes(scene, model, K):
+        raise InputError(f"{what}, so static equilibrium is not unique; {fix}")
+    warnings.warn(f"{what}; results may move along them; {fix}", SpuriousModesWarning, stacklevel=3)
 
 
 def _free_zero_modes(scene, model, K) -> int:
