@@ -361,3 +361,22 @@ def test_gauss_legendre_frames_with_zero_energy_modes_are_refused_and_the_fix_wo
         warnings.simplefilter("error", SpuriousModesWarning)
         for count, voxel in ((3, 1.0), (6, 0.5)):
             assert vf.model(scene(count, voxel), cache=False).n_nodes >= count
+
+
+def test_the_gauss_legendre_mode_verdict_is_kept_in_the_cache_entry(tmp_path, monkeypatch):
+    """The check costs a unit stiffness at every Gauss point (seconds on the bunny): a sound verdict is kept in the
+    precompute's cache entry and not judged again when the entry is used."""
+    from voxflex.deform.models.frames import build as B
+
+    monkeypatch.setenv("VOXFLEX_CACHE_DIR", str(tmp_path / "cache"))
+    scene = Scene(object=ObjectSpec(shape="box", size=(8.0, 2.0, 2.0), voxel_size=1.0),
+                  materials=(MaterialSpec(model="neo-hookean", young=1e4, poisson=0.3),),
+                  nodes=NodesSpec(kind="affine", count=4), elasticity=ElasticitySpec(quadrature="gauss-legendre"),
+                  fixed=(FixedSpec(min=(-1.0, -1.0, -1.0), max=(0.5, 99.0, 99.0)),))
+    calls = []
+    real = B._unit_stiffness
+    monkeypatch.setattr(B, "_unit_stiffness", lambda model: calls.append(1) or real(model))
+    first = vf.model(scene)
+    assert len(calls) == 1 and first.info["precompute_cached"] is False
+    again = vf.model(scene)
+    assert len(calls) == 1 and again.info["precompute_cached"] is True
