@@ -148,3 +148,38 @@ def test_softest_mode_separates_sound_and_under_integrated_quadratures(body):
     assert two >= one - 1e-12
     K = free_body_stiffness(frames, few)
     assert softest_mode(frames, few, mid, stiffness=K) == softest_mode(frames, few, mid)
+
+
+def test_a_reference_singular_to_round_off_gives_no_verdict(monkeypatch):
+    """softest_mode over held DOFs whose reference stiffness is singular only to round-off (three motionless motions
+    at 1e-15 of the largest eigenvalue, the samples' stiffness along them round-off of either sign, as the
+    phantom's clamped reproducing kernels gave): no verdict (None), where the generalised eigenproblem passed its
+    factorisation and returned a negative ratio (-0.41 here, -58 on the phantom), which refused a sound scene as
+    "1e+300 times softer"; a regular reference still gives its ratio."""
+    from types import SimpleNamespace
+
+    from voxflex.deform.models.frames import modes
+
+    rng = np.random.default_rng(3)
+    n = 2
+    N = 12 * n
+    Q, _ = np.linalg.qr(rng.standard_normal((N, N)))
+    ev = np.linspace(1.0, 10.0, N)
+    ev[:3] = [1e-15, 2e-15, 3e-15]  # positive to round-off: the factorisation of the reference passes
+    Kr = (Q * ev) @ Q.T
+    Kr = 0.5 * (Kr + Kr.T)
+    evs = ev.copy()
+    evs[:3] = [-5e-16, 2e-16, 1e-16]  # the samples' stiffness along them: round-off of either sign
+    Ks = (Q * evs) @ Q.T
+    Ks = 0.5 * (Ks + Ks.T)
+    monkeypatch.setattr(modes, "free_body_stiffness", lambda frames, samples: Kr)
+    frames = np.zeros((n, 3))
+    dummy = SimpleNamespace(values=None)
+    free = np.arange(N)
+    assert modes.softest_mode(frames, dummy, dummy, free, stiffness=Ks) is None
+    ev2 = ev.copy()
+    ev2[:3] = [0.5, 0.6, 0.7]
+    Kr2 = (Q * ev2) @ Q.T
+    Kr2 = 0.5 * (Kr2 + Kr2.T)
+    monkeypatch.setattr(modes, "free_body_stiffness", lambda frames, samples: Kr2)
+    assert modes.softest_mode(frames, dummy, dummy, free, stiffness=0.5 * Kr2) == pytest.approx(0.5, rel=1e-10)

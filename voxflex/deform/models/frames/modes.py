@@ -401,6 +401,16 @@ def softest_mode(frames, samples, reference, free=None, *, stiffness=None) -> fl
     if Ks.size == 0:
         return None
     with one_thread():
+        # the reference singular there (to round-off, Jacobi-scaled): no verdict.  Left to eigh, a reference
+        # singular only to round-off could pass its factorisation and give garbage (-58 for the phantom's
+        # clamped reproducing kernels, whose 3 motionless motions all move the held frame)
+        d = np.diagonal(Kr)
+        if not np.all(d > 0):
+            return None
+        s = 1.0 / np.sqrt(d)
+        ev = np.linalg.eigvalsh(s[:, None] * Kr * s[None, :])
+        if not ev[0] > 1e-12 * ev[-1]:
+            return None
         try:
             lam = sla.eigh(Ks, Kr, eigvals_only=True, subset_by_index=[0, 0], check_finite=False)
         except np.linalg.LinAlgError:  # the reference is singular there
