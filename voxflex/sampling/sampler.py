@@ -430,24 +430,24 @@ def _finish(kind, ctx, vv, region, n_frames, at_points=None) -> Samples:
     moments = _region_moments_impl(ctx.centres, ctx.occ, region, points, T, m)
     label = np.zeros(m, dtype=np.int64)
     label[region] = ctx.labels
+    rimg = ctx.region_image(region)
     if at_points is None:
         values = fit_values(vv, region, points, ctx.occ, ctx.h, n_frames)
     else:
-        values = at_points(_inside_points(ctx, region, points))
-    return Samples(kind, points, moments[:, 0].copy(), moments, label, ctx.region_image(region), values)
+        values = at_points(_inside_points(ctx, region, rimg, points))
+    return Samples(kind, points, moments[:, 0].copy(), moments, label, rimg, values)
 
 
-def _inside_points(ctx, region, points):
+def _inside_points(ctx, region, rimg, points):
     """Each region's centroid where it lies in one of the region's own voxels, else the region's voxel centre
     nearest to it (ties: the lowest voxel, scale-free): where unfitted regions are evaluated.  A non-convex
     region's centroid can lie outside the material (the cow at 0.35: evaluating the weights there was refused),
-    and the regions read that way (elastons, stabilised regions) integrate their own points, not these values."""
+    ``rimg`` the region image, and the regions read that way (elastons, stabilised regions) integrate their own points, not these values."""
     image = ctx.image
     ijk = np.floor(image.world_to_index(points) + 1e-9).astype(np.int64)
     shape = np.asarray(image.shape)
     inside = np.all((ijk >= 0) & (ijk < shape), axis=1)
     own = np.full(len(points), -1, dtype=np.int64)
-    rimg = ctx.region_image(region)
     own[inside] = rimg[tuple(ijk[inside].T)]
     out = np.array(points, dtype=np.float64, copy=True)
     bad = np.flatnonzero(own != np.arange(len(points)))

@@ -54,8 +54,6 @@ MAX_DOUBLINGS = 3
 """Times the builder doubles a default region count whose samples leave a (near-)zero-energy mode."""
 
 
-
-
 def build(scene, image, materials, *, cache: bool = True, placement_energy=None):
     """Affine frames: placement, shape functions and samples from the image, then the frame model.
 
