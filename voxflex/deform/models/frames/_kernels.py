@@ -610,11 +610,14 @@ def frame_stiffness_dense(index, G, A, n, weight=None, tables=None, points=None)
     return H
 
 
-DENSE_GAIN = 10.0
-"""How many more multiply-adds per second a dense matrix product (BLAS) does than the pair-block kernel
-(:func:`frame_stiffness_pairs`, bound by its loads and stores of the blocks): 44 against 4.4 G/s on the
-2-core benchmark machine.  :func:`isotropic_worth_dense` compares the two paths' counts with it (both give
-the same stiffness to round-off; only the time differs)."""
+DENSE_GAIN = 1.5
+"""How many more multiply-adds per second the dense products of :func:`isotropic_stiffness_dense` do than the
+pair-block kernel (:func:`frame_stiffness_pairs`): 27 against 16-21 G/s on the 2-core benchmark machine (unit
+stiffness of the bunny's 93k elaston points, two threads: reproducing kernels, 34 parents, 0.34 against 0.71 s;
+natural neighbours, 6 parents, 0.24 against 0.05 s).
+The dense path wins by doing fewer multiply-adds where most frames are parents of every sample, not by a much
+faster rate.  :func:`isotropic_worth_dense` compares the two paths' counts with it (both give the same
+stiffness to round-off; only the time differs)."""
 
 ISO_CHUNK = 2048
 """Samples per dense product of :func:`isotropic_stiffness_dense` (a chunk's rows: 2048 x 12 x its frames)."""
@@ -661,8 +664,8 @@ def isotropic_stiffness_dense(index, n, weight, mu, lam, G=None, points=None, H=
     ``mu delta_ik sum_j M[(a, c, j), (b, d, j)] + mu M[(a, c, k), (b, d, i)] + lam M[(a, c, i), (b, d, k)]``.  M is
     summed over chunks of :data:`ISO_CHUNK` samples as ``X^T (weight X)``, X the chunk's tables laid out on the
     columns of the frames the chunk touches (rows scaled by sqrt(weight) where no weight is negative: then
-    ``Y^T Y``, a symmetric product of half the cost): a dense product that runs near the machine's peak where
-    the pair kernel is bound by memory.  Parents in any order, padding anywhere.  ``G`` the tables (m, P, 4, 3) or ``points`` =
+    ``Y^T Y``, a symmetric product of half the cost): ``72 u^2`` multiply-adds per sample against the pair
+    kernel's ``216 P (P + 1)``, at a somewhat higher rate (:data:`DENSE_GAIN`).  Parents in any order, padding anywhere.  ``G`` the tables (m, P, 4, 3) or ``points`` =
     (w, dw, rest, frames) in the order of ``index``."""
     index = np.ascontiguousarray(index, dtype=np.int64)
     m, P = index.shape
