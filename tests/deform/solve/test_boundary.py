@@ -98,3 +98,15 @@ def test_region_validation():
         FixedRegion([0, 0, 0], [1, 1, 1], transform=np.eye(3))
     with pytest.raises(InputError, match="force kind"):
         ForceRegion([0, 0, 0], [1, 1, 1], [1, 0, 0], kind="suction")  # "pressure" is a kind now (membranes)
+
+
+def test_a_box_ending_on_a_layer_of_corners_holds_it_in_every_unit():
+    # corners at origin + i * h carry round-off (0.1 + 0.2 > 0.3); a box written to end on a layer of corners
+    # holds that layer whatever the unit (to 1e-9 of a voxel edge, as a frame model's clamp compares)
+    for scale in (1e-6, 1e-3, 0.1, 1.0, 3.7, 1e3):
+        h = 0.1 * scale
+        image = LabelImage(np.ones((5, 2, 2)), spacing=(h, h, h), origin=(0.1 * scale, 0.0, 0.0))
+        model = VoxelModel.from_image(image, {1: material("hooke", young=1e4, poisson=0.3, strain="linear")})
+        held = model.nodes_in_box([-1e9, -1e9, -1e9], [0.3 * scale, 1e9, 1e9])  # the corner layers at 0.1, 0.2, 0.3
+        assert len(held) == 3 * 9, scale
+        assert np.allclose(np.unique(model.rest[held, 0]) / scale, [0.1, 0.2, 0.3])

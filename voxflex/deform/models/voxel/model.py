@@ -695,10 +695,13 @@ class VoxelModel(ConstantTangentPath):
         return f"reduced for labels {reduced}"
 
     def nodes_in_box(self, lo, hi) -> np.ndarray:
-        """Indices of the nodes whose rest position lies in the box [lo, hi] (inclusive)."""
+        """Indices of the nodes whose rest position lies in the box [lo, hi] (inclusive, to 1e-9 of the largest
+        voxel edge: a box that ends on a layer of corners holds it in every unit of length, whatever the
+        round-off of the corners' coordinates)."""
         lo = np.asarray(lo, dtype=float)
         hi = np.asarray(hi, dtype=float)
-        return np.flatnonzero(np.all((self.rest >= lo) & (self.rest <= hi), axis=1))
+        tol = 1e-9 * float(np.max(self.image.spacing))
+        return np.flatnonzero(np.all((self.rest >= lo - tol) & (self.rest <= hi + tol), axis=1))
 
     def rigid_modes(self) -> np.ndarray:
         """(3n, 6) rigid-body modes (3 translations, 3 infinitesimal rotations about the centroid)."""
