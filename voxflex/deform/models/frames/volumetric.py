@@ -38,7 +38,7 @@ Stabilised mid-point regions (one sample per region with its Gauss points' mean 
 energy, :mod:`~voxflex.deform.models.frames.stabilise`) integrate the projection as their Gauss points
 would: with one weight per region (its mean) ``M`` and ``b`` were those of a discrete projection over the
 region centroids, too close to the samples' own ratios, and the library's default frames on the bundled
-scene came out 5 % stiffer than the same frames with Gauss-Legendre points (11.98 against 12.61 mm).  Now
+scene (clamped at x <= 1.5 mm then) came out 5 % stiffer than the same frames with Gauss-Legendre points (11.98 against 12.61 mm).  Now
 ``M`` gains the weights' fluctuation moments ``Omega = sum_r sum_q v_q dw_q dw_q^T``, ``b`` the covariance of
 the weights and the volume ratio inside each region (``cof(F_r) : sum_q v_q dw_q dF_q``: exact for a
 trace, first order for det), and the energy the projected ratio's fluctuation inside the regions,
