@@ -102,7 +102,7 @@ def test_region_validation():
 
 def test_a_box_ending_on_a_layer_of_corners_holds_it_in_every_unit():
     # corners at origin + i * h carry round-off (0.1 + 0.2 > 0.3); a box written to end on a layer of corners
-    # holds that layer whatever the unit (to 1e-9 of a voxel edge, as a frame model's clamp compares)
+    # holds that layer whatever the unit (to 1e-11 of a voxel edge)
     for scale in (1e-6, 1e-3, 0.1, 1.0, 3.7, 1e3):
         h = 0.1 * scale
         image = LabelImage(np.ones((5, 2, 2)), spacing=(h, h, h), origin=(0.1 * scale, 0.0, 0.0))

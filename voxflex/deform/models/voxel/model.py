@@ -695,12 +695,13 @@ class VoxelModel(ConstantTangentPath):
         return f"reduced for labels {reduced}"
 
     def nodes_in_box(self, lo, hi) -> np.ndarray:
-        """Indices of the nodes whose rest position lies in the box [lo, hi] (inclusive, to 1e-9 of the largest
+        """Indices of the nodes whose rest position lies in the box [lo, hi] (inclusive, to 1e-11 of the largest
         voxel edge: a box that ends on a layer of corners holds it in every unit of length, whatever the
-        round-off of the corners' coordinates)."""
+        round-off of the corners' coordinates, about 1e-16 of the coordinate; a margin written on purpose,
+        ``max = 1 - 1e-9`` on 1 m voxels, still leaves the layer out)."""
         lo = np.asarray(lo, dtype=float)
         hi = np.asarray(hi, dtype=float)
-        tol = 1e-9 * float(np.max(self.image.spacing))
+        tol = 1e-11 * float(np.max(self.image.spacing))
         return np.flatnonzero(np.all((self.rest >= lo - tol) & (self.rest <= hi + tol), axis=1))
 
     def rigid_modes(self) -> np.ndarray:
