@@ -45,7 +45,7 @@ def test_affine_patch_test_through_frames_and_samples(tmp_path, quadrature):
         assert np.max(np.abs(pos[-1] - (pos[0] @ T[:, :3].T + T[:, 3]))) < 1e-10
     back = Result.load(tmp_path / "patch.h5")
     assert back.node_kind == "affine" and back.nodes_state.shape[1:] == (8, 12)
-    assert back.model["quadrature"] == quadrature and back.model["shape_function"] == "natural-neighbour"
+    assert back.model["quadrature"] == quadrature and back.model["shape_function"] == "reproducing-kernel"
     assert back.model["precompute_seconds"] > 0
 
 
@@ -284,13 +284,13 @@ def test_reproducing_kernels_build_when_every_frame_is_fixed():
 
 
 
-@pytest.mark.parametrize("weights, expected", [(None, "midpoint"), ("natural-neighbour", "midpoint"),
+@pytest.mark.parametrize("weights, expected", [(None, "elaston"), ("natural-neighbour", "midpoint"),
                                                ("shepard", "midpoint"), ("reproducing-kernel", "elaston"),
                                                ("eigenmode", "elaston")])
 def test_a_scene_without_a_quadrature_gets_the_one_its_weights_need(weights, expected):
-    """Frames default to stabilised mid-point regions, and weights never cut to their parents (reproducing kernels,
-    eigenmodes: a region's fluctuation term would carry the union of its points' parents) to elastons; a
-    quadrature the scene names is kept, and voxels keep Gauss-Legendre."""
+    """Frames with weights cut to their parents default to stabilised mid-point regions, and weights never cut
+    (reproducing kernels, the default family, and eigenmodes: a region's fluctuation term would carry the union of
+    its points' parents) to elastons; a quadrature the scene names is kept, and voxels keep Gauss-Legendre."""
     nodes = NodesSpec(kind="affine", count=8, shape_function=weights)
     box = ObjectSpec(shape="box", size=(4.0, 1.0, 1.0), voxel_size=0.25)
     mats = (MaterialSpec(model="hooke", young=1e3, poisson=0.3),)
@@ -380,3 +380,29 @@ def test_the_gauss_legendre_mode_verdict_is_kept_in_the_cache_entry(tmp_path, mo
     assert len(calls) == 1 and first.info["precompute_cached"] is False
     again = vf.model(scene)
     assert len(calls) == 1 and again.info["precompute_cached"] is True
+
+
+def test_default_weights_fall_back_to_natural_neighbours_where_they_would_leave_spurious_modes(tmp_path):
+    """A scene that names no weights gets reproducing kernels where they are sound and natural neighbours (with the
+    same quadrature) where the kernels' samples would leave a zero-energy mode -- 20 frames on the 8x2x2 bar, 1.6
+    voxels per frame -- and says so in the result and in `voxflex info`; the same frames with reproducing kernels
+    named are refused as before."""
+    from voxflex.errors import InputError
+    from voxflex.result_text import describe_result
+
+    bar = Scene.from_toml(paths.ROOT / "examples" / "cantilever.toml")
+    small = replace(bar, nodes=NodesSpec(kind="affine", count=20), elasticity=ElasticitySpec(strain="linear"))
+    result = vf.simulate(small, progress=False, output=tmp_path / "small.h5")
+    back = Result.load(tmp_path / "small.h5")
+    assert back.model["shape_function"] == "natural-neighbour" and back.model["quadrature"] == "elaston"
+    chosen = back.model["shape_function_chosen"]
+    assert chosen.startswith("natural-neighbour, the default reproducing-kernel weights refused") and "zero-energy" in chosen
+    assert "shape function chosen: natural-neighbour" in describe_result(tmp_path / "small.h5")
+    assert result.probes["tip"][-1][2] < result.probes["tip"][0][2]  # it sags
+    named = replace(small, nodes=NodesSpec(kind="affine", count=20, shape_function="reproducing-kernel"))
+    with pytest.raises(InputError, match="zero-energy mode"):
+        vf.model(named, cache=False)
+    # where the kernels are sound they are kept, without a note: 10 frames on the 16x4x4 bar
+    fine = replace(small, object=replace(bar.object, voxel_size=0.25), nodes=NodesSpec(kind="affine", count=10))
+    model = vf.model(fine, cache=False)
+    assert model.info["shape_function"] == "reproducing-kernel" and "shape_function_chosen" not in model.info

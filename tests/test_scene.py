@@ -109,11 +109,12 @@ def test_every_spec_key_parses(tmp_path):
 
 def test_defaults_and_programmatic_construction():
     scene = Scene(ObjectSpec(shape="sphere", size=(0.5,), voxel_size=0.1), (MaterialSpec(),))
-    # defaults: affine frames with the node kind's own quadrature (stabilised mid-point regions for
-    # frames, Gauss-Legendre for voxel nodes) and weights (natural neighbours for frames), 6 parents,
-    # the frame count chosen at build time
-    assert scene.nodes.kind == "affine" and scene.elasticity.quadrature == "midpoint"
-    assert scene.nodes.weights == "natural-neighbour"
+    # defaults: affine frames with the node kind's own weights (reproducing kernels for frames; the builder
+    # falls back to natural neighbours on a body where they leave spurious modes) and their quadrature
+    # (elastons for reproducing kernels, Gauss-Legendre for voxel nodes), 6 parents (for weights cut to
+    # parents), the frame count chosen at build time
+    assert scene.nodes.kind == "affine" and scene.elasticity.quadrature == "elaston"
+    assert scene.nodes.weights == "reproducing-kernel"
     assert scene.nodes.parents == 6 and scene.nodes.count is None
     voxel = Scene(ObjectSpec(shape="sphere", size=(0.5,), voxel_size=0.1), (MaterialSpec(),), nodes=NodesSpec(kind="voxel"))
     assert voxel.elasticity.quadrature == "gauss-legendre"

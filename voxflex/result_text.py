@@ -101,6 +101,8 @@ def _model_text(r) -> str:
     if "precompute_seconds" in m:
         extra.append(f"precompute {float(m['precompute_seconds']):.3g} s")
     text += f" ({', '.join(extra)})" if extra else ""
+    if "shape_function_chosen" in m:
+        text += f"; shape function chosen: {m['shape_function_chosen']}"
     if "samples_chosen" in m:
         text += f"; samples chosen: {m['samples_chosen']}"
     return text

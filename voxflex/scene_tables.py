@@ -258,8 +258,9 @@ class NodesSpec:
     reference) or ``"rigid"`` (6-DOF frames: static scenes only).  The frame keys: ``count`` frames in all
     (default 20, or the number of material voxels when the object has fewer),
     ``positions`` (frames given by the user, world, placed first),
-    ``shape_function`` (default: the kind's own, ``"natural-neighbour"`` for affine
-    frames; :attr:`weights` names it), ``parents`` (at most this
+    ``shape_function`` (default: the kind's own, ``"reproducing-kernel"`` for affine
+    frames, which the builder swaps for natural neighbours on a body where they would leave
+    spurious modes; :attr:`weights` names the default), ``parents`` (at most this
     many frames influence a material point; not applied to
     ``"reproducing-kernel"``, whose weights are never truncated), ``support``
     (``"reproducing-kernel"`` only: kernel radius in local frame spacings,

@@ -299,7 +299,7 @@ def test_scene_keys_and_the_cache_round_trip(tmp_path, monkeypatch):
     from voxflex.scene import NodesSpec, Scene
 
     with pytest.raises(InputError, match="support"):
-        NodesSpec(count=4, support=2.0)  # the default family (natural neighbours) has no kernel radius
+        NodesSpec(count=4, shape_function="natural-neighbour", support=2.0)  # natural neighbours have no kernel radius
     with pytest.raises(InputError, match="> 0"):
         NodesSpec(count=4, shape_function="reproducing-kernel", support=0.0)
     monkeypatch.setenv("VOXFLEX_CACHE_DIR", str(tmp_path))

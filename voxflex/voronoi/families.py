@@ -8,17 +8,22 @@ Each node kind (:mod:`voxflex.deform.models.kinds`) names the families it takes.
 from __future__ import annotations
 
 __all__ = ["FRAME_SHAPE_FUNCTIONS", "VOXEL_SHAPE_FUNCTIONS", "SHAPE_FUNCTIONS", "ALIASES", "PLACEMENTS",
-           "UNTRUNCATED"]
+           "UNTRUNCATED", "FALLBACK"]
 
-FRAME_SHAPE_FUNCTIONS = ("natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard", "reproducing-kernel",
+FRAME_SHAPE_FUNCTIONS = ("reproducing-kernel", "natural-neighbour", "sibson", "laplace", "distance-ratio", "shepard",
                          "eigenmode")
 """Weights of frames over the image (:func:`voxflex.voronoi.shape_function`); the first is the default.
-Natural-neighbour (Sibson's) weights are interpolating and reproduce a linear field only inside the frames'
-hull, so blended affine frames lock in bending; reproducing-kernel weights are linearly precise
-(:mod:`voxflex.voronoi.reproducing_kernel`: the accurate choice, and the bundled default scene's, but on
-small or thin bodies with frames on a line they lose precision and can leave mechanisms, which are
-refused); eigenmode weights are global, from the lowest modes of the elastic energy
-(:mod:`voxflex.voronoi.eigenmode`)."""
+Reproducing-kernel weights are linearly precise (:mod:`voxflex.voronoi.reproducing_kernel`: blended affine
+frames bend without locking; they win every sweep in ``docs/tradeoff.md``), but on small or thin bodies, or
+with frames nearly as dense as the voxels, their samples can leave spurious zero-energy modes: a scene that
+names no weights then gets :data:`FALLBACK`.  Natural-neighbour (Sibson's) weights are interpolating and
+reproduce a linear field only inside the frames' hull, so blended affine frames lock in bending; eigenmode
+weights are global, from the lowest modes of the elastic energy (:mod:`voxflex.voronoi.eigenmode`)."""
+
+FALLBACK = {"reproducing-kernel": "natural-neighbour"}
+"""The weights a frame model gets instead of its default family when the scene names none and the default's
+samples leave a spurious (near-)zero-energy mode on the body
+(:func:`voxflex.deform.models.frames.build.build`)."""
 
 UNTRUNCATED = ("reproducing-kernel", "eigenmode")
 """Frame families never cut to ``[nodes] parents`` (cutting breaks their linear precision and conformity): every

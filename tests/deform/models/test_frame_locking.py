@@ -161,7 +161,7 @@ def _cantilever(volumetric):
     """The linear cantilever [0,4]x[0,1]x[0,1] at 16x4x4 as a frame scene (20 frames, 200 mid-point samples)."""
     return Scene(object=ObjectSpec(shape="box", size=(4.0, 1.0, 1.0), voxel_size=0.25),
                  materials=(MaterialSpec(model="hooke", young=1e4, poisson=0.3, strain="linear", density=1.0),),
-                 nodes=NodesSpec(kind="affine", count=20),
+                 nodes=NodesSpec(kind="affine", count=20, shape_function="natural-neighbour"),  # the projection's weights
                  elasticity=ElasticitySpec(strain="linear", quadrature="midpoint", volumetric=volumetric),
                  fixed=(FixedSpec(min=(-1e9, -1e9, -1e9), max=(1e-6, 1e9, 1e9)),))
 
@@ -202,7 +202,7 @@ def _cantilever(volumetric):
     """The linear cantilever [0,4]x[0,1]x[0,1] at 16x4x4 as a frame scene (20 frames, default mid-point regions)."""
     return Scene(object=ObjectSpec(shape="box", size=(4.0, 1.0, 1.0), voxel_size=0.25),
                  materials=(MaterialSpec(model="hooke", young=1e4, poisson=0.3, strain="linear", density=1.0),),
-                 nodes=NodesSpec(kind="affine", count=20),
+                 nodes=NodesSpec(kind="affine", count=20, shape_function="natural-neighbour"),  # the projection's weights
                  elasticity=ElasticitySpec(strain="linear", quadrature="midpoint", volumetric=volumetric),
                  fixed=(FixedSpec(min=(-1e9, -1e9, -1e9), max=(1e-6, 1e9, 1e9)),))
 

@@ -25,6 +25,16 @@ from ....voronoi.families import UNTRUNCATED
 from ..kinds import NodeEstimate
 from .kind import DEFAULT_FRAMES
 
+class SpuriousModes(InputError):
+    """The frames' samples leave (near-)zero-energy modes among the frames a scene does not hold: a static scene is
+    refused with it; while :func:`build` tries a scene's default weights, any scene is (and falls back)."""
+
+
+class _LostPrecision(InputError):
+    """The default reproducing-kernel weights are not linearly precise at some voxel corners (frames on a line or a
+    plane inside a kernel): raised only while :func:`build` tries them, which then falls back."""
+
+
 REGIONS_PER_FRAME = {"midpoint": 5, "elaston": 10}
 """Mid-point / elaston regions per frame when a scene does not say ``[elasticity] samples`` (the start of
 the count the builder chooses; see the module docstring).  Measured on the neo-Hooke cantilever 32x8x8
@@ -56,6 +66,46 @@ MAX_DOUBLINGS = 3
 
 def build(scene, image, materials, *, cache: bool = True, placement_energy=None):
     """Affine frames: placement, shape functions and samples from the image, then the frame model.
+
+    A scene that names no ``[nodes] shape_function`` gets the kind's default weights (reproducing kernels:
+    linearly precise, the accurate choice) unless their samples would leave a spurious (near-)zero-energy mode
+    on this body -- small or thin bodies, frames nearly as dense as the voxels, frames on a line inside a
+    kernel -- where it gets :data:`~voxflex.voronoi.families.FALLBACK` (natural neighbours, cut to
+    ``parents``: robust there) instead, with the same quadrature; ``shape_function_chosen`` in the model's info
+    (the result's ``/model``, ``voxflex info``) says which and why.  A scene that names its weights gets them,
+    judged as they are.
+    """
+    from dataclasses import replace
+
+    from ....voronoi.families import FALLBACK
+
+    # a scene that sets the kernels' support asks for them: judged as they are
+    named = scene.nodes.shape_function is not None or scene.nodes.support is not None
+    fallback = None if named else FALLBACK.get(scene.nodes.weights)
+    if fallback is None:
+        return _build(scene, image, materials, cache=cache, placement_energy=placement_energy)
+    import warnings
+
+    from ....voronoi.reproducing_kernel import ReproducingKernelWarning
+
+    try:
+        with warnings.catch_warnings():
+            # the trial's own verdicts: lost precision is judged below, and "support below every kernel's
+            # floor" speaks of a setting this scene did not make
+            warnings.simplefilter("ignore", ReproducingKernelWarning)
+            return _build(scene, image, materials, cache=cache, placement_energy=placement_energy, strict=True)
+    except (SpuriousModes, _LostPrecision) as exc:
+        why = str(exc).split(", so ")[0].split("; ")[0]
+    other = replace(scene, nodes=replace(scene.nodes, shape_function=fallback))
+    model = _build(other, image, materials, cache=cache, placement_energy=placement_energy)
+    model.info["shape_function_chosen"] = (f"{fallback}, the default {scene.nodes.weights} weights refused on this "
+                                           f"body: {why}")
+    return model
+
+
+def _build(scene, image, materials, *, cache: bool = True, placement_energy=None, strict: bool = False):
+    """:func:`build` with the scene's weights as they are; ``strict``: judge every scene's samples as a static
+    one's (refuse with :class:`SpuriousModes` instead of warning) -- the default weights' trial.
 
     ``placement_energy``: the strain-energy density image of a first solve (``[nodes] placement =
     "strain"``, :func:`voxflex.build.strain_indicator`) whose metric places the frames.
@@ -126,6 +176,9 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
         pre = _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass,
                           weight_space=weight_space, density=density, make_model=make_model, limit=limit)
     sf = pre["sf"]
+    if strict and rk and sf.fallback_corners:  # not linearly precise where frames lie on a line or a plane
+        raise _LostPrecision(f"{sf.fallback_corners} of {sf.weights.shape[0]} voxel corners have frames on a line or a "
+                            "plane within their kernels (not linearly precise there)")
     info = {"shape_function": kind, "parents": int(sf.parents if untruncated else nodes.parents),
             "distance": nodes.distance, "precompute_cached": stored is not None,
             "placement": nodes.placement or "volume"}
@@ -144,7 +197,7 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
     if pre["regions"] is not None and model.regions is None:
         model.regions = pre["regions"]
     if quadrature == "gauss-legendre":
-        pre["gauss_zero"] = _check_gauss_modes(scene, model, pre.get("gauss_zero"))
+        pre["gauss_zero"] = _check_gauss_modes(scene, model, pre.get("gauss_zero"), strict=strict)
     else:
         import warnings
 
@@ -157,7 +210,7 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
             warnings.simplefilter("always", SpuriousModesWarning)
             zero = check_modes(pre["frames"], model.samples, stiffness=K, gauge=model.gauge_modes())  # warns, naming how many
         if zero > 6:
-            _refuse_static_mechanism(scene, model, K, model.samples, zero - 6)
+            _refuse_static_mechanism(scene, model, K, model.samples, zero - 6, strict=strict)
         softest = pre.get("softest")
         if zero <= 6 and softest is None and not pre.get("judged"):
             softest = _softest(scene, image, model, pre["sf"], occupancy, K)
@@ -165,7 +218,7 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
             warnings.warn(w.message, w.category, stacklevel=2)
         if zero <= 6 and softest is not None:
             model.info["softest_mode"] = softest
-            _judge_soft_modes(scene, model.samples, softest)
+            _judge_soft_modes(scene, model.samples, softest, strict=strict)
         pre["softest"] = softest
     if use_cache and stored is None:
         disk.save("frames", key, _to_store(pre))
@@ -233,8 +286,9 @@ def _centre_values_of(sf):
     return centres
 
 
-def _judge_soft_modes(scene, samples, softest: float) -> None:
-    """Refuse a static affine scene whose samples leave a near-zero-energy mode; warn for the others."""
+def _judge_soft_modes(scene, samples, softest: float, *, strict: bool = False) -> None:
+    """Refuse a static affine scene (any scene with ``strict``) whose samples leave a near-zero-energy mode; warn
+    for the others."""
     import warnings
 
     from .modes import SOFT_RATIO, SpuriousModesWarning
@@ -245,31 +299,31 @@ def _judge_soft_modes(scene, samples, softest: float) -> None:
             f"times softer than one sample per voxel would (limit {1 / SOFT_RATIO:.0f}): a spurious near-zero-energy "
             "mode")
     fix = 'raise [elasticity] samples, use fewer frames, or quadrature = "gauss-legendre"'
-    if _static_frames(scene):
-        raise InputError(f"{what}, so the static answer would be far too soft; {fix}")
+    if strict or _static_frames(scene):
+        raise SpuriousModes(f"{what}, so the static answer would be far too soft; {fix}")
     warnings.warn(f"{what}; results may be far too soft; {fix}", SpuriousModesWarning, stacklevel=3)
 
 
-def _refuse_static_mechanism(scene, model, K, samples, spurious: int) -> None:
+def _refuse_static_mechanism(scene, model, K, samples, spurious: int, *, strict: bool = False) -> None:
     """InputError when the samples leave zero-energy modes among the frames a static scene does not hold.
 
     The free body's spurious modes (:func:`voxflex.deform.models.frames.modes.check_modes`) are harmless where they
     only move held frames; with any left among the free ones, static equilibrium is not unique and
     Newton cannot converge (it did not, after minutes of cut load steps).  Only static affine scenes
     without obstacles or cables are judged here (those layers may hold such modes; dynamics has mass).
-    ``K``: the free body's stiffness (:func:`_unit_stiffness`).
+    ``K``: the free body's stiffness (:func:`_unit_stiffness`).  ``strict``: judge any scene so.
     """
-    if not _static_frames(scene):
+    if not (strict or _static_frames(scene)):
         return
     zero = _free_zero_modes(scene, model, K)
     if zero:
-        raise InputError(
+        raise SpuriousModes(
             f"the {len(samples.volume)} {samples.kind} samples leave {zero} zero-energy mode(s) among the frames "
             f"the scene does not hold ({spurious} in the free body), so static equilibrium is not unique; raise "
             '[elasticity] samples, use fewer frames, or quadrature = "gauss-legendre"')
 
 
-def _check_gauss_modes(scene, model, known=None) -> int:
+def _check_gauss_modes(scene, model, known=None, *, strict: bool = False) -> int:
     """Refuse (static affine scenes) or warn about zero-energy modes that 2x2x2 Gauss points leave; returns the
     free body's zero-energy count (kept in the cache entry: ``known``, six or fewer, is not judged again).
 
@@ -292,8 +346,8 @@ def _check_gauss_modes(scene, model, known=None) -> int:
     what = (f"2x2x2 Gauss points per voxel leave {zero - 6} zero-energy mode(s) of the {model.n_nodes} frames "
             f"(frames nearly as dense as the voxels move a voxel by a field the points under-integrate)")
     fix = "use fewer frames ([nodes] count) or a finer image"
-    if _static_frames(scene) and _free_zero_modes(scene, model, K):
-        raise InputError(f"{what}, so static equilibrium is not unique; {fix}")
+    if (strict or _static_frames(scene)) and _free_zero_modes(scene, model, K):
+        raise SpuriousModes(f"{what}, so static equilibrium is not unique; {fix}")
     warnings.warn(f"{what}; results may move along them; {fix}", SpuriousModesWarning, stacklevel=3)
     return int(zero)
 
