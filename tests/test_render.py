@@ -177,14 +177,14 @@ def _plot_area(image: np.ndarray, layout) -> np.ndarray:
 
 
 def _layout_for(result, size):
-    from voxflex import rendering
+    from voxflex import _render_annotations, _render_style, rendering
 
-    style = rendering._style(result, window_size=size, title=None, cmap="viridis", view="iso", azimuth=None,
-                             elevation=None, up="z", color="displacement", show_rest=True, axes=True,
-                             gravity=True, frames=True)
+    style = _render_style._style(result, window_size=size, title=None, cmap="viridis", view="iso", azimuth=None,
+                                 elevation=None, up="z", color="displacement", show_rest=True, axes=True,
+                                 gravity=True, frames=True)
     values, _, title = rendering._colour_values(result, "displacement")
-    return rendering._Layout.make(style, result, (0.0, float(values.max())), title, rendering._gravity(result)
-                                  is not None)
+    return _render_annotations._Layout.make(style, result, (0.0, float(values.max())), title,
+                                            rendering._gravity(result) is not None)
 
 
 @pytest.mark.parametrize("size", [(800, 450), (320, 200), (400, 800), (1600, 900)])

@@ -94,7 +94,7 @@ def test_a_failed_run_is_titled_with_its_failure(result_file):
     """The title band of a picture of an incomplete result names the failure (it said 'step 1/1')."""
     import dataclasses
 
-    from voxflex import rendering
+    from voxflex import _render_annotations, _render_style
 
     r = vf.Result.load(result_file)
     failed = dataclasses.replace(r, complete=False, error="static step 2/5: Newton did not converge")
@@ -104,10 +104,10 @@ def test_a_failed_run_is_titled_with_its_failure(result_file):
         def text(self, xy, text, **kw):
             texts.append(text)
 
-    layout = rendering._Layout((800, 450), 12, 40, 700, 100, None, "", None, None)
-    style = rendering._style(failed, window_size=(800, 450), title=None, cmap="viridis", view="iso", azimuth=None,
-                             elevation=None, up="z", color="displacement", show_rest=True, axes=True, gravity=True,
-                             frames=True)
+    layout = _render_annotations._Layout((800, 450), 12, 40, 700, 100, None, "", None, None)
+    style = _render_style._style(failed, window_size=(800, 450), title=None, cmap="viridis", view="iso",
+                                 azimuth=None, elevation=None, up="z", color="displacement", show_rest=True, axes=True,
+                                 gravity=True, frames=True)
     layout._title(_Draw(), style, failed, 1)
     assert any("FAILED after step 1" in t for t in texts), texts
     texts.clear()
