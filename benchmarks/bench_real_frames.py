@@ -94,7 +94,8 @@ import numpy as np
 import voxflex as vf
 from voxflex.build import build_image
 from voxflex.scene import NodesSpec, Scene
-from voxflex.sweep import _image_at_level, _pinned, _surface_error
+from voxflex.sweep import _image_at_level, _surface_error
+from voxflex.sweep_runs import _pinned
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 MESHES = os.path.join(ROOT, "..", "shared", "meshes")
