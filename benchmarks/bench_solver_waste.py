@@ -14,7 +14,7 @@ multiplies the saving by how often a solve does it:
 * ``H.diagonal()`` on every Hessian (now once per step);
 * ``np.setdiff1d`` of the fixed DOFs on every Jacobi-CG solve (now once per solve);
 * implicit Euler ``H + M / h^2`` (scipy's sparse sum, a new pattern per
-  iteration) against :class:`voxflex.deform.solve.newton._PatternAdd`.
+  iteration) against :class:`voxflex.deform.solve.potential._PatternAdd`.
 
     python benchmarks/bench_solver_waste.py [--repeat 5]
 
@@ -82,7 +82,7 @@ def main():
     import scipy.sparse as sp
 
     from voxflex.deform.materials.constitutive import material
-    from voxflex.deform.solve.newton import _PatternAdd
+    from voxflex.deform.solve.potential import _PatternAdd
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)

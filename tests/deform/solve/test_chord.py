@@ -1,4 +1,4 @@
-"""Chord steps of Newton with dense tangents (``newton.CHORD_RATE``, ``newton._Chord``).
+"""Chord steps of Newton with dense tangents (``chord.CHORD_RATE``, ``chord._Chord``).
 
 A frame model's Hessian costs far more than its gradient (its pair blocks: 432 P^2 flops per sample), so a
 load or time step solves with an earlier iteration's factorised Hessian while that contracts the residual
@@ -13,11 +13,12 @@ import numpy as np
 from robust import beam
 
 import voxflex as vf
-from voxflex.deform.solve import newton, stepping
+from voxflex.deform.solve import chord as _chord
+from voxflex.deform.solve import stepping
 from voxflex.scene import Scene
 
 
-class _NoChord(newton._Chord):
+class _NoChord(_chord._Chord):
     def ready(self, n):
         return False
 
@@ -71,7 +72,7 @@ def test_chord_steps_give_full_newtons_static_answer_with_fewer_hessians(monkeyp
 
 def test_an_indefinite_tangent_is_never_kept():
     """cho_factor refuses it: no chord steps with it (Newton's own remedies handle the iterate)."""
-    c = newton._Chord()
+    c = _chord._Chord()
     c.store(np.diag([1.0, -1.0]), np.ones(2))
     assert not c.ready(2)
     c.store(np.diag([2.0, 4.0]), np.ones(2))
@@ -87,7 +88,7 @@ def test_the_secants_correct_the_kept_factor():
     B = rng.normal(size=(n, n))
     H0 = B @ B.T + n * np.eye(n)  # the kept (old) tangent
     Ht = H0 + np.diag(np.linspace(0.0, 5.0, n))  # the true tangent has moved on
-    c = newton._Chord()
+    c = _chord._Chord()
     c.store(H0, np.ones(n))
     for _ in range(3):
         s = rng.normal(size=n)
@@ -99,7 +100,7 @@ def test_the_secants_correct_the_kept_factor():
     kept = list(c.pairs)
     assert not c.secant(np.ones(n), -np.ones(n))  # y . s < 0: negative curvature, nothing kept
     assert c.pairs == kept
-    assert len(c.pairs) <= newton.CHORD_MEMORY
+    assert len(c.pairs) <= _chord.CHORD_MEMORY
     c.store(H0, np.ones(n))  # a fresh tangent forgets the secants
     assert c.pairs == []
 
@@ -140,9 +141,9 @@ def test_a_factor_serving_many_solves_becomes_its_inverse(monkeypatch):
     n = 40
     B = rng.standard_normal((n, n))
     H = B @ B.T + n * np.eye(n)
-    chord = newton._Chord()
+    chord = _chord._Chord()
     chord.store(H, np.diag(H))
-    rhs = [rng.standard_normal(n) for _ in range(2 * newton.CHORD_INVERSE_AFTER)]
+    rhs = [rng.standard_normal(n) for _ in range(2 * _chord.CHORD_INVERSE_AFTER)]
     inverses = set()
     for k, b in enumerate(rhs):
         if k == 3:
@@ -150,13 +151,13 @@ def test_a_factor_serving_many_solves_becomes_its_inverse(monkeypatch):
             assert chord.secant(s, H @ s)  # an exact secant pair: the L-BFGS correction leaves H's solve alone
         z = chord.solve(b)
         assert np.linalg.norm(z - np.linalg.solve(H, b)) <= 1e-12 * np.linalg.norm(z)
-        assert (chord.inverse is not None) == (k + 1 >= newton.CHORD_INVERSE_AFTER)
+        assert (chord.inverse is not None) == (k + 1 >= _chord.CHORD_INVERSE_AFTER)
         if chord.inverse is not None:
             inverses.add(id(chord.inverse))
     assert len(inverses) == 1
     chord.store(H, np.diag(H))  # a fresh factor forgets the inverse
     assert chord.inverse is None and chord.uses == 0
-    monkeypatch.setattr(newton, "CHORD_INVERSE_MAX", n - 1)
+    monkeypatch.setattr(_chord, "CHORD_INVERSE_MAX", n - 1)
     for b in rhs:
         z = chord.solve(b)
     assert chord.inverse is None and np.linalg.norm(z - np.linalg.solve(H, b)) <= 1e-12 * np.linalg.norm(z)

@@ -10,6 +10,7 @@ import scipy.sparse as sp
 from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve import newton as _solvers
+from voxflex.deform.solve import potential as _potential
 from voxflex.deform.solve.boundary import FixedRegion
 from voxflex.deform.solve.options import SolverOptions
 from voxflex.deform.solve.stepping import solve
@@ -73,7 +74,7 @@ def test_pattern_add_equals_scipy_sum_dense_and_outside_pattern():
     rng = np.random.default_rng(3)
     A = sp.random(40, 40, density=0.2, random_state=4, format="csr") + sp.identity(40, format="csr")
     A.sum_duplicates()
-    add = _solvers._PatternAdd()
+    add = _potential._PatternAdd()
     S = sp.diags(rng.random(40)).tocsr()  # inside A's pattern (the diagonal)
     for _ in range(2):  # the second call reuses the positions
         A2 = sp.csr_matrix((rng.random(A.nnz), A.indices, A.indptr), shape=A.shape)
@@ -86,7 +87,7 @@ def test_pattern_add_equals_scipy_sum_dense_and_outside_pattern():
     # an S with an entry outside the pattern falls back to scipy's sum (exact)
     out = sp.csr_matrix(([1.0], ([0], [39])), shape=(40, 40))
     if A2[0, 39] == 0:
-        assert _solvers._positions_in(A2, out) is None
+        assert _potential._positions_in(A2, out) is None
     np.testing.assert_array_equal(add(A2, out).toarray(), (A2 + out).toarray())
     # dense Hessians (frame models) get S's dense form
     D = rng.random((40, 40))
@@ -120,13 +121,13 @@ def test_implicit_euler_damped_step_equals_its_linear_system():
 def test_skipped_hessians_leave_the_iterates_unchanged(monkeypatch):
     mat = material("neo-hookean", young=1e3, poisson=0.3)
     probs = []
-    init = _solvers._Problem.__init__
+    init = _potential._Problem.__init__
 
     def record(self, *args, **kw):
         init(self, *args, **kw)
         probs.append(self)
 
-    monkeypatch.setattr(_solvers._Problem, "__init__", record)
+    monkeypatch.setattr(_potential._Problem, "__init__", record)
 
     def run():
         probs.clear()

@@ -56,9 +56,11 @@ from .boundary import (
     load_vector,
     prescribed_positions,
 )
+from .chord import _Chord
 from .linear import DIRECT_FALLBACK_MAX
-from .newton import _Chord, _FreeBlock, _grid_of, _newton, _PatternAdd, _Problem
+from .newton import _FreeBlock, _grid_of, _newton
 from .options import SolverOptions, StepRecord
+from .potential import _PatternAdd, _Problem
 from .supports import FreeMotionWarning, check_supports, free_rigid_motions
 
 __all__ = ["solve"]
