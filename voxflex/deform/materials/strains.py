@@ -4,7 +4,8 @@ The simulator chains ``nodes --J--> F --J--> strain --> energy``.  Every measure
 here is a :class:`Strain` with ``apply`` (E), ``jacobian`` (dE/dF) and
 ``geometric`` (the second-derivative term ``sum_k s_k d2E_k/dF dF`` of the
 stiffness), all batched over n samples and computed by compiled kernels
-(:mod:`voxflex.deform.materials._strain_kernels`, each with a numpy twin).
+(:mod:`voxflex.deform.materials._strain_kernels`, each with a numpy twin in
+:mod:`voxflex.deform.materials._strain_twins`).
 
 Conventions
 -----------
@@ -81,6 +82,7 @@ import numpy as np
 from voxflex.errors import InputError, check_choice
 
 from . import _strain_kernels as _k
+from . import _strain_twins as _t
 
 __all__ = [
     "Strain",
@@ -107,10 +109,10 @@ CHUNKS = 16
 """Chunks of a large batch at most."""
 
 _KERNELS = {
-    "tensor": (_k._tensor_kernel, _k.np_tensor),
-    "corot": (_k._corot_kernel, _k.np_corot),
-    "invariant": (_k._invariant_kernel, _k.np_invariant),
-    "stretch": (_k._stretch_kernel, _k.np_stretch),
+    "tensor": (_k._tensor_kernel, _t.np_tensor),
+    "corot": (_k._corot_kernel, _t.np_corot),
+    "invariant": (_k._invariant_kernel, _t.np_invariant),
+    "stretch": (_k._stretch_kernel, _t.np_stretch),
 }
 
 
@@ -263,7 +265,7 @@ class Strain:
         s2 = None if s is None else np.asarray(s, dtype=np.float64).reshape(F.shape[0], self.size)
         if self.family == "stretch":
             K = self._check_law_tangent(law_tangent if s is not None else None, F.shape[0], single)
-            E, J, G = _k.np_stretch(F, s2, self.switch, K if K.shape[0] else None)
+            E, J, G = _t.np_stretch(F, s2, self.switch, K if K.shape[0] else None)
         else:
             E, J, G = _KERNELS[self.family][1](F, s2, int(self.switch))
         if single:
