@@ -11,7 +11,9 @@ from voxflex.deform.materials.constitutive import material
 from voxflex.deform.models.voxel.elements import ElementMatrices
 from voxflex.deform.models.voxel.model import VoxelModel
 from voxflex.deform.solve.linear import solve_linear
+from voxflex.deform.solve.multigrid import coarse as mg_coarse
 from voxflex.deform.solve.multigrid import hierarchy as mg
+from voxflex.deform.solve.multigrid import prolongation as mg_levels
 from voxflex.errors import InputError
 from voxflex.image.grid import TrilinearGrid
 from voxflex.image.label_image import LabelImage
@@ -41,16 +43,16 @@ def _odd_shape():
 
 def test_coarsened_mask_keeps_thin_parts_and_matches_the_prolongation():
     m = _odd_shape()
-    c = mg.coarsen_mask(m)
+    c = mg_levels.coarsen_mask(m)
     assert c.shape == (5, 4, 3)
     # brute force: a coarse voxel is material iff one of its fine voxels is
     for I in np.ndindex(c.shape):
         block = m[2 * I[0]:2 * I[0] + 2, 2 * I[1]:2 * I[1] + 2, 2 * I[2]:2 * I[2] + 2]
         assert c[I] == block.any()
     # a one-voxel plate keeps its thin axis (factor 1 there)
-    assert mg.coarsen_mask(np.ones((6, 5, 1), dtype=bool)).shape == (3, 3, 1)
+    assert mg_levels.coarsen_mask(np.ones((6, 5, 1), dtype=bool)).shape == (3, 3, 1)
     grid = TrilinearGrid.from_image(LabelImage(m.astype(np.uint8)))
-    P, cijk, cnodes, cshape = mg.node_prolongation(grid.element_ijk, grid.element_nodes, grid.n_nodes, grid.shape)
+    P, cijk, cnodes, cshape = mg_levels.node_prolongation(grid.element_ijk, grid.element_nodes, grid.n_nodes, grid.shape)
     coarse = TrilinearGrid.from_image(LabelImage(c.astype(np.uint8)))
     # the same coarse grid as TrilinearGrid builds from the coarsened mask (independent numbering code)
     assert cshape == c.shape and np.array_equal(cijk, coarse.element_ijk)
@@ -77,8 +79,8 @@ def test_prolongation_reproduces_affine_fields_exactly(shape):
     # node positions of every level in fine-voxel units: a level-l voxel spans 2^l fine voxels (1 on thin axes)
     scale, mask, fine, free_f = np.ones(3), m, grid, h.free
     for lvl, P in enumerate(h.prolongations):
-        f = np.array(mg._factors(mask.shape))
-        coarse_mask = mg.coarsen_mask(mask)
+        f = np.array(mg_levels._factors(mask.shape))
+        coarse_mask = mg_levels.coarsen_mask(mask)
         coarse = TrilinearGrid.from_image(LabelImage(coarse_mask.astype(np.uint8)))
         uf = ((fine.node_ijk * scale * grid.spacing) @ Aff.T + t).ravel()
         uc = ((coarse.node_ijk * scale * f * grid.spacing) @ Aff.T + t).ravel()
@@ -93,13 +95,13 @@ def test_galerkin_operators_symmetric_positive_definite(monkeypatch):
     h = mg.hierarchy(model.grid, free, max_coarse=40)
     mats = h.galerkin(A)
     # the row-blocked product of large levels equals the one-shot product (to summation round-off)
-    monkeypatch.setattr(mg, "GALERKIN_CHUNK", 100)
+    monkeypatch.setattr(mg_coarse, "GALERKIN_CHUNK", 100)
     blocked = h.galerkin(A)
     for M, B in zip(mats, blocked):
         assert abs(M - B).max() <= 1e-14 * abs(M).max()
     # its row blocks, cut from A's arrays, are scipy's row slices exactly
     for r0, r1 in ((0, 100), (100, 200), (len(free) - 7, len(free))):
-        blk, ref = mg._row_block(A, r0, r1), A[r0:r1]
+        blk, ref = mg_coarse._row_block(A, r0, r1), A[r0:r1]
         assert blk.shape == ref.shape and np.array_equal(blk.indptr, ref.indptr)
         assert np.array_equal(blk.indices, ref.indices) and np.array_equal(blk.data, ref.data)
     assert [M.shape[0] for M in mats] == h.sizes and len(mats) >= 3
@@ -262,7 +264,7 @@ def test_coarse_solver_is_exact_and_survives_a_singular_level():
     lap = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1], format="csr")
     A = lap + 0.01 * sp.identity(n, format="csr")
     b = np.random.default_rng(0).standard_normal(n)
-    coarse = mg._CoarseSolver(A)
+    coarse = mg_coarse._CoarseSolver(A)
     assert coarse.lu is not None
     ref = np.linalg.solve(A.toarray(), b)
     assert np.linalg.norm(coarse(A, b) - ref) <= 1e-10 * np.linalg.norm(ref)
@@ -274,7 +276,7 @@ def test_coarse_solver_is_exact_and_survives_a_singular_level():
     # with a pivot at round-off, which the solver must not trust)
     d = sp.diags(np.linspace(1.0, 3.0, n) * (1 + 1e-3 * np.sin(np.arange(n))))
     for M in (free_lap, (d @ free_lap @ d).tocsr()):
-        coarse = mg._CoarseSolver(M)
+        coarse = mg_coarse._CoarseSolver(M)
         assert coarse.lu is None and coarse.pinv is not None
         r = d @ rhs if M is not free_lap else rhs
         r = r - (np.ones(n) / d.diagonal()) * (np.ones(n) / d.diagonal() @ r) / np.sum(1 / d.diagonal() ** 2) \
@@ -345,7 +347,7 @@ def test_first_level_from_element_matrices_equals_the_galerkin_product():
         A = model.constant_stiffness_block(free)
         h = mg.hierarchy(model.grid, free, max_coarse=40)
         elements = model.stiffness_elements()
-        ref = mg._galerkin_impl(A, h.prolongations[0], h.restrictions[0])
+        ref = mg_coarse._galerkin_impl(A, h.prolongations[0], h.restrictions[0])
         C = h.first_level(elements)
         assert C.shape == ref.shape and np.abs((C - ref).toarray()).max() <= 1e-14 * np.abs(ref.data).max()
         b = np.random.default_rng(0).standard_normal(len(free))

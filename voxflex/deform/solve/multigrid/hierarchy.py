@@ -58,9 +58,15 @@ and backward after the coarse correction,
 pointwise: component subsets of fixed DOFs break 3x3 nodal blocks, and pyamg's
 3x3 block Gauss-Seidel took 4-7x longer for the same iteration count) and the
 coarse solve are pyamg's :class:`pyamg.multilevel.MultilevelSolver`; the
-coarsest system is factorised once per matrix by sparse LU (:class:`_CoarseSolver`),
+coarsest system is factorised once per matrix by sparse LU
+(:class:`~voxflex.deform.solve.multigrid.coarse._CoarseSolver`),
 and the whole solve runs with BLAS pinned to one thread (threaded OpenBLAS
 stalls on small dense work on a busy machine).
+
+The coarsening and the prolongations between levels are in
+:mod:`voxflex.deform.solve.multigrid.prolongation`, the Galerkin products and the
+coarsest solve in :mod:`voxflex.deform.solve.multigrid.coarse`; this module stacks
+them into the hierarchy, remembers its solvers and runs the cycle.
 
 >>> import numpy as np
 >>> from voxflex.image.label_image import LabelImage
@@ -85,11 +91,17 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
 
 from ....errors import InputError, check_choice
 from ....image.grid import CORNER_OFFSETS, TrilinearGrid
+from .coarse import _CoarseSolver, _galerkin_impl
+from .prolongation import (
+    _child_transfers,
+    _factors,
+    dof_prolongation,
+    node_prolongation,
+)
 from .stencil import (
     VoxelStencil,
     _coupled_offsets,
@@ -134,128 +146,6 @@ STALE_GROWTH = 1.5
 
 
 _CACHE_SIZE = 4
-
-
-# -- one level of the voxel hierarchy -----------------------------------------
-def coarsen_mask(mask) -> np.ndarray:
-    """Occupancy (cx, cy, cz) of the 2x-coarsened grid: a coarse voxel is material if any fine one is.
-
-    Axes of length 1 are kept (factor 1); odd lengths round up.
-
-    Parameters
-    ----------
-    mask : (nx, ny, nz) bool
-
-    Returns
-    -------
-    (ceil(nx / fx), ceil(ny / fy), ceil(nz / fz)) bool, with f = 2 on axes longer than 1, else 1.
-    """
-    mask = np.asarray(mask, dtype=bool)
-    f = _factors(mask.shape)
-    cshape = tuple(-(-n // fa) for n, fa in zip(mask.shape, f))
-    padded = np.zeros(tuple(c * fa for c, fa in zip(cshape, f)), dtype=bool)
-    padded[: mask.shape[0], : mask.shape[1], : mask.shape[2]] = mask
-    return padded.reshape(cshape[0], f[0], cshape[1], f[1], cshape[2], f[2]).any(axis=(1, 3, 5))
-
-
-def _factors(shape):
-    return tuple(2 if n > 1 else 1 for n in shape)
-
-
-def _nodes(element_ijk, shape):
-    """Sorted corner keys (n,) and element nodes (m, 8) of occupied voxels (as TrilinearGrid numbers them)."""
-    ny, nz = shape[1], shape[2]
-    corners = element_ijk[:, None, :] + CORNER_OFFSETS[None, :, :]
-    keys = (corners[..., 0] * (ny + 1) + corners[..., 1]) * (nz + 1) + corners[..., 2]
-    node_key = np.unique(keys)
-    return node_key, np.searchsorted(node_key, keys).astype(np.int64)
-
-
-def node_prolongation(element_ijk, element_nodes, n_nodes, shape):
-    """Trilinear prolongation from the coarsened grid to the nodes of a voxel grid.
-
-    Parameters
-    ----------
-    element_ijk : (m, 3) int
-        Occupied fine voxels.
-    element_nodes : (m, 8) int
-        Their nodes (corner order of :data:`~voxflex.image.grid.CORNER_OFFSETS`).
-    n_nodes : int
-        Number of fine nodes.
-    shape : (3,) int
-        Fine image shape.
-
-    Returns
-    -------
-    P : (n_nodes, n_coarse) CSR float, rows sum to 1
-    coarse_ijk : (mc, 3) int64, occupied coarse voxels (C order)
-    coarse_nodes : (mc, 8) int64, their nodes
-    coarse_shape : (3,) tuple
-    """
-    f = np.array(_factors(shape))
-    coarse_shape = tuple(int(-(-n // fa)) for n, fa in zip(shape, f))
-    cvox = element_ijk // f
-    ckey = np.unique((cvox[:, 0] * coarse_shape[1] + cvox[:, 1]) * coarse_shape[2] + cvox[:, 2])
-    coarse_ijk = np.stack([ckey // (coarse_shape[1] * coarse_shape[2]), (ckey // coarse_shape[2]) % coarse_shape[1],
-                           ckey % coarse_shape[2]], axis=1).astype(np.int64)
-    coarse_key, coarse_nodes = _nodes(coarse_ijk, coarse_shape)
-    # one occupied fine voxel per fine node (any will do: interpolation is continuous across coarse faces)
-    owner = np.empty(n_nodes, dtype=np.int64)
-    corner = np.empty(n_nodes, dtype=np.int64)
-    m = len(element_ijk)
-    owner[element_nodes.ravel()] = np.repeat(np.arange(m), 8)
-    corner[element_nodes.ravel()] = np.tile(np.arange(8), m)
-    fine_corner = element_ijk[owner] + CORNER_OFFSETS[corner]  # (n, 3) fine corner index
-    base = element_ijk[owner] // f  # (n, 3) coarse voxel holding the node (occupied)
-    xi = fine_corner / f - base  # (n, 3) in [0, 1]
-    # weight of coarse corner d: the product over the axes of xi (d = 1) or 1 - xi (d = 0)
-    lo, hi = 1.0 - xi, xi
-    w = np.empty((n_nodes, 8))
-    for k, (dx, dy, dz) in enumerate(CORNER_OFFSETS):
-        w[:, k] = (hi if dx else lo)[:, 0] * (hi if dy else lo)[:, 1] * (hi if dz else lo)[:, 2]
-    # coarse corner node ids through a dense table of the coarse corner grid (keys of base + d)
-    stride = np.array([(coarse_shape[1] + 1) * (coarse_shape[2] + 1), coarse_shape[2] + 1, 1])
-    table = np.full(int(np.prod(np.array(coarse_shape) + 1)), -1, dtype=np.int64)
-    table[coarse_key] = np.arange(len(coarse_key))
-    cols = table[(base @ stride)[:, None] + CORNER_OFFSETS @ stride]  # (n, 8), increasing along each row
-    keep = w > 0
-    # rows in order, their columns increasing (corner keys grow with d in this order): CSR directly
-    indptr = np.zeros(n_nodes + 1, dtype=np.int64)
-    np.cumsum(keep.sum(axis=1), out=indptr[1:])
-    P = sp.csr_matrix((w[keep], cols[keep], indptr), shape=(n_nodes, len(coarse_key)))
-    return P, coarse_ijk, coarse_nodes, coarse_shape
-
-
-def dof_prolongation(P_nodes, free, n_coarse_nodes):
-    """``P_nodes`` (n, nc) acting on each of 3 components, restricted to free DOFs.
-
-    Parameters
-    ----------
-    P_nodes : (n, nc) sparse
-    free : (F,) int, sorted free DOFs of the fine level (``3 * node + component``)
-    n_coarse_nodes : int
-
-    Returns
-    -------
-    P : (F, Fc) CSR, the rows at ``free``, the empty columns dropped
-    coarse_free : (Fc,) int, the coarse DOFs kept (sorted)
-    """
-    Pn = sp.csr_matrix(P_nodes)
-    node = free // 3
-    comp = free % 3
-    starts = Pn.indptr[node]
-    counts = Pn.indptr[node + 1] - starts
-    idx = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts) + np.arange(counts.sum())
-    cols = 3 * Pn.indices[idx] + np.repeat(comp, counts)
-    vals = Pn.data[idx]
-    used = np.zeros(3 * n_coarse_nodes, dtype=bool)
-    used[cols] = True
-    coarse_free = np.flatnonzero(used)
-    place = np.cumsum(used) - 1  # column of a kept coarse DOF (monotone: each row stays sorted)
-    indptr = np.zeros(len(free) + 1, dtype=np.int64)
-    np.cumsum(counts, out=indptr[1:])
-    P = sp.csr_matrix((vals, place[cols], indptr), shape=(len(free), len(coarse_free)))
-    return P, coarse_free
 
 
 # -- the hierarchy -------------------------------------------------------------
@@ -601,20 +491,6 @@ class VoxelHierarchy:
             self._last[1].levels[0].A = None
 
 
-def _child_transfers(f):
-    """(8, 24, 24): the trilinear prolongation ``T_c`` from a coarse voxel's 24 DOFs to those of its child
-    at position ``c = (4 i + 2 j + k)`` (``(i, j, k) < f``; positions beyond f are unused)."""
-    T = np.zeros((8, 24, 24))
-    for c in range(8):
-        p = np.array([(c >> 2) & 1, (c >> 1) & 1, c & 1])
-        if np.any(p >= f):
-            continue
-        xi = (p[None, :] + CORNER_OFFSETS) / f  # (8 fine corners, 3) in the coarse voxel
-        w = np.prod(np.where(CORNER_OFFSETS[None, :, :] > 0, xi[:, None, :], 1.0 - xi[:, None, :]), axis=2)
-        T[c] = np.kron(w, np.eye(3))
-    return T
-
-
 def _matrix_free(A) -> bool:
     """Whether A is a matrix-free block (:class:`~voxflex.deform.models.voxel.elements.FreeStiffness`)."""
     from ...models.voxel.elements import FreeStiffness
@@ -669,87 +545,6 @@ def _operator_key(A):
 
     units = zlib.crc32(np.ascontiguousarray(e.units, dtype=np.float64))
     return ("matrix-free",) + tuple(A.shape), (units, sample(e.kind), sample(e.scale))
-
-
-GALERKIN_CHUNK = 1 << 16
-"""Rows of A per block of the Galerkin product: ``A @ P`` has ~2x the entries of A, so the fine
-level's product is done by row blocks (scratch ~2 % of A at 6 million DOF instead of 1.5 A)."""
-
-
-def _row_block(A, r0, r1):
-    """Rows [r0, r1) of the CSR matrix A, from slices of its arrays (scipy keeps copies of such small
-    views: a memcpy), not by scipy's row slicing (``get_csr_submatrix``: 2.6 s of the voxel bunny's 11
-    Galerkin products; a first-level product on 287k unknowns 0.54 -> 0.44 s, the same bits)."""
-    a, b = int(A.indptr[r0]), int(A.indptr[r1])
-    return sp.csr_matrix((A.data[a:b], A.indices[a:b], A.indptr[r0:r1 + 1] - a), shape=(r1 - r0, A.shape[1]),
-                         copy=False)
-
-
-def _galerkin_impl(A, P, R):
-    """``P^T A P`` (CSR), by row blocks of A when A is large.
-
-    The block products are summed pairwise (a binary-counter merge), so the
-    work is O(nnz log blocks) instead of one running sum that touches the
-    whole coarse matrix per block (O(nnz blocks): ~100 blocks at 6 million DOF).
-    The row blocks of A are cut from its arrays directly (:func:`_row_block`).
-    """
-    n = A.shape[0]
-    if n <= GALERKIN_CHUNK:
-        return sp.csr_matrix(R @ (A @ P))
-    A = sp.csr_matrix(A)
-    stack = []  # (blocks summed, partial sum); sizes strictly decrease down the stack
-    for s in range(0, n, GALERKIN_CHUNK):
-        e = min(n, s + GALERKIN_CHUNK)
-        part, count = sp.csr_matrix(P[s:e].T @ (_row_block(A, s, e) @ P)), 1
-        while stack and stack[-1][0] == count:
-            count += stack[-1][0]
-            part = stack.pop()[1] + part
-        stack.append((count, part))
-    out = stack.pop()[1]
-    while stack:
-        out = stack.pop()[1] + out
-    return sp.csr_matrix(out)
-
-
-class _CoarseSolver:
-    """Sparse LU of the coarsest matrix (SuperLU, minimum-degree ordering), factorised at once.
-
-    A Newton run factors the coarsest level whenever it rebuilds its coarse
-    levels (at least every :data:`MAX_STALE_SOLVES` + 1 iterations; every
-    iteration before the stale reuse): on the neo-Hooke beam
-    32x8x8 (7776 unknowns, coarsest level 1275 DOFs) a dense Cholesky took 25
-    ms of each iteration, a quarter of it; the sparse LU of the same matrix
-    11 ms (the 31-iteration run: 4.1 against 2.8 CPU s in one process), and
-    the 243-DOF level that :data:`MAX_COARSE_CUBIC` now gives that beam 1 ms.
-    Falls back to a pseudo-inverse when the coarse matrix is singular
-    (a coarse space that is not full rank on a few voxels).  With ``single``
-    (a single-precision cycle) the factorisation stays in double precision;
-    the right-hand side and the answer are cast.
-    """
-
-    def __init__(self, Ac, single: bool = False):
-        import scipy.sparse.linalg as spla
-
-        self.single = single
-
-        Ac = sp.csc_matrix(0.5 * (Ac + Ac.T))
-        self.lu = self.pinv = None
-        try:
-            lu = spla.splu(Ac, permc_spec="MMD_AT_PLUS_A")
-            pivots = np.abs(lu.U.diagonal())
-            # a pivot at round-off of the largest: singular in exact arithmetic (LU does not fail there)
-            if pivots.min() > 1e-12 * pivots.max():
-                self.lu = lu
-        except RuntimeError:  # SuperLU: "Factor is exactly singular"
-            pass
-        if self.lu is None:
-            self.pinv = sla.pinvh(Ac.toarray())
-
-    def __call__(self, A, b):
-        if self.single:
-            b = b.astype(np.float64)
-        x = self.lu.solve(b) if self.lu is not None else self.pinv @ b
-        return x.astype(np.float32) if self.single else x
 
 
 def hierarchy(grid, free=None, *, max_coarse: int = MAX_COARSE, max_coarse_cubic: int = MAX_COARSE_CUBIC,
