@@ -52,12 +52,13 @@ def _beam(nx, mat):
 
 def _counted_solve(model_factory, predict):
     """The static neo-Hooke solve: records, Hessians built, solves, misses, evaluations, energy-only ones."""
+    from voxflex.deform.solve import newton
     from voxflex.deform.solve import stepping as solvers
     from voxflex.deform.solve.boundary import FixedRegion
 
     probs = []
     init = solvers._Problem.__init__
-    pred = solvers._predict_converged
+    pred = newton._predict_converged  # read by Newton's loop, where it lives
 
     def record(self, *a, **k):
         init(self, *a, **k)
@@ -65,14 +66,14 @@ def _counted_solve(model_factory, predict):
 
     solvers._Problem.__init__ = record
     if not predict:
-        solvers._predict_converged = lambda *a: False
+        newton._predict_converged = lambda *a: False
     try:
         model = model_factory()
         rec = solvers.solve(model, fixed=[FixedRegion([-1, -1, -1], [1e-9, 2, 2])], gravity=[0, 0, -9.81],
                             densities={1: 1.0}, options=solvers.SolverOptions(steps=5, linear_solver="direct"))
     finally:
         solvers._Problem.__init__ = init
-        solvers._predict_converged = pred
+        newton._predict_converged = pred
     return (rec, sum(p.hessians for p in probs), sum(p.solves for p in probs),
             sum(p.hessian_misses for p in probs), sum(p.evaluations for p in probs),
             sum(p.energy_only for p in probs))

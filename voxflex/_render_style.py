@@ -65,7 +65,7 @@ def camera_axes(view: str = "iso", *, azimuth=None, elevation=None, up: str = "z
     Examples
     --------
     >>> t, r, u = camera_axes("front")
-    >>> t.round(12).tolist(), r.tolist(), u.round(12).tolist()
+    >>> (t.round(12) + 0.0).tolist(), r.tolist(), (u.round(12) + 0.0).tolist()  # + 0.0: no -0.0
     ([0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0])
     """
     cam = _camera(view, azimuth, elevation, up)
