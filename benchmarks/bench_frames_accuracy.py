@@ -78,7 +78,7 @@ def cantilever(counts):
     print("| frames | samples | u_z (m) | error | Newton it. | s / iteration (one run) | precompute s (one run) | total s (one run) |")
     print("|---|---|---|---|---|---|---|---|")
     for n in counts:
-        s = replace(scene, nodes=NodesSpec(kind="affine", count=n),
+        s = replace(scene, nodes=NodesSpec(kind="affine", count=n, shape_function="natural-neighbour"),
                     elasticity=ElasticitySpec(quadrature="midpoint"))
         r, m, tp, ts = _run(s)
         u = r.probe_displacements()["tip"][2]

@@ -57,7 +57,7 @@ def frame_layout(nx, count):
     """The frame model of the cantilever scene (frames, weights, mid-point samples), built once."""
     scene = Scene(object=ObjectSpec(shape="box", size=(4.0, 1.0, 1.0), voxel_size=4.0 / nx),
                   materials=(MaterialSpec(model="hooke", young=1e4, poisson=0.3, strain="linear", density=1.0),),
-                  nodes=NodesSpec(kind="affine", count=count),
+                  nodes=NodesSpec(kind="affine", count=count, shape_function="natural-neighbour"),
                   elasticity=ElasticitySpec(strain="linear", quadrature="midpoint"),
                   fixed=(FixedSpec(min=(-1e9, -1e9, -1e9), max=(1e-6, 1e9, 1e9)),))
     return build.model(scene, cache=False)

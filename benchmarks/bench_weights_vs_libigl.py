@@ -139,7 +139,7 @@ def cantilever(n_frames, igl):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ref = vf.simulate(scene, progress=False, cache=False).probe_displacements()["tip"][0]
-        fs = replace(scene, nodes=NodesSpec(kind="affine", count=n_frames),
+        fs = replace(scene, nodes=NodesSpec(kind="affine", count=n_frames, shape_function="natural-neighbour"),
                      elasticity=ElasticitySpec(strain="linear", quadrature="gauss-legendre"))
         model = vf.model(fs, cache=False)
         u = vf.simulate(fs, model=model, progress=False, cache=False).probe_displacements()["tip"][0]

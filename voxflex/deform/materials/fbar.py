@@ -41,6 +41,23 @@ def rest_lame(material) -> tuple[float, float] | None:
     return effective_lame(A0)
 
 
+def capped_bulk(material) -> float | None:
+    """The bulk modulus of a material with ``material``'s shear modulus at rest and Poisson's ratio
+    :data:`AUTO_REDUCED_POISSON`, ``2 mu (1 + nu_c) / (3 (1 - 2 nu_c))``, where the material's own bulk modulus
+    is larger (None elsewhere, and for a material without a finite rest tangent).
+
+    The stiffness the frames give the part of the volume change their weights cannot resolve
+    (:mod:`voxflex.deform.models.frames.volumetric`): at nu = nu_c it is the material's own (the capped model is
+    then the full one, so ``volumetric = "auto"`` does not jump where it switches)."""
+    lame = rest_lame(material)
+    if lame is None:
+        return None
+    lam, mu = lame
+    nu_c = AUTO_REDUCED_POISSON
+    cap = 2.0 * mu * (1.0 + nu_c) / (3.0 * (1.0 - 2.0 * nu_c))
+    return cap if mu > 0 and lam + 2.0 * mu / 3.0 > cap else None
+
+
 def nearly_incompressible(material) -> bool:
     """Whether ``material``'s effective Poisson ratio at rest is >= :data:`AUTO_REDUCED_POISSON`.
 

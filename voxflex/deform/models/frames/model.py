@@ -38,7 +38,8 @@ Volumetric locking (``volumetric``)
 -----------------------------------
 ``volumetric="reduced"`` projects each sample's volume ratio onto the span of the
 frames' weights (F-bar, B-bar for constant-tangent materials; ``"auto"`` for the
-nearly incompressible labels of weights that are not linearly precise):
+nearly incompressible labels, with the remainder of the volume change at a capped bulk modulus where the weights
+are linearly precise and the samples are points):
 :mod:`voxflex.deform.models.frames.volumetric` says how and what it measures.
 
 The model satisfies the protocol of :mod:`voxflex.deform.models.protocol`, so the same
@@ -88,7 +89,7 @@ from ....sampling.voxel import voxel_samples
 from ...chain.mappings import DeformationGradientMapping
 from ...chain.nodes import AffineFrames
 from ...materials.constitutive import Material, project_psd
-from ...materials.fbar import VOLUMETRIC, nearly_incompressible
+from ...materials.fbar import VOLUMETRIC, capped_bulk, nearly_incompressible
 from ..protocol import OnePass
 from ..voxel.kind import HOURGLASS
 from . import _kernels as K
@@ -174,11 +175,19 @@ class FrameModel(FrameAttachments, OnePass):
             order = np.argsort(np.where(np.asarray(index) >= 0, index, np.iinfo(np.int64).max), axis=1, kind="stable")
             self._w = np.take_along_axis(np.where(np.asarray(index) >= 0, wtab, 0.0), order, axis=1)
         self.volumetric_option = volumetric
-        # auto: project for nearly incompressible labels unless the weights are linearly precise (module docstring)
+        # auto: project for nearly incompressible labels; with linearly precise weights on point samples the
+        # remainder of the volume change keeps the capped bulk modulus; with them on stabilised regions the
+        # term stays full (module docstring of .volumetric)
         precise = bool(getattr(shape_function, "linearly_precise", False))
-        self.volumetric = {int(lab): volumetric == "reduced" or (volumetric == "auto" and not precise
-                                                                and nearly_incompressible(mat))
-                           for lab, mat in self.materials.items()}
+        point = region_tables is None
+        self.volumetric_cap = {}
+        if volumetric == "auto" and precise and point:
+            for lab, mat in self.materials.items():
+                cap = capped_bulk(mat)
+                if cap is not None:
+                    self.volumetric_cap[int(lab)] = cap
+        self.volumetric = {int(lab): volumetric == "reduced" or int(lab) in self.volumetric_cap or (
+            volumetric == "auto" and not precise and nearly_incompressible(mat)) for lab, mat in self.materials.items()}
         self._fluct = None
         if self.tables is not None:
             from .stabilise import Fluctuation
@@ -635,6 +644,8 @@ class FrameModel(FrameAttachments, OnePass):
         reduced = sorted(lab for lab, red in self.volumetric.items() if red)
         vol = "full" if not reduced else ("reduced" if len(reduced) == len(self.volumetric) else
                                           "reduced for label(s) " + ", ".join(map(str, reduced)))
+        if self.volumetric_cap:  # the remainder of the volume change at the capped bulk modulus (.volumetric)
+            vol += ", remainder capped"
         out = {"node_kind": self.node_kind, "count": self.n_nodes, "dofs": 12 * self.n_nodes,
                "quadrature": self.samples.kind, "samples": self.n_samples, "volumetric": vol}
         if self.regions is not None:

@@ -19,10 +19,30 @@ energy ``sum_s v_s W(F~_s)`` has its exact gradient and Hessian (every sample
 of a label couples with the projection: rank-n products, see
 :func:`projected_pass`).  ``"auto"`` projects the labels whose
 effective Poisson ratio at rest is >= 0.4
-(:func:`~voxflex.deform.materials.fbar.nearly_incompressible`) when the weights are
-not linearly precise; linearly precise weights (reproducing kernels) keep the full
-term, because there the projection is too soft and does not converge while full
-integration barely locks.  Measured on the neo-Hooke cantilever 32x8x8 with elastons
+(:func:`~voxflex.deform.materials.fbar.nearly_incompressible`).
+
+The capped remainder (``"auto"`` with linearly precise weights on point samples: Gauss-Legendre, elastons,
+bare mid-point samples).  The projection onto a few frames' weights takes away the stiffness of every part of
+the volume change the weights cannot resolve, which with reproducing kernels made the frames 5-11 % too soft
+at 20-40 frames (numbers below); the full term keeps it at the material's bulk modulus, which locks.  Under
+"auto" such labels keep the projection and give the remainder the bulk modulus of the same shear modulus at
+nu = 0.4 (:func:`~voxflex.deform.materials.fbar.capped_bulk`, ``kc``):
+
+    E = sum_s v_s W(F~_s) + kc / 2 sum_s v_s (J_s - Jbar_s)^2
+
+with its exact gradient and Hessian (``kc (J - Jbar) c`` per sample; ``-kc (db/dq)^T M^+ (db/dq)`` through
+``b``).  Since the projection is V-orthogonal, ``|J|^2 = |Jbar|^2 + |J - Jbar|^2``: for a linear material
+at nu = 0.4 the capped model is the full one, so "auto" does not jump where it switches on, and the
+remainder vanishes for an affine motion (the patch test) and as frames are added (the weights' span grows).
+Above 0.4 the part the weights resolve keeps the material's incompressibility, the rest is held like a
+nu = 0.4 material: no locking, no softening.  Linear cantilever 32x8x8, reproducing kernels, against the voxel
+model with B-bar (``python benchmarks/bench_frames_quadrature.py --locking`` measures neo-Hooke):
+elastons at 20 / 40 / 80 frames within +0.9 / -1.0 / -0.6 % at every nu of 0.3, 0.45, 0.49, 0.499, 0.4999,
+Gauss-Legendre within +1.2 / -0.7 / +0.3 %; the full term +8.3 / +3.7 / +6.2 % stiff at 0.4999 (Gauss-Legendre),
+the bare projection 9.5 / 10.0 / 1.9 % soft.  Stabilised mid-point regions with linearly precise weights keep
+the full term under "auto" (their fluctuation has no remainder term yet).
+
+Earlier measurements (before the capped remainder): on the neo-Hooke cantilever 32x8x8 with elastons
 against the voxel model with F-bar (-0.3854 / -0.3791 / -0.3751 / -0.3740 m at
 nu = 0.3 / 0.45 / 0.49 / 0.4999): reproducing kernels, full, 20 frames -0.3862 /
 -0.3711 / -0.3633 / -0.3439, 40 frames -0.3685 (0.49) / -0.3601 (0.4999);
@@ -97,7 +117,10 @@ def volumetric_projection(model) -> list:
             lam, U = np.linalg.eigh(M)
             keep = lam > 1e-12 * max(float(lam.max(initial=0.0)), 1e-300)
             Minv = (U[:, keep] / lam[keep]) @ U[:, keep].T
-            out.append({"label": label, "ids": ids, "N": N, "NT": N.T.tocsr(), "M": 0.5 * (Minv + Minv.T),
+            cap = float(model.volumetric_cap.get(label, 0.0))
+            if cap and extra is not None:
+                raise ValueError("the capped remainder is for point samples (stabilised regions keep the full term)")
+            out.append({"label": label, "ids": ids, "N": N, "NT": N.T.tocsr(), "M": 0.5 * (Minv + Minv.T), "cap": cap,
                         "okr": okr, "indices": d[okr], "indptr": indptr, "linear": bool(
                             getattr(model.materials[label], "constant_tangent", False)), "regions": extra})
             if extra is not None:
@@ -249,6 +272,9 @@ def projected_pass(model, F, gradient, hessian, d=None):
         Jbar = N @ pi
         out = bar_scalar(model.materials[pr["label"]], Fl, Jbar, linear=linear, gradient=want, tangent=hessian)
         energy += vdot(v, out[0])
+        kc = pr["cap"]
+        if kc:  # the remainder: kc / 2 sum_s v_s (J_s - Jbar_s)^2
+            energy += 0.5 * kc * vdot(v, (Js - Jbar) ** 2)
         if R is not None:
             Op = R["Omega"] @ pi
             energy += 0.5 * R["kappa"] * vdot(pi, Op)
@@ -262,12 +288,16 @@ def projected_pass(model, F, gradient, hessian, d=None):
         if R is not None:
             gpi = gpi + R["kappa"] * Op
         yv = cho @ gpi  # dE/db
+        if kc:  # the remainder's kc / 2 (sum_s v_s J_s^2 - b^T M^+ b): dE/db = -kc pi (its direct part below)
+            yv = yv - kc * pi
         y = v * (N @ yv)  # dE/dJ_s through Jbar
         if linear:
             c = np.broadcast_to(np.eye(3), Fl.shape)
         else:
             c = np.linalg.det(Fl)[:, None, None] * np.linalg.inv(Fl).transpose(0, 2, 1)  # cofactor
         Pl = gF.reshape(-1, 3, 3) + (y / v)[:, None, None] * c
+        if kc:  # the remainder's direct dE/dJ_s = kc v_s J_s
+            Pl = Pl + (kc * Js)[:, None, None] * c
         Yl = []  # per group: y . D (Rb, 3, 3) and y . C (Rb, Pb, 4, 3)
         for g, D, cof, Fi, Fr in local:
             ya = yv[g["cols"]]
@@ -282,12 +312,14 @@ def projected_pass(model, F, gradient, hessian, d=None):
         P[ids] = Pl
         if hessian:
             Al = out[3].reshape(-1, 3, 3, 3, 3)
+            if kc:  # the remainder's direct second derivative: kc (c (x) c + J_s d2J_s), its d2J with y's below
+                Al = Al + kc * np.einsum("sij,skl->sijkl", c, c)
             if not linear:  # y d2(det F): cof derivative, d2J/dF_ij dF_kl = J (Finv_ji Finv_lk - Finv_li Finv_jk)
                 Fi_s = np.linalg.inv(Fl)
                 Jd = np.linalg.det(Fl)
                 d2 = Jd[:, None, None, None, None] * (np.einsum("sji,slk->sijkl", Fi_s, Fi_s)
                                                       - np.einsum("sli,sjk->sijkl", Fi_s, Fi_s))
-                Al = Al + (y / v)[:, None, None, None, None] * d2
+                Al = Al + ((y / v) + kc * Js)[:, None, None, None, None] * d2
                 for (g, D, cof, Fi, Fr), (Y, T) in zip(local, Yl):  # y . d2c: the third derivative of det [Y]
                     Al[g["pos"]] += (Y.reshape(-1, 9) @ _EPS2).reshape(-1, 3, 3, 3, 3) / v[g["pos"], None, None, None,
                                                                                               None]
@@ -323,6 +355,8 @@ def projected_pass(model, F, gradient, hessian, d=None):
             if R is not None:
                 ND = ND + R["kappa"] * R["Omega"]
             H += XQ + XQ.T + Q.T @ (ND @ Q)
+            if pr["cap"]:  # the remainder through b: -kc (db/dq)^T M^+ (db/dq)
+                H -= pr["cap"] * (Z.T @ Q)
             for k, (g, D, cof, Fi, Fr) in enumerate(local if d2l is not None else ()):  # y . d2c: d2 det [dF, dY]
                 T = Yl[k][1]
                 M1 = np.einsum("rpcj,rijkl,rqdl->rpicqkd", g["G"], d2l[k], T, optimize=True)
