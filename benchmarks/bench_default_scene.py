@@ -79,7 +79,7 @@ def main():
     if not args.quick:
         rows.append(("40 frames, RK + Gauss-Legendre (exact)", _scene(base, sf="reproducing-kernel",
                                                                       q="gauss-legendre", count=40)))
-    rows.append(("40 frames, NN + stabilised mid-point (library defaults)",
+    rows.append(("40 frames, NN + stabilised mid-point (the library defaults before 2026-12-05)",
                  _scene(base, sf="natural-neighbour", q="midpoint", count=40)))
     if not args.quick:  # the exact-integration twin of the library defaults (the same volume-ratio projection)
         rows.append(("40 frames, NN + Gauss-Legendre (exact)", _scene(base, sf="natural-neighbour",

@@ -43,9 +43,9 @@ def test_default_scene_runs_and_writes_a_result(tmp_path, capsys, monkeypatch):
     # the capsule sags.  Euler-Bernoulli (linear, round section r = 5 mm, free length 46 mm, a full
     # cylinder to the tip) bounds it above: rho g A L^4 / (8 E I) = 0.0097 m.  The converged answer on the
     # same 1 mm image is 0.008105 m (the voxel model on the image split 2x2x2, F-bar; the voxel model at
-    # 1 mm gives 0.008069 m).  The 40 reproducing-kernel frames with elastons give 0.007969 m
-    # (Gauss-Legendre on the same frames 0.007909 m): benchmarks/bench_default_scene.py.  Required: within
-    # 3 % of the converged 0.008105 m, and stiffer than it (exact-ish integration of a Galerkin model).
+    # 1 mm gives 0.008069 m).  The 40 reproducing-kernel frames with elastons give 0.008070 m (Gauss-Legendre
+    # on the same frames 0.007983 m; both project the volume change, nu = 0.45): benchmarks/bench_default_scene.py.
+    # Required: within 3 % of the converged 0.008105 m, and stiffer than it.
     uz = _tip_displacement(stdout)[2]
     assert abs(uz / -0.008105 - 1) < 0.03, uz
     assert uz > -0.008105, uz

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import scipy.sparse as sp
 import pytest
 
 from voxflex import build
@@ -323,3 +324,25 @@ def test_linearly_precise_frames_do_not_lock_under_auto():
         err[nu] = {v: tip(nu, "affine", v) / ref - 1 for v in ("auto", "full", "reduced")}
     assert abs(err[0.3]["auto"]) < 0.03 and abs(err[0.4999]["auto"]) < 0.03
     assert err[0.4999]["full"] < -0.05  # locked without the projection (a smaller sag)
+
+
+def test_the_compiled_rank_rows_equal_the_sparse_products(precise_layout):
+    """Z = N^T V (dJ/dq) and X = sum_s v_s J_s^T HFJ_s N_s, built by one compiled pass, against the sparse rows
+    and products they replace (volumetric.dof_rows), to 1e-13 of the largest entry (round-off of the order of
+    summation)."""
+    from voxflex.deform.models.frames._projection_kernels import weighted_rows
+    from voxflex.deform.models.frames.volumetric import dof_rows
+
+    image, frames, sf = precise_layout
+    model = FrameModel.from_image(image, frames, sf, MATERIALS["neo-hookean"], quadrature="gauss-legendre",
+                                  volumetric="auto")
+    rng = np.random.default_rng(5)
+    for pr in model._projection():
+        ids, N, NT = pr["ids"], pr["N"], pr["NT"]
+        v = model._volume[ids]
+        c = rng.standard_normal((len(ids), 3, 3))
+        n12 = 12 * model.n_nodes
+        got = weighted_rows(model._index[ids], pr["col"], model._w[ids], v, model._G[ids], c, pr["dofs4"],
+                            N.shape[1], n12)
+        want = (NT @ sp.diags(v) @ dof_rows(model, pr, ids, c)).toarray()
+        assert got.shape == want.shape and np.max(np.abs(got - want)) <= 1e-13 * np.max(np.abs(want))

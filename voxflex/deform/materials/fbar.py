@@ -157,7 +157,7 @@ def bar_scalar(material, F, Jbar, *, linear, gradient=True, tangent=True):
             return W, gF, gJ, None, None, None
         At = At.reshape(k, 9, 9)
         return W, gF, gJ, a @ At @ a, (a @ At) @ b, np.einsum("i,kij,j->k", b, At, b)
-    J = np.linalg.det(F)
+    J = _det3(F)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = Jbar / J
     ok = np.isfinite(ratio) & (ratio > 0)
@@ -171,7 +171,7 @@ def bar_scalar(material, F, Jbar, *, linear, gradient=True, tangent=True):
     W, Pt, At = material.evaluate(Ft, tangent=tangent)
     W = np.where(bad, np.inf, W)
     Pt = Pt.reshape(k, 9)
-    Finv = np.linalg.inv(Fs)
+    Finv = _inv3(Fs)
     lF = -Finv.transpose(0, 2, 1).reshape(k, 9) / 3.0
     lJ = 1.0 / (3.0 * Js)
     Fv = Fs.reshape(k, 9)

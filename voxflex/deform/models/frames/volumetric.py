@@ -76,7 +76,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ...._linalg import vdot
-from ...materials.fbar import bar_scalar
+from ...materials.fbar import _det3, _inv3, bar_scalar
+from ._projection_kernels import weighted_rows
 from .stabilise import _dofs, _rows
 
 __all__ = ["volumetric_projection", "projected_pass", "dof_rows"]
@@ -120,7 +121,10 @@ def volumetric_projection(model) -> list:
             cap = float(model.volumetric_cap.get(label, 0.0))
             if cap and extra is not None:
                 raise ValueError("the capped remainder is for point samples (stabilised regions keep the full term)")
+            col = np.full(n, -1, dtype=np.int64)
+            col[active] = np.arange(len(active))
             out.append({"label": label, "ids": ids, "N": N, "NT": N.T.tocsr(), "M": 0.5 * (Minv + Minv.T), "cap": cap,
+                        "col": col, "dofs4": dofs[ids].reshape(k, P, 3, 4),
                         "okr": okr, "indices": d[okr], "indptr": indptr, "linear": bool(
                             getattr(model.materials[label], "constant_tangent", False)), "regions": extra})
             if extra is not None:
@@ -254,7 +258,9 @@ def projected_pass(model, F, gradient, hessian, d=None):
         R = pr.get("regions")
         Fl = F[ids]
         v = vol[ids]
-        Js = np.trace(Fl, axis1=1, axis2=2) if linear else np.linalg.det(Fl)
+        # det and inverse once per pass, by cofactors (_det3 / _inv3: 5x LAPACK's batched calls on 3x3s)
+        Jd = None if linear else _det3(Fl)
+        Js = np.trace(Fl, axis1=1, axis2=2) if linear else Jd
         b = NT @ (v * Js)
         local = []  # per group of regions: (group, D, cof, F^-1, F)
         if R is not None:
@@ -291,10 +297,11 @@ def projected_pass(model, F, gradient, hessian, d=None):
         if kc:  # the remainder's kc / 2 (sum_s v_s J_s^2 - b^T M^+ b): dE/db = -kc pi (its direct part below)
             yv = yv - kc * pi
         y = v * (N @ yv)  # dE/dJ_s through Jbar
+        Fi_s = None if linear else _inv3(Fl)  # every J_s / Jbar_s > 0 here (the energy is finite)
         if linear:
             c = np.broadcast_to(np.eye(3), Fl.shape)
         else:
-            c = np.linalg.det(Fl)[:, None, None] * np.linalg.inv(Fl).transpose(0, 2, 1)  # cofactor
+            c = Jd[:, None, None] * Fi_s.transpose(0, 2, 1)  # cofactor
         Pl = gF.reshape(-1, 3, 3) + (y / v)[:, None, None] * c
         if kc:  # the remainder's direct dE/dJ_s = kc v_s J_s
             Pl = Pl + (kc * Js)[:, None, None] * c
@@ -315,8 +322,6 @@ def projected_pass(model, F, gradient, hessian, d=None):
             if kc:  # the remainder's direct second derivative: kc (c (x) c + J_s d2J_s), its d2J with y's below
                 Al = Al + kc * np.einsum("sij,skl->sijkl", c, c)
             if not linear:  # y d2(det F): cof derivative, d2J/dF_ij dF_kl = J (Finv_ji Finv_lk - Finv_li Finv_jk)
-                Fi_s = np.linalg.inv(Fl)
-                Jd = np.linalg.det(Fl)
                 d2 = Jd[:, None, None, None, None] * (np.einsum("sji,slk->sijkl", Fi_s, Fi_s)
                                                       - np.einsum("sli,sjk->sijkl", Fi_s, Fi_s))
                 Al = Al + ((y / v) + kc * Js)[:, None, None, None, None] * d2
@@ -336,9 +341,10 @@ def projected_pass(model, F, gradient, hessian, d=None):
             ids, N, NT, cho = pr["ids"], pr["N"], pr["NT"], pr["M"]
             R = pr.get("regions")
             v = vol[ids]
-            B = dof_rows(model, pr, ids, c.reshape(-1, 3, 3))  # dJ_s/dq (k, 12n) sparse
-            Xr = dof_rows(model, pr, ids, (v[:, None] * HFJ).reshape(-1, 3, 3))  # v_s J_s^T HFJ_s
-            Z = (NT @ sp.diags(v) @ B).toarray()  # (na, 12n)
+            # Z = N^T V (dJ/dq) (na, 12n) and X = sum_s v_s J_s^T HFJ_s N_s (12n, na): one compiled pass each
+            na = N.shape[1]
+            args = (model._index[ids], pr["col"], model._w[ids], v, model._G[ids])
+            Z = weighted_rows(*args, np.broadcast_to(c, (len(ids), 3, 3)), pr["dofs4"], na, 12 * n)
             for g, D, cof, Fi, Fr in local:  # dc/dq
                 rows_c = _cof_rows(cof, g["C"])
                 if Fi is not None:
@@ -349,7 +355,7 @@ def projected_pass(model, F, gradient, hessian, d=None):
                     np.broadcast_to(g["dofs"][:, None], rows_c.shape)
                 Z += np.bincount(flat.ravel(), weights=rows_c.ravel(), minlength=Z.size).reshape(Z.shape)
             Q = cho @ Z
-            X = (Xr.T @ N).toarray()  # (12n, na)
+            X = weighted_rows(*args, np.asarray(HFJ).reshape(-1, 3, 3), pr["dofs4"], na, 12 * n).T
             XQ = X @ Q
             ND = (NT @ sp.diags(v * HJJ) @ N).toarray()
             if R is not None:
