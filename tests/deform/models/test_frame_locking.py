@@ -66,6 +66,23 @@ MATERIALS = {
 }
 
 
+def _check_derivatives(model, seed):
+    """At a random state (3 % perturbation of every DOF): the directional derivative of the energy and the
+    Hessian times a direction against central differences (h = 1e-6), 1e-6 relative, and a symmetric Hessian
+    (the energy is a function of q).  Returns (q, E(q))."""
+    rng = np.random.default_rng(seed)
+    q = model.rest + 0.03 * rng.standard_normal(model.rest.shape)
+    E, g, H = model.energy_gradient_hessian(q)
+    d = rng.standard_normal(q.shape)
+    h = 1e-6
+    fd = (model.energy(q + h * d) - model.energy(q - h * d)) / (2 * h)
+    assert abs(fd - np.vdot(g, d)) <= 1e-6 * abs(fd)
+    gfd = (model.gradient(q + h * d) - model.gradient(q - h * d)).ravel() / (2 * h)
+    assert np.max(np.abs(gfd - H @ d.ravel())) <= 1e-6 * np.max(np.abs(gfd))
+    assert np.max(np.abs(H - H.T)) <= 1e-12 * np.max(np.abs(H))
+    return q, E
+
+
 @pytest.mark.parametrize("quadrature", ["midpoint", "stabilised", "gauss-legendre"])
 @pytest.mark.parametrize("case", sorted(MATERIALS))
 def test_gradient_and_hessian_match_finite_differences(layout, case, quadrature):
@@ -76,16 +93,7 @@ def test_gradient_and_hessian_match_finite_differences(layout, case, quadrature)
     model = _model(layout, MATERIALS[case], quadrature, "auto" if case == "auto-mixed" else "reduced")
     if case == "auto-mixed":
         assert model.volumetric == {1: False, 2: True}
-    rng = np.random.default_rng(1)
-    q = model.rest + 0.03 * rng.standard_normal(model.rest.shape)
-    E, g, H = model.energy_gradient_hessian(q)
-    d = rng.standard_normal(q.shape)
-    h = 1e-6
-    fd = (model.energy(q + h * d) - model.energy(q - h * d)) / (2 * h)
-    assert abs(fd - np.vdot(g, d)) <= 1e-6 * abs(fd)
-    gfd = (model.gradient(q + h * d) - model.gradient(q - h * d)).ravel() / (2 * h)
-    assert np.max(np.abs(gfd - H @ d.ravel())) <= 1e-6 * np.max(np.abs(gfd))
-    assert np.max(np.abs(H - H.T)) <= 1e-12 * np.max(np.abs(H))  # the energy is a function of q
+    q, E = _check_derivatives(model, seed=1)
     # the reduced term changes the energy of a non-affine state (it is not the full model in disguise)
     full = _model(layout, MATERIALS[case], quadrature, "full")
     assert abs(full.energy(q) - E) > 1e-3 * abs(E)
@@ -252,16 +260,7 @@ def test_capped_remainder_derivatives_match_finite_differences(precise_layout, c
     model = FrameModel.from_image(image, frames, sf, MATERIALS[case], quadrature=quadrature, volumetric="auto")
     assert set(model.volumetric_cap) == ({2} if case == "auto-mixed" else {1, 2})
     assert model.describe()["volumetric"].endswith("remainder capped")
-    rng = np.random.default_rng(3)
-    q = model.rest + 0.03 * rng.standard_normal(model.rest.shape)
-    E, g, H = model.energy_gradient_hessian(q)
-    d = rng.standard_normal(q.shape)
-    h = 1e-6
-    fd = (model.energy(q + h * d) - model.energy(q - h * d)) / (2 * h)
-    assert abs(fd - np.vdot(g, d)) <= 1e-6 * abs(fd)
-    gfd = (model.gradient(q + h * d) - model.gradient(q - h * d)).ravel() / (2 * h)
-    assert np.max(np.abs(gfd - H @ d.ravel())) <= 1e-6 * np.max(np.abs(gfd))
-    assert np.max(np.abs(H - H.T)) <= 1e-12 * np.max(np.abs(H))
+    q, E = _check_derivatives(model, seed=3)
     # neither the projection (no remainder) nor the full term; for a linear material between the two (the
     # projection is V-orthogonal, the remainder's modulus below the material's)
     red = FrameModel.from_image(image, frames, sf, MATERIALS[case], quadrature=quadrature, volumetric="reduced")
