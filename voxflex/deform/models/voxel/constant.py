@@ -183,9 +183,11 @@ class ConstantTangentPath:
         """
         from ._kernels import element_matvec_energy
 
+        u = np.asarray(u, dtype=np.float64).ravel()
+        if not u.any():  # the rest state, where every solve starts: K 0 = 0 (a pass over the voxels saved)
+            return np.zeros((len(u) // 3, 3)), 0.0
         stack, kind = self._quadratic_kinds()
-        Ku, energy = element_matvec_energy(stack, kind, self.element_volume, self.grid.element_nodes,
-                                           np.asarray(u, dtype=np.float64).ravel())
+        Ku, energy = element_matvec_energy(stack, kind, self.element_volume, self.grid.element_nodes, u)
         return Ku.reshape(-1, 3), energy
 
     def stiffness_elements(self):
