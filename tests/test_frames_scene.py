@@ -406,3 +406,22 @@ def test_default_weights_fall_back_to_natural_neighbours_where_they_would_leave_
     fine = replace(small, object=replace(bar.object, voxel_size=0.25), nodes=NodesSpec(kind="affine", count=10))
     model = vf.model(fine, cache=False)
     assert model.info["shape_function"] == "reproducing-kernel" and "shape_function_chosen" not in model.info
+
+
+def test_a_refused_trial_of_the_default_weights_is_remembered_in_the_cache(tmp_path, monkeypatch):
+    """The second run of a scene whose default weights were refused goes straight to the fallback: the verdict is
+    kept in the cache (keyed like the precompute: image, settings, code) and read before any kernel is built."""
+    from voxflex.deform.models.frames import build as frames_build
+
+    monkeypatch.setenv("VOXFLEX_CACHE_DIR", str(tmp_path))
+    bar = Scene.from_toml(paths.ROOT / "examples" / "cantilever.toml")
+    small = replace(bar, nodes=NodesSpec(kind="affine", count=20), elasticity=ElasticitySpec(strain="linear"))
+    first = vf.model(small)
+    assert first.info["shape_function"] == "natural-neighbour"
+    assert len(list((tmp_path / "frames-refused").glob("*.npz"))) == 1
+    calls = []
+    real = frames_build._precompute
+    monkeypatch.setattr(frames_build, "_precompute", lambda *a, **k: calls.append(a[3]) or real(*a, **k))
+    again = vf.model(small)
+    assert calls == []  # neither the kernels' trial nor the fallback's precompute ran again (both cached)
+    assert again.info["shape_function_chosen"] == first.info["shape_function_chosen"]

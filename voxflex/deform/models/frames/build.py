@@ -161,69 +161,79 @@ def _build(scene, image, materials, *, cache: bool = True, placement_energy=None
         occ = np.zeros(0) if image.occupancy is None else np.asarray(image.occupancy)
         key = disk.key_of(disk.code_fingerprint(), image.labels, np.asarray(image.spacing),
                           np.asarray(image.origin), np.asarray(image.direction), occ, settings)
-    stored = disk.load("frames", key) if use_cache else None
-    if stored is not None:
-        try:
-            pre = _from_store(image, stored, kind, nodes.parents, occupancy)
-        except disk.CacheMismatch as exc:  # never trusted, never blamed on the scene: recomputed
-            disk.discard("frames", key, f"does not fit this image ({exc})")
-            stored = None
-    def make_model(pre):
-        return FrameModel(image, pre["frames"], pre["sf"], pre["samples"], materials, use_occupancy=occupancy,
-                          volumetric=scene.elasticity.volumetric, hourglass=hourglass, region_tables=pre.get("tables"))
+    refused = use_cache and strict  # the default weights' trial: a refusal on this image is remembered
+    if refused:
+        known = disk.load("frames-refused", key)
+        if known is not None and "why" in known:
+            raise SpuriousModes(bytes(np.asarray(known["why"], dtype=np.uint8)).decode("utf-8", "replace"))
+    try:
+        stored = disk.load("frames", key) if use_cache else None
+        if stored is not None:
+            try:
+                pre = _from_store(image, stored, kind, nodes.parents, occupancy)
+            except disk.CacheMismatch as exc:  # never trusted, never blamed on the scene: recomputed
+                disk.discard("frames", key, f"does not fit this image ({exc})")
+                stored = None
+        def make_model(pre):
+            return FrameModel(image, pre["frames"], pre["sf"], pre["samples"], materials, use_occupancy=occupancy,
+                              volumetric=scene.elasticity.volumetric, hourglass=hourglass, region_tables=pre.get("tables"))
 
-    if stored is None:
-        pre = _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass,
-                          weight_space=weight_space, density=density, make_model=make_model, limit=limit)
-    sf = pre["sf"]
-    if strict and rk and sf.fallback_corners:  # not linearly precise where frames lie on a line or a plane
-        raise _LostPrecision(f"{sf.fallback_corners} of {sf.weights.shape[0]} voxel corners have frames on a line or a "
-                            "plane within their kernels (not linearly precise there)")
-    info = {"shape_function": kind, "parents": int(sf.parents if untruncated else nodes.parents),
-            "distance": nodes.distance, "precompute_cached": stored is not None,
-            "placement": nodes.placement or "volume"}
-    if rk:
-        info.update(support=float(sf.support), kernel_grown_frames=int(sf.grown_frames),
-                    kernel_fallback_corners=int(sf.fallback_corners))
-    if kind == "eigenmode":
-        info.update(eigenmode_linear=bool(sf.linear), eigenmode_lifted=int(len(sf.lifted)),
-                    eigenmode_condition=float(sf.condition), eigenmode_lebesgue=float(sf.max_lebesgue))
-    if pre.get("chosen"):
-        info["samples_chosen"] = pre["chosen"]
-    model = pre.pop("model", None)  # the one the sample-count check judged, when the precompute made one
-    if model is None:
-        model = make_model(pre)
-    model.info.update(info)
-    if pre["regions"] is not None and model.regions is None:
-        model.regions = pre["regions"]
-    if quadrature == "gauss-legendre":
-        pre["gauss_zero"] = _check_gauss_modes(scene, model, pre.get("gauss_zero"), strict=strict)
-    else:
-        import warnings
+        if stored is None:
+            pre = _precompute(scene, image, count, kind, fixed, nodes, compliance, quadrature, occupancy, hourglass,
+                              weight_space=weight_space, density=density, make_model=make_model, limit=limit)
+        sf = pre["sf"]
+        if strict and rk and sf.fallback_corners:  # not linearly precise where frames lie on a line or a plane
+            raise _LostPrecision(f"{sf.fallback_corners} of {sf.weights.shape[0]} voxel corners have frames on a line or a "
+                                "plane within their kernels (not linearly precise there)")
+        info = {"shape_function": kind, "parents": int(sf.parents if untruncated else nodes.parents),
+                "distance": nodes.distance, "precompute_cached": stored is not None,
+                "placement": nodes.placement or "volume"}
+        if rk:
+            info.update(support=float(sf.support), kernel_grown_frames=int(sf.grown_frames),
+                        kernel_fallback_corners=int(sf.fallback_corners))
+        if kind == "eigenmode":
+            info.update(eigenmode_linear=bool(sf.linear), eigenmode_lifted=int(len(sf.lifted)),
+                        eigenmode_condition=float(sf.condition), eigenmode_lebesgue=float(sf.max_lebesgue))
+        if pre.get("chosen"):
+            info["samples_chosen"] = pre["chosen"]
+        model = pre.pop("model", None)  # the one the sample-count check judged, when the precompute made one
+        if model is None:
+            model = make_model(pre)
+        model.info.update(info)
+        if pre["regions"] is not None and model.regions is None:
+            model.regions = pre["regions"]
+        if quadrature == "gauss-legendre":
+            pre["gauss_zero"] = _check_gauss_modes(scene, model, pre.get("gauss_zero"), strict=strict)
+        else:
+            import warnings
 
-        from .modes import SpuriousModesWarning, check_modes
+            from .modes import SpuriousModesWarning, check_modes
 
-        K = pre.get("K")
-        if K is None:
-            K = _unit_stiffness(model)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", SpuriousModesWarning)
-            zero = check_modes(pre["frames"], model.samples, stiffness=K, gauge=model.gauge_modes())  # warns, naming how many
-        if zero > 6:
-            _refuse_static_mechanism(scene, model, K, model.samples, zero - 6, strict=strict)
-        softest = pre.get("softest")
-        if zero <= 6 and softest is None and not pre.get("judged"):
-            softest = _softest(scene, image, model, pre["sf"], occupancy, K)
-        for w in caught:
-            warnings.warn(w.message, w.category, stacklevel=2)
-        if zero <= 6 and softest is not None:
-            model.info["softest_mode"] = softest
-            _judge_soft_modes(scene, model.samples, softest, strict=strict)
-        pre["softest"] = softest
-    if use_cache and stored is None:
-        disk.save("frames", key, _to_store(pre))
-    model.info["precompute_seconds"] = time.perf_counter() - t0
-    return model
+            K = pre.get("K")
+            if K is None:
+                K = _unit_stiffness(model)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", SpuriousModesWarning)
+                zero = check_modes(pre["frames"], model.samples, stiffness=K, gauge=model.gauge_modes())  # warns, naming how many
+            if zero > 6:
+                _refuse_static_mechanism(scene, model, K, model.samples, zero - 6, strict=strict)
+            softest = pre.get("softest")
+            if zero <= 6 and softest is None and not pre.get("judged"):
+                softest = _softest(scene, image, model, pre["sf"], occupancy, K)
+            for w in caught:
+                warnings.warn(w.message, w.category, stacklevel=2)
+            if zero <= 6 and softest is not None:
+                model.info["softest_mode"] = softest
+                _judge_soft_modes(scene, model.samples, softest, strict=strict)
+            pre["softest"] = softest
+        if use_cache and stored is None:
+            disk.save("frames", key, _to_store(pre))
+        model.info["precompute_seconds"] = time.perf_counter() - t0
+        return model
+    except (SpuriousModes, _LostPrecision) as exc:
+        if refused:  # the next run of this scene goes straight to the fallback (its own entry: "frames")
+            disk.save("frames-refused", key, {"why": np.frombuffer(str(exc).encode("utf-8"), dtype=np.uint8)})
+        raise
 
 
 def _unit_stiffness(model) -> np.ndarray:
