@@ -75,6 +75,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ...._blas import one_thread
 from ...._linalg import vdot
 from ...materials.fbar import _det3, _inv3, bar_scalar
 from ._projection_kernels import weighted_rows
@@ -337,41 +338,45 @@ def projected_pass(model, F, gradient, hessian, d=None):
     H = None
     if hessian:
         H = model._stiffness(A)
-        for pr, c, HFJ, HJJ, local, Yl, d2l in extra:
-            ids, N, NT, cho = pr["ids"], pr["N"], pr["NT"], pr["M"]
-            R = pr.get("regions")
-            v = vol[ids]
-            # Z = N^T V (dJ/dq) (na, 12n) and X = sum_s v_s J_s^T HFJ_s N_s (12n, na): one compiled pass each
-            na = N.shape[1]
-            args = (model._index[ids], pr["col"], model._w[ids], v, model._G[ids])
-            Z = weighted_rows(*args, np.broadcast_to(c, (len(ids), 3, 3)), pr["dofs4"], na, 12 * n)
-            for g, D, cof, Fi, Fr in local:  # dc/dq
-                rows_c = _cof_rows(cof, g["C"])
-                if Fi is not None:
-                    S = _d2det(np.repeat(Fr, D.shape[1], axis=0), np.repeat(Fi, D.shape[1], axis=0),
-                               D.reshape(-1, 3, 3)).reshape(D.shape)
-                    rows_c = rows_c + np.einsum("raij,rpcj->rapic", S, g["G"], optimize=True)  # G: dF_r / d d_p
-                flat = np.broadcast_to(g["cols"][:, :, None, None, None], rows_c.shape) * Z.shape[1] + \
-                    np.broadcast_to(g["dofs"][:, None], rows_c.shape)
-                Z += np.bincount(flat.ravel(), weights=rows_c.ravel(), minlength=Z.size).reshape(Z.shape)
-            Q = cho @ Z
-            X = weighted_rows(*args, np.asarray(HFJ).reshape(-1, 3, 3), pr["dofs4"], na, 12 * n).T
-            XQ = X @ Q
-            ND = (NT @ sp.diags(v * HJJ) @ N).toarray()
-            if R is not None:
-                ND = ND + R["kappa"] * R["Omega"]
-            H += XQ + XQ.T + Q.T @ (ND @ Q)
-            if pr["cap"]:  # the remainder through b: -kc (db/dq)^T M^+ (db/dq)
-                H -= pr["cap"] * (Z.T @ Q)
-            for k, (g, D, cof, Fi, Fr) in enumerate(local if d2l is not None else ()):  # y . d2c: d2 det [dF, dY]
-                T = Yl[k][1]
-                M1 = np.einsum("rpcj,rijkl,rqdl->rpicqkd", g["G"], d2l[k], T, optimize=True)
-                Pb = T.shape[1]
-                M1 = M1.reshape(len(Fr), 12 * Pb, 12 * Pb)
-                M1 = M1 + M1.transpose(0, 2, 1)
-                dd = g["dofs"].reshape(len(Fr), 12 * Pb)
-                H += np.bincount((dd[:, :, None] * H.shape[1] + dd[:, None, :]).ravel(), weights=M1.ravel(),
-                                 minlength=H.size).reshape(H.shape)
+        # the rank-n products below are small dense ones (active frames x DOFs): on one BLAS thread, as the
+        # solvers' dense kernels are (voxflex._blas: threaded OpenBLAS left spinning threads that stalled the
+        # next Cholesky, 1.4 ms, for up to 108 ms on the bundled scene)
+        with one_thread():
+            for pr, c, HFJ, HJJ, local, Yl, d2l in extra:
+                ids, N, NT, cho = pr["ids"], pr["N"], pr["NT"], pr["M"]
+                R = pr.get("regions")
+                v = vol[ids]
+                # Z = N^T V (dJ/dq) (na, 12n) and X = sum_s v_s J_s^T HFJ_s N_s (12n, na): one compiled pass each
+                na = N.shape[1]
+                args = (model._index[ids], pr["col"], model._w[ids], v, model._G[ids])
+                Z = weighted_rows(*args, np.broadcast_to(c, (len(ids), 3, 3)), pr["dofs4"], na, 12 * n)
+                for g, D, cof, Fi, Fr in local:  # dc/dq
+                    rows_c = _cof_rows(cof, g["C"])
+                    if Fi is not None:
+                        S = _d2det(np.repeat(Fr, D.shape[1], axis=0), np.repeat(Fi, D.shape[1], axis=0),
+                                   D.reshape(-1, 3, 3)).reshape(D.shape)
+                        rows_c = rows_c + np.einsum("raij,rpcj->rapic", S, g["G"], optimize=True)  # G: dF_r / d d_p
+                    flat = np.broadcast_to(g["cols"][:, :, None, None, None], rows_c.shape) * Z.shape[1] + \
+                        np.broadcast_to(g["dofs"][:, None], rows_c.shape)
+                    Z += np.bincount(flat.ravel(), weights=rows_c.ravel(), minlength=Z.size).reshape(Z.shape)
+                Q = cho @ Z
+                X = weighted_rows(*args, np.asarray(HFJ).reshape(-1, 3, 3), pr["dofs4"], na, 12 * n).T
+                XQ = X @ Q
+                ND = (NT @ sp.diags(v * HJJ) @ N).toarray()
+                if R is not None:
+                    ND = ND + R["kappa"] * R["Omega"]
+                H += XQ + XQ.T + Q.T @ (ND @ Q)
+                if pr["cap"]:  # the remainder through b: -kc (db/dq)^T M^+ (db/dq)
+                    H -= pr["cap"] * (Z.T @ Q)
+                for k, (g, D, cof, Fi, Fr) in enumerate(local if d2l is not None else ()):  # y . d2c: d2 det [dF, dY]
+                    T = Yl[k][1]
+                    M1 = np.einsum("rpcj,rijkl,rqdl->rpicqkd", g["G"], d2l[k], T, optimize=True)
+                    Pb = T.shape[1]
+                    M1 = M1.reshape(len(Fr), 12 * Pb, 12 * Pb)
+                    M1 = M1 + M1.transpose(0, 2, 1)
+                    dd = g["dofs"].reshape(len(Fr), 12 * Pb)
+                    H += np.bincount((dd[:, :, None] * H.shape[1] + dd[:, None, :]).ravel(), weights=M1.ravel(),
+                                     minlength=H.size).reshape(H.shape)
         H = 0.5 * (H + H.T)
     return energy, grad, H
 
