@@ -45,7 +45,9 @@ def test_affine_patch_test_through_frames_and_samples(tmp_path, quadrature):
         assert np.max(np.abs(pos[-1] - (pos[0] @ T[:, :3].T + T[:, 3]))) < 1e-10
     back = Result.load(tmp_path / "patch.h5")
     assert back.node_kind == "affine" and back.nodes_state.shape[1:] == (8, 12)
-    assert back.model["quadrature"] == quadrature and back.model["shape_function"] == "reproducing-kernel"
+    # the default weights: reproducing kernels, natural neighbours where stabilised mid-point regions are named
+    family = "natural-neighbour" if quadrature == "midpoint" else "reproducing-kernel"
+    assert back.model["quadrature"] == quadrature and back.model["shape_function"] == family
     assert back.model["precompute_seconds"] > 0
 
 
@@ -406,6 +408,15 @@ def test_default_weights_fall_back_to_natural_neighbours_where_they_would_leave_
     fine = replace(small, object=replace(bar.object, voxel_size=0.25), nodes=NodesSpec(kind="affine", count=10))
     model = vf.model(fine, cache=False)
     assert model.info["shape_function"] == "reproducing-kernel" and "shape_function_chosen" not in model.info
+    # stabilised mid-point regions named without weights get the weights cut to parents, said so
+    regions = replace(fine, elasticity=ElasticitySpec(strain="linear", quadrature="midpoint"))
+    model = vf.model(regions, cache=False)
+    assert model.info["shape_function"] == "natural-neighbour"
+    assert "stabilised mid-point regions" in model.info["shape_function_chosen"]
+    bare = replace(fine, elasticity=ElasticitySpec(strain="linear", quadrature="midpoint", hourglass="none"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # bare mid-point samples are advised to stabilise
+        assert vf.model(bare, cache=False).info["shape_function"] == "reproducing-kernel"
 
 
 def test_a_refused_trial_of_the_default_weights_is_remembered_in_the_cache(tmp_path, monkeypatch):
