@@ -239,3 +239,14 @@ def test_describe_scene_and_the_bundled_default():
     assert scene.nodes.kind == "affine" and scene.probes and scene.gravity is not None
     text = describe_scene(path)
     assert "object: mesh" in text and "material label 1: neo-hookean" in text and "probe tip" in text
+
+
+def test_describe_scene_names_the_default_weights_and_their_fallback(tmp_path):
+    """A frame scene that names no weights is described with the default and the fallback the builder may take;
+    named weights (the bundled scene's) are described as they are."""
+    path = tmp_path / "s.toml"
+    path.write_text('[object]\nshape = "box"\nsize = [4.0, 1.0, 1.0]\nvoxel_size = 0.5\n[[material]]\nyoung = 1e3\n'
+                    '[nodes]\ncount = 8\n')
+    text = describe_scene(path)
+    assert "(8 frames, reproducing-kernel by default; natural-neighbour on a body where" in text
+    assert "(40 frames, reproducing-kernel)" in describe_scene(default_scene_path())

@@ -407,12 +407,19 @@ def default_scene_path() -> Path:
 
 
 def _nodes_text(scene) -> str:
-    """" (20 frames, natural-neighbour)" for a reduced kind, "" otherwise."""
+    """" (20 frames, natural-neighbour)" for a reduced kind, "" otherwise; weights the scene does not name are
+    said to be the default, with the fallback the builder may take (the model's ``shape_function_chosen``)."""
+    from .voronoi.families import FALLBACK
+
     kind = node_kind(scene.nodes.kind)
     if not kind.reduced:
         return ""
     count = kind.count(scene.nodes.count or kind.default_count)
-    return f" ({count}, {scene.nodes.weights})"
+    weights = scene.nodes.weights
+    fallback = FALLBACK.get(weights)
+    if scene.nodes.shape_function is None and scene.nodes.support is None and fallback:
+        weights += f" by default; {fallback} on a body where they would leave spurious modes, or for stabilised regions"
+    return f" ({count}, {weights})"
 
 
 def describe_scene(path) -> str:
