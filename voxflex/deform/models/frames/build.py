@@ -88,28 +88,25 @@ def build(scene, image, materials, *, cache: bool = True, placement_energy=None)
         # stabilised mid-point regions named with the default weights: a region's fluctuation term carries the
         # union of its points' parents, every parent for untruncated weights (the bundled phantom's 12 frames:
         # 15.5 s of checks per run against 1-2 s), so the weights cut to parents are the default there
-        other = replace(scene, nodes=replace(scene.nodes, shape_function=fallback))
-        model = _build(other, image, materials, cache=cache, placement_energy=placement_energy)
-        model.info["shape_function_chosen"] = (
-            f"{fallback}, the weights for stabilised mid-point regions (the default {scene.nodes.weights} weights "
-            "reach every parent in each region's fluctuation term: use quadrature = \"elaston\" with them)")
-        return model
-    import warnings
+        note = (f"the weights for stabilised mid-point regions (the default {scene.nodes.weights} weights reach "
+                "every parent in each region's fluctuation term: use quadrature = \"elaston\" with them)")
+    else:
+        import warnings
 
-    from ....voronoi.reproducing_kernel import ReproducingKernelWarning
+        from ....voronoi.reproducing_kernel import ReproducingKernelWarning
 
-    try:
-        with warnings.catch_warnings():
-            # the trial's own verdicts: lost precision is judged below, and "support below every kernel's
-            # floor" speaks of a setting this scene did not make
-            warnings.simplefilter("ignore", ReproducingKernelWarning)
-            return _build(scene, image, materials, cache=cache, placement_energy=placement_energy, strict=True)
-    except (SpuriousModes, _LostPrecision) as exc:
-        why = str(exc).split(", so ")[0].split("; ")[0]
+        try:
+            with warnings.catch_warnings():
+                # the trial's own verdicts: lost precision is judged below, and "support below every kernel's
+                # floor" speaks of a setting this scene did not make
+                warnings.simplefilter("ignore", ReproducingKernelWarning)
+                return _build(scene, image, materials, cache=cache, placement_energy=placement_energy, strict=True)
+        except (SpuriousModes, _LostPrecision) as exc:
+            why = str(exc).split(", so ")[0].split("; ")[0]
+        note = f"the default {scene.nodes.weights} weights refused on this body: {why}"
     other = replace(scene, nodes=replace(scene.nodes, shape_function=fallback))
     model = _build(other, image, materials, cache=cache, placement_energy=placement_energy)
-    model.info["shape_function_chosen"] = (f"{fallback}, the default {scene.nodes.weights} weights refused on this "
-                                           f"body: {why}")
+    model.info["shape_function_chosen"] = f"{fallback}, {note}"
     return model
 
 

@@ -383,6 +383,7 @@ def projected_pass(model, F, gradient, hessian, d=None):
 
 def dof_rows(model, pr, ids, c) -> sp.csr_matrix:
     """Sparse (k, 12n) rows ``J_s^T vec(c_s)``: per sample the DOF vector of ``c_s : dF_s``
-    (``sum_j c[i, j] G[p, c, j]`` at DOF (p, i, c))."""
+    (``sum_j c[i, j] G[p, c, j]`` at DOF (p, i, c)): the plain twin of
+    :func:`~._projection_kernels.weighted_rows` (``N^T V`` times these rows), which the tests compare."""
     rows = np.einsum("sij,spcj->spic", c, model._G[ids]).reshape(len(ids), -1)
     return sp.csr_matrix((rows[pr["okr"]], pr["indices"], pr["indptr"]), shape=(len(ids), 12 * model.n_nodes))
