@@ -16,7 +16,7 @@ import pytest
 from voxflex.errors import InputError
 from voxflex.image import LabelImage
 from voxflex.sampling.quadrature import gauss_legendre_cube
-from voxflex.sampling.subrule import gauss_points, moment_fitted_rule
+from voxflex.sampling.subrule import fit_region, gauss_points, moment_fitted_rule
 from voxflex.sampling.volume_moments import monomials
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -72,6 +72,39 @@ def test_rule_is_the_same_at_any_unit():
         assert np.allclose(w @ monomials((pts[sel] - c) / h)[:, :10], full, rtol=1e-12, atol=1e-12 * full[0])
         sizes.append(len(sel))
     assert sizes[0] == sizes[1]
+
+
+def test_compiled_fit_matches_its_plain_twin():
+    """The compiled Lawson-Hanson fit (``_subrule_kernel``) and its plain twin (scipy's NNLS) on generic regions
+    (random candidates: no ties) pick the same points with the same weights to 1e-10 relative."""
+    rng = np.random.default_rng(11)
+    sizes = rng.integers(11, 90, size=40)
+    pts = rng.normal(size=(int(sizes.sum()), 3))
+    vol = rng.uniform(0.5, 1.5, size=len(pts))
+    region = np.repeat(np.arange(len(sizes)), sizes)
+    sel, w = moment_fitted_rule(pts, vol, region, len(sizes), h=1.0)
+    for r in range(len(sizes)):
+        ids = np.flatnonzero(region == r)
+        c = (vol[ids] @ pts[ids]) / vol[ids].sum()
+        twin = fit_region(monomials(pts[ids] - c)[:, :10].T, vol[ids])
+        assert twin is not None
+        mine = np.zeros(len(ids))
+        mine[np.searchsorted(ids, sel[region[sel] == r])] = w[region[sel] == r]
+        assert np.array_equal(np.flatnonzero(mine), np.flatnonzero(twin)), r
+        assert np.allclose(mine, twin, rtol=1e-10, atol=0)
+
+
+def test_symmetric_ties_break_the_same_way_at_any_unit():
+    """A box region (all its Gauss points symmetric: NNLS's candidates tie) gets the same points at 1 um, 1 m and
+    1 km, and at any origin: ties are broken by the candidates' order, not by round-off."""
+    picks = []
+    for h, origin in ((1e-6, (0.0, 0.0, 0.0)), (1.0, (3.7, -2.0, 11.0)), (1e3, (5e5, 0.0, -1e4))):
+        img = LabelImage(np.ones((3, 2, 2), dtype=np.uint8), spacing=(h, h, h), origin=origin)
+        pts, vol, _ = gauss_points(img)
+        sel, w = moment_fitted_rule(pts, vol, np.zeros(len(pts), dtype=np.int64), 1, h=h)
+        picks.append((tuple(sel), np.round(w / h**3, 9)))
+    assert all(p[0] == picks[0][0] for p in picks)
+    assert all(np.allclose(p[1], picks[0][1], rtol=1e-9) for p in picks)
 
 
 def test_bad_input_is_refused():

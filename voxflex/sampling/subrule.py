@@ -10,9 +10,10 @@ degree ``p`` (:func:`moment_fitted_rule`):
 (c the region's centroid).  The Gauss points with their own weights (a
 voxel's volume / 8, occupancy included) already satisfy these equations (the
 2x2x2 rule is exact to degree 3 per voxel), so a non-negative solution exists;
-a non-negative least-squares fit (scipy's active-set NNLS) returns a basic one,
-at most ``binom(p + 3, 3)`` points (10 at p = 2), and the weights on those
-points are then re-solved to round-off.  Any energy density evaluated at the
+a non-negative least-squares fit (the active-set method of Lawson and Hanson,
+compiled, one thread per slice of regions: :mod:`._subrule_kernel`) returns a
+basic one, at most ``binom(p + 3, 3)`` points (10 at p = 2), and the weights on
+those points are then re-solved to round-off.  Any energy density evaluated at the
 points -- every material, with the ordinary point gradient ``J^T P`` and
 Hessian ``J^T A J`` -- is integrated exactly when it is a polynomial of degree
 <= p over the region, with an error of order ``h^(p+1)`` per unit volume for a
@@ -42,7 +43,7 @@ from ..errors import InputError
 from .quadrature import voxel_rule_points
 from .volume_moments import EXPONENTS
 
-__all__ = ["gauss_points", "gauss_points_in_voxels", "moment_fitted_rule", "SUBRULE_DEGREE"]
+__all__ = ["gauss_points", "gauss_points_in_voxels", "moment_fitted_rule", "fit_region", "SUBRULE_DEGREE"]
 
 SUBRULE_DEGREE = 2
 """Degree of the polynomials the elastons' sub-rules integrate exactly (10 moments, at most 10 points)."""
@@ -81,24 +82,6 @@ def _n_moments(degree: int) -> int:
     return comb(degree + 3, 3)
 
 
-def _monomials(d, nm) -> np.ndarray:
-    """The first ``nm`` monomials of :data:`~voxflex.sampling.volume_moments.EXPONENTS` at offsets d (K, 3).
-
-    Column by column from contiguous powers (the same products in the same order as gathering the
-    exponents of a (K, degree, 3) table, a quarter of its time: 0.35 s of the bunny's 754k Gauss points)."""
-    e = EXPONENTS[:nm]
-    top = int(e.max()) + 1
-    dt = np.ascontiguousarray(np.asarray(d, dtype=np.float64).T)  # (3, K)
-    powers = np.empty((top, 3, dt.shape[1]))
-    powers[0] = 1.0
-    for k in range(1, top):
-        powers[k] = powers[k - 1] * dt
-    out = np.empty((dt.shape[1], nm))
-    for j, (a, b, c) in enumerate(e):
-        out[:, j] = powers[a, 0] * powers[b, 1] * powers[c, 2]
-    return out
-
-
 def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degree: int = SUBRULE_DEGREE):
     """Per region, a subset of ``points`` with non-negative weights reproducing its moments to ``degree``.
 
@@ -132,8 +115,6 @@ def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degr
     InputError
         Bad shapes, a region without candidates, a degree out of range, h <= 0.
     """
-    from scipy.optimize import nnls
-
     points = np.asarray(points, dtype=np.float64)
     volume = np.asarray(volume, dtype=np.float64)
     region = np.asarray(region, dtype=np.int64)
@@ -149,64 +130,41 @@ def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degr
     counts = np.bincount(region, minlength=n_regions)
     if np.any(counts == 0):
         raise InputError(f"region {int(np.flatnonzero(counts == 0)[0])} has no candidate point")
+    from ._subrule_kernel import fit_regions
+
     nm = _n_moments(int(degree))
     order = np.argsort(region, kind="stable")
-    bounds = np.concatenate([[0], np.cumsum(counts)])
-    vol_r = np.bincount(region, weights=volume, minlength=n_regions)
-    centre = np.stack([np.bincount(region, weights=volume * points[:, a], minlength=n_regions)
-                       for a in range(3)], axis=1) / vol_r[:, None]
-    mono = _monomials((points - centre[region]) / h, nm)
-    selected = [None] * n_regions
-    weights = [None] * n_regions
-    fits = {}  # support size -> [(region, ids, A, b, scale, keep, x)]: re-solved in batches below
-    for r in range(n_regions):
-        ids = order[bounds[r]:bounds[r + 1]]
-        if len(ids) <= nm:  # no fewer points possible in general: keep the full rule
-            selected[r], weights[r] = ids, volume[ids]
-            continue
-        A = mono[ids].T  # (nm, k)
-        b = A @ (volume[ids] / h**3)  # weights in voxel volumes: NNLS's tolerances are absolute, the fit scale-free
-        scale = 1.0 / np.maximum(np.abs(A).max(axis=1), 1e-300)
-        x, _ = nnls(A * scale[:, None], b * scale, maxiter=50 * len(ids))
-        keep = np.flatnonzero(x > 1e-12 * x.max())
-        fits.setdefault(len(keep), []).append((r, ids, A, b, scale, keep, x))
-    for group in fits.values():
-        _resolve(group, selected, weights, volume, h)
-    return np.concatenate(selected).astype(np.int64), np.concatenate(weights)
+    bounds = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    # in units of h and of h^3: NNLS's tolerances are relative, the fit the same at any unit
+    v = volume / h**3
+    vol_r = np.bincount(region, weights=v, minlength=n_regions)
+    centre = np.stack([np.bincount(region, weights=v * points[:, a], minlength=n_regions) for a in range(3)],
+                      axis=1) / vol_r[:, None]
+    x = (points - centre[region]) / h  # offsets from each region's centroid
+    chosen = np.zeros(len(points), dtype=np.bool_)
+    weight = np.zeros(len(points))
+    fit_regions(x, v, order, bounds, np.ascontiguousarray(EXPONENTS[:nm], dtype=np.int64), chosen, weight)
+    selected = order[chosen[order]]
+    return selected.astype(np.int64), weight[selected] * h**3
 
 
-def _resolve(group, selected, weights, volume, h) -> None:
-    """The weights on each NNLS support re-solved to round-off (NNLS stops at its own tolerance), for regions
-    with supports of one size at once: least squares by batched QR of the row-scaled (nm, k) systems (full
-    column rank: NNLS's supports are independent columns), kept where every weight is positive and the moments
-    are met to 1e-10, else NNLS's own weights; a support that misses them beyond 1e-8 keeps the full rule."""
-    Ak = np.stack([A[:, keep] for _, _, A, _, _, keep, _ in group])  # (G, nm, k)
-    b = np.stack([g[3] for g in group])  # (G, nm)
-    scale = np.stack([g[4] for g in group])
-    k = Ak.shape[2]
-    xs = np.full((len(group), k), np.nan)
-    if k:
-        Q, R = np.linalg.qr(Ak * scale[:, :, None])
-        rhs = np.einsum("gik,gi->gk", Q, b * scale)
-        d = np.abs(np.diagonal(R, axis1=1, axis2=2))
-        ok = d.min(axis=1) > 1e-14 * d.max(axis=1)  # numerically independent columns (else NNLS's weights)
-        if ok.any():
-            xs[ok] = np.linalg.solve(R[ok], rhs[ok][..., None])[..., 0]
-    xn = np.stack([x[keep] for *_, keep, x in group])  # NNLS's own weights on the supports
-    tol = np.abs(b[:, :1])
-    with np.errstate(invalid="ignore"):
-        resolved = np.all(xs > 0, axis=1) & _close_rows(Ak, xs, b, 1e-10, 1e-13 * tol)
-    x_keep = np.where(resolved[:, None], xs, xn)
-    met = _close_rows(Ak, x_keep, b, 1e-8, 1e-11 * tol)
-    for (r, ids, *_, keep, _), xk, ok in zip(group, x_keep, met):
-        if ok:
-            selected[r], weights[r] = ids[keep], xk * h**3
-        else:  # pragma: no cover - cannot happen for Gauss candidates (the full rule is a solution); be safe
-            selected[r], weights[r] = ids, volume[ids]
+def fit_region(A, v):
+    """Plain twin of one region's fit in :mod:`._subrule_kernel` (scipy's NNLS, numpy's least squares): the
+    weights (k,) on the candidates whose monomials are the columns of A (nm, k) and whose own weights are v,
+    reproducing ``A @ v``; None where no fit meets the moments to 1e-8 (the full rule is kept).  NNLS breaks
+    ties between symmetric candidates by round-off, so on symmetric regions the two may pick different
+    (equally exact) points; on generic ones they pick the same."""
+    from scipy.optimize import nnls
 
-
-def _close_rows(A, x, b, rtol, atol) -> np.ndarray:
-    """Per system g, whether ``A[g] @ x[g]`` is within ``atol[g] + rtol |b[g]|`` of ``b[g]`` (``np.allclose`` per
-    system, without its overhead; False where x is not finite)."""
-    Ax = np.matmul(A, x[..., None])[..., 0]
-    return np.all(np.abs(Ax - b) <= atol + rtol * np.abs(b), axis=1)
+    A = np.asarray(A, dtype=np.float64)
+    b = A @ np.asarray(v, dtype=np.float64)
+    scale = 1.0 / np.maximum(np.abs(A).max(axis=1), 1e-300)
+    x, _ = nnls(A * scale[:, None], b * scale, maxiter=50 * A.shape[1])
+    keep = np.flatnonzero(x > 1e-12 * x.max())
+    xs = np.linalg.lstsq((A * scale[:, None])[:, keep], b * scale, rcond=None)[0]
+    tol = abs(b[0])
+    if np.all(xs > 0) and np.allclose(A[:, keep] @ xs, b, rtol=1e-10, atol=1e-13 * tol):
+        x[keep] = xs
+    out = np.zeros(A.shape[1])
+    out[keep] = x[keep]
+    return out if np.allclose(A @ out, b, rtol=1e-8, atol=1e-11 * tol) else None
