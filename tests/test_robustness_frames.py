@@ -245,3 +245,15 @@ def test_frames_as_dense_as_the_voxels_are_refused_and_a_small_body_gets_fewer_b
     tiny = beam("affine", size=(1.0, 0.5, 0.5), h=0.25)  # 4x2x2 voxels, 45 corners
     model = vf.model(Scene.from_toml_text(tiny), cache=False)
     assert model.n_nodes == (3 * 45 - 1) // 12 == 11
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1.0, 1e3])
+def test_a_clamp_beside_the_body_is_named_in_the_scene_units(folder, capfd, scale):
+    """A fixed box that misses the body named it in voxel units ([-500, ...] for a box written as [-1, ...] m
+    at 2 mm voxels); now in the scene's own unit, with the object's extent beside it, at any scale."""
+    s = scale
+    text = beam("affine", size=(4.0 * s, 1.0 * s, 1.0 * s), h=0.5 * s, nodes="count = 6",
+                fixed_max=f"[{-0.5 * s!r}, {1e9 * s!r}, {1e9 * s!r}]")
+    status, err = _cli(folder, capfd, text)
+    assert_refused(status, err, "simulate", ["fixed[0] box", f"{-0.5 * s!r}", "touches no material voxel",
+                                             f"{4.0 * s:.6g}", "move or enlarge it"])

@@ -180,8 +180,17 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     def to_unit(x):
         return (np.asarray(x, dtype=np.float64) - origin) / h
 
+    # checked in the scene's own unit first: the messages name what the user wrote, not voxel units
+    if positions is not None and np.size(positions):
+        _seed_voxels(image, positions, name="positions")
+    world = _boxes(fixed)
+    material = image.labels > 0
+    for i, (lo, hi) in enumerate(world):
+        if not voxels_touching_box(image, lo, hi)[material].any():
+            raise InputError(f"fixed[{i}] box {lo.tolist()} .. {hi.tolist()} touches no material voxel (the object "
+                             f"spans {_extent(image)}); move or enlarge it")
     pos_u = None if positions is None else to_unit(np.asarray(positions, dtype=np.float64).reshape(-1, 3))
-    fixed_u = [(to_unit(lo), to_unit(hi)) for lo, hi in fixed]
+    fixed_u = [(to_unit(lo), to_unit(hi)) for lo, hi in world]
     out = _place_frames(unit, count, positions=pos_u, fixed=fixed_u, seed=seed, distance=distance,
                         compliance=compliance, iterations=iterations, density=density)
     out = np.asarray(out, dtype=np.float64).reshape(-1, 3)
@@ -192,6 +201,15 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     ijk = np.floor(unit.world_to_index(out[k:]) + 1e-6).astype(np.int64)  # automatic frames: voxel centres
     res[k:] = image.index_to_world(ijk + 0.5)
     return res
+
+
+def _extent(image) -> str:
+    """The material's world bounding box, as a message shows it."""
+    ijk = np.argwhere(image.labels > 0)
+    corners = image.index_to_world(np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], float)
+                                   * (ijk.max(0) + 1 - ijk.min(0)) + ijk.min(0))
+    lo, hi = corners.min(0), corners.max(0)
+    return f"{[float(f'{v:.6g}') for v in lo]} .. {[float(f'{v:.6g}') for v in hi]}"
 
 
 def _place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="geodesic", compliance=None,
