@@ -85,6 +85,8 @@ import scipy.sparse as sp
 from ...errors import ConvergenceError, InputError
 from ..models.protocol import OnePass
 from .base import ModelLayer
+from .contact_checks import check_overlap, warn_drawn_surface, warn_small_obstacles
+from .drawn import CURVED_KINDS, deepest_points, distance_hessians
 from .obstacles import POINT_RULES, Obstacle, obstacle
 
 __all__ = ["ContactModel", "collision_points", "barrier", "friction_mollifier", "with_contact", "POINT_RULES",
@@ -324,35 +326,44 @@ class ContactModel(OnePass, ModelLayer):
         self.mapping = inner.point_mapping(self.points)
         self._J = None
         self.fraction = 0.0
+        self._tri_lag = None  # the friction lag of the drawn triangles' deepest points (see begin_step)
+        self._weight = np.repeat(self.area[:, None], len(obstacles), axis=1)  # (m, k) m^2 per point and obstacle
+        self._drawn = self._drawn_triangles(inner, points)
         d = self._distances(self.mapping.apply(inner.rest))[0]
         if np.any(d <= 0):
             p, o = np.unravel_index(int(np.argmin(d)), d.shape)
             raise InputError(f"the body at rest touches or enters obstacle {o} ({obstacles[o].kind}) at "
                              f"{self.points[p].tolist()}; move the obstacle or the object apart")
-        self._check_overlap(inner, obstacles)
+        if self._drawn is not None and self._triangle_pairs(self.mapping.apply(inner.rest), 0.0) is None:
+            o = self._crossed[0]
+            raise InputError(f"the drawn surface at rest crosses obstacle {o} ({obstacles[o].kind}) between its "
+                             f"vertices (a triangle at {np.round(self._crossed[1], 6).tolist()}); move the obstacle "
+                             "or the object apart")
+        check_overlap(inner, obstacles)
+        warn_small_obstacles(inner, obstacles, self.points, self._drawn is not None)
+        if isinstance(points, str) and points == "surface":
+            warn_drawn_surface(obstacles)
 
-    @staticmethod
-    def _check_overlap(inner, obstacles, chunk: int = 1 << 16) -> None:
-        """InputError when an obstacle lies in the material at rest.  The collision points are on the surface,
-        so an obstacle wholly inside the body (a sphere in a beam) touched none of them: it was accepted and never
-        acted (contact force 0, exit 0).  Judged on the material voxels' centres, where the model has an image."""
-        image = getattr(inner, "image", None)
-        if image is None or not hasattr(image, "voxel_centers"):
-            return
-        X = image.voxel_centers()
-        for o, ob in enumerate(obstacles):
-            inside = 0
-            first = None
-            for a in range(0, len(X), chunk):
-                d = ob.signed_distance(X[a:a + chunk], 0.0)[0]
-                hit = np.flatnonzero(d <= 0)
-                inside += len(hit)
-                if first is None and len(hit):
-                    first = X[a + hit[0]]
-            if inside:
-                raise InputError(f"obstacle {o} ({ob.kind}) lies in the material at rest: {inside} of {len(X)} voxel "
-                                 f"centres are inside it (the first at {np.round(first, 6).tolist()}); an obstacle "
-                                 "must start outside the object: move it or the object apart")
+    def _drawn_triangles(self, inner, points):
+        """The drawn triangles collided at their deepest point in the curved obstacles (``"surface"`` rule):
+        (faces (F, 3) as collision-point indices, area share (F,) m^2, curved obstacle indices), or None.
+
+        Their vertices are the last collision points of the rule; against a curved obstacle the vertices'
+        share of the area (:data:`VERTEX_SHARE`) goes to the triangles instead (a triangle's deepest point
+        is never above its vertices), so the total stays the boundary area."""
+        curved = [o for o, ob in enumerate(self.obstacles) if ob.kind in CURVED_KINDS]
+        if not curved or not (isinstance(points, str) and points == "surface"):
+            return None
+        V, faces, _ = inner.boundary_surface()
+        V = np.asarray(V, dtype=float)
+        faces = np.asarray(faces, dtype=np.int64)
+        if len(faces) == 0:
+            return None
+        m0 = len(self.points) - len(V)
+        tri = V[faces]
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        self._weight[m0:, curved] = 0.0
+        return m0 + faces, VERTEX_SHARE * area, np.array(curved, dtype=np.int64)
 
     supported_by_contact = True  # the obstacles may hold the body: no static support check
 
@@ -367,7 +378,9 @@ class ContactModel(OnePass, ModelLayer):
     # -- time ---------------------------------------------------------------------
     def admissible(self, q) -> bool:
         """Whether every collision point of state q (n, d) lies outside every obstacle (d > 0)."""
-        return bool(np.all(self._distances(self.mapping.apply(np.asarray(q, dtype=float)))[0] > 0))
+        x = self.mapping.apply(np.asarray(q, dtype=float))
+        return bool(np.all(self._distances(x)[0] > 0)) and (self._drawn is None
+                                                            or self._triangle_pairs(x) is not None)
 
     def begin_step(self, fraction: float, q_prev, q_start):
         """Move the obstacles to ``fraction`` and return a state the barrier admits to start the step from.
@@ -402,6 +415,7 @@ class ContactModel(OnePass, ModelLayer):
         self.set_time(fraction)
         self._step_start = (q_prev_arr.copy(), prev_fraction)
         self._lag = self._friction_lag(q_prev_arr, prev_fraction, self.fraction)
+        self._tri_lag = self._triangle_friction_lag(q_prev_arr, prev_fraction, self.fraction)
         if self.admissible(np.reshape(q_start, shape)):
             return q_start  # the very object: the solver keeps its velocity bookkeeping
         q_start = np.asarray(q_start, dtype=float)
@@ -434,13 +448,17 @@ class ContactModel(OnePass, ModelLayer):
         x = self.mapping.apply(q)
         d, n, _ = self._distances(x, s0)
         _, db, _ = barrier(d, self.distance)
-        lam = -self.stiffness * self.area[:, None] * db  # (m, k) normal force magnitudes (N), >= 0
+        lam = -self.stiffness * self._weight * db  # (m, k) normal force magnitudes (N), >= 0
         act = (lam > 0) & (self._mu[None, :] > 0)
         if not np.any(act):
             return None
         pts, obs = np.nonzero(act)
-        xbar = x[pts].copy()
-        normal = n[pts, obs]
+        P, xbar = self._carried(obs, x[pts].copy(), n[pts, obs], s0, s1)
+        return pts, obs, self._mu[obs] * lam[pts, obs], P, xbar
+
+    def _carried(self, obs, xbar, normal, s0, s1):
+        """Tangent projectors (p, 3, 3) and touched points (p, 3) of friction pairs at fraction s1, from the
+        points ``xbar`` and the obstacles' normals there at s0 (carried by each obstacle's rigid increment)."""
         normal = normal / np.linalg.norm(normal, axis=1)[:, None]
         for o in np.unique(obs):
             ob = self.obstacles[o]
@@ -453,7 +471,26 @@ class ContactModel(OnePass, ModelLayer):
             xbar[sel] = (xbar[sel] - t0) @ R.T + t1
             normal[sel] = normal[sel] @ R.T
         P = np.eye(3)[None] - normal[:, :, None] * normal[:, None, :]
-        return pts, obs, self._mu[obs] * lam[pts, obs], P, xbar
+        return P, xbar
+
+    def _triangle_friction_lag(self, q, s0, s1):
+        """The friction lag of the drawn triangles' deepest points (their barycentric coordinates frozen
+        over the step), or None: (combination C (p, m) sparse, obstacle indices, ``mu lambda`` (N), P, xbar,
+        triangle indices (p,), barycentric coordinates (p, 3))."""
+        if self._drawn is None or not np.any(self._mu > 0):
+            return None
+        x = self.mapping.apply(q)
+        pairs = self._triangle_pairs(x, s0)
+        if pairs is None:
+            return None
+        tri, obs, lam, d, n, _ = pairs
+        lam_n = -self.stiffness * self._drawn[1][tri] * barrier(d, self.distance)[1]
+        act = (lam_n > 0) & (self._mu[obs] > 0)
+        if not np.any(act):
+            return None
+        C = self._combination(tri[act], lam[act])
+        P, xbar = self._carried(obs[act], C @ x, n[act], s0, s1)
+        return C, obs[act], self._mu[obs[act]] * lam_n[act], P, xbar, tri[act], lam[act]
 
     def _friction_terms(self, x, *, hessian=True):
         """Friction energy (J), point forces dD/dx (m, 3), Hessian blocks (m, 3, 3) or None, per-obstacle forces
@@ -462,11 +499,7 @@ class ContactModel(OnePass, ModelLayer):
         if self._lag is None:
             return 0.0, None, None, np.zeros((k, 3))
         pts, obs, w, P, xbar = self._lag
-        u = np.einsum("pij,pj->pi", P, x[pts] - xbar)  # tangential slip (in the tangent plane)
-        y = np.linalg.norm(u, axis=1)
-        f0, f1, f1y, f2 = friction_mollifier(y, self.slip)
-        energy = float(np.sum(w * f0))
-        g = (w * f1y)[:, None] * u  # dD/dx per pair: mu lambda f0'(y) u / y (u lies in the tangent plane)
+        energy, g, B = self._friction_pairs(x[pts], w, P, xbar, hessian)
         m = len(x)
         forces = np.zeros((m, 3))
         np.add.at(forces, pts, g)
@@ -474,17 +507,45 @@ class ContactModel(OnePass, ModelLayer):
         np.add.at(per_obstacle, obs, g)
         blocks = None
         if hessian:
-            # P (f0'' t t^T + f0'/y (I - t t^T)) P = f0'/y P + (f0'' - f0'/y) u u^T / y^2 (P u = u)
-            safe = np.where(y > 0, y, 1.0)
-            uu = np.where(y[:, None, None] > 0, u[:, :, None] * u[:, None, :] / safe[:, None, None] ** 2, 0.0)
-            B = w[:, None, None] * (f1y[:, None, None] * P + (f2 - f1y)[:, None, None] * uu)
             blocks = np.zeros((m, 3, 3))
             np.add.at(blocks, pts, B)
         return energy, forces, blocks, per_obstacle
 
+    def _friction_pairs(self, xf, w, P, xbar, hessian):
+        """Friction energy (J), forces dD/dx (p, 3) and Hessian blocks (p, 3, 3) or None of the friction pairs
+        at points xf (p, 3) under weights ``mu lambda`` w (p,), projectors P and touched points xbar."""
+        u = np.einsum("pij,pj->pi", P, xf - xbar)  # tangential slip (in the tangent plane)
+        y = np.linalg.norm(u, axis=1)
+        f0, f1, f1y, f2 = friction_mollifier(y, self.slip)
+        energy = float(np.sum(w * f0))
+        g = (w * f1y)[:, None] * u  # dD/dx per pair: mu lambda f0'(y) u / y (u lies in the tangent plane)
+        B = None
+        if hessian:
+            # P (f0'' t t^T + f0'/y (I - t t^T)) P = f0'/y P + (f0'' - f0'/y) u u^T / y^2 (P u = u)
+            safe = np.where(y > 0, y, 1.0)
+            uu = np.where(y[:, None, None] > 0, u[:, :, None] * u[:, None, :] / safe[:, None, None] ** 2, 0.0)
+            B = w[:, None, None] * (f1y[:, None, None] * P + (f2 - f1y)[:, None, None] * uu)
+        return energy, g, B
+
+    def _triangle_friction_terms(self, x, *, hessian=True):
+        """Friction of the drawn triangles' deepest points: energy (J), point forces (m, 3), (triangles, blocks
+        (p, 9, 9)) or None, per-obstacle forces (k, 3), under the current lag."""
+        k = len(self.obstacles)
+        if self._tri_lag is None:
+            return 0.0, None, None, np.zeros((k, 3))
+        C, obs, w, P, xbar, tri, lam = self._tri_lag
+        energy, g, B = self._friction_pairs(C @ x, w, P, xbar, hessian)
+        per_obstacle = np.zeros((k, 3))
+        np.add.at(per_obstacle, obs, g)
+        hess = None
+        if hessian:  # the frozen point l @ vertices: blocks l_i l_j B on the vertices
+            hess = (tri, np.einsum("pi,pj,pab->piajb", lam, lam, B).reshape(-1, 9, 9))
+        return energy, np.asarray(C.T @ g), hess, per_obstacle
+
     def friction_energy(self, q) -> float:
         """The friction potential D (J) of state q (n, d) under the current step's lag (0 without friction)."""
-        return self._friction_terms(self.mapping.apply(np.asarray(q, dtype=float)), hessian=False)[0]
+        x = self.mapping.apply(np.asarray(q, dtype=float))
+        return self._friction_terms(x, hessian=False)[0] + self._triangle_friction_terms(x, hessian=False)[0]
 
     # -- energy ---------------------------------------------------------------------
     def _distances(self, x, fraction=None):
@@ -499,23 +560,100 @@ class ContactModel(OnePass, ModelLayer):
         x = self.mapping.apply(q)
         d, n, Hd = self._distances(x, fraction)
         b, db, ddb = barrier(d, self.distance)
-        w = self.stiffness * self.area[:, None]  # (m, 1) Pa m^2
+        w = self.stiffness * self._weight  # (m, k) Pa m^2
         if np.any(np.isinf(b)):
             return np.inf, None, None, None
         energy = float(np.sum(w * b))
         per_obstacle = (w * db)[:, :, None] * n  # (m, k, 3) dE/dx per obstacle
         blocks = None
         if hessian:
-            act = db != 0
+            act = (db != 0) & (w > 0)
             blocks = np.zeros((len(x), 3, 3))
             if np.any(act):
                 pts, obs = np.nonzero(act)
-                B = (w[pts, 0] * ddb[pts, obs])[:, None, None] * n[pts, obs, :, None] * n[pts, obs, None, :] \
-                    + (w[pts, 0] * db[pts, obs])[:, None, None] * Hd[pts, obs]
+                B = (w[pts, obs] * ddb[pts, obs])[:, None, None] * n[pts, obs, :, None] * n[pts, obs, None, :] \
+                    + (w[pts, obs] * db[pts, obs])[:, None, None] * Hd[pts, obs]
                 if self.project and not exact:
                     B = _psd(B)
                 np.add.at(blocks, pts, B)
         return energy, per_obstacle.sum(axis=1), blocks, per_obstacle
+
+    # -- the drawn triangles against curved obstacles (voxflex.deform.layers.drawn) ------
+    def _combination(self, tri, lam):
+        """Sparse (p, m): row i is the deepest point of triangle ``tri[i]``, ``lam[i] @`` its vertices' points."""
+        p = len(tri)
+        return sp.csr_matrix((lam.ravel(), (np.repeat(np.arange(p), 3), self._drawn[0][tri].ravel())),
+                             shape=(p, len(self.points)))
+
+    def _triangle_pairs(self, x, fraction=None):
+        """The (triangle, curved obstacle) pairs within the barrier's range at mapped points x (m, 3): triangle
+        and obstacle indices, barycentric coordinates (p, 3) of each deepest point, its distance d (p,), the
+        obstacle's gradient (p, 3) and Hessian (p, 3, 3) there; None when a triangle touches or crosses an
+        obstacle (``self._crossed`` then names the obstacle and the triangle's centre)."""
+        s = self.fraction if fraction is None else fraction
+        faces, _, curved = self._drawn
+        tri = x[faces]
+        centre = tri.mean(axis=1)
+        reach = np.linalg.norm(tri - centre[:, None, :], axis=2).max(axis=1)
+        out = []
+        for o in curved:
+            ob = self.obstacles[o]
+            # the signed distance is 1-Lipschitz: a triangle whose centre is farther than its reach plus the
+            # barrier's range has no point in that range
+            near = np.flatnonzero(ob._distance_impl(centre, s)[0] - reach < self.distance)
+            if len(near) == 0:
+                continue
+            lam, crosses = deepest_points(tri[near], ob, s)
+            d, n, H = ob._distance_impl(np.einsum("pv,pvc->pc", lam, tri[near]), s)
+            bad = crosses | (d <= 0)
+            if np.any(bad):
+                self._crossed = (int(o), centre[near[np.argmax(bad)]])
+                return None
+            act = d < self.distance
+            out.append((near[act], np.full(int(act.sum()), o), lam[act], d[act], n[act], H[act]))
+        if not out:
+            return (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0),
+                    np.zeros((0, 3)), np.zeros((0, 3, 3)))
+        return tuple(np.concatenate(parts) for parts in zip(*out))
+
+    def _triangle_terms(self, q, fraction=None, *, hessian=True, exact=False):
+        """Barrier energy (J), point forces (m, 3), (triangles, blocks (p, 9, 9)) or None, and per-obstacle forces
+        dE/dx (k, 3) of the drawn triangles' deepest points; (inf, None, None, None) when one crosses."""
+        k = len(self.obstacles)
+        m = len(self.points)
+        if self._drawn is None:
+            return 0.0, np.zeros((m, 3)), None, np.zeros((k, 3))
+        x = self.mapping.apply(q)
+        pairs = self._triangle_pairs(x, fraction)
+        if pairs is None:
+            return np.inf, None, None, None
+        tri, obs, lam, d, n, Hd = pairs
+        b, db, ddb = barrier(d, self.distance)
+        w = self.stiffness * self._drawn[1][tri]  # Pa m^2
+        g = (w * db)[:, None] * n  # dE/dp per pair
+        forces = np.zeros((m, 3))
+        np.add.at(forces, self._drawn[0][tri].ravel(), (lam[:, :, None] * g[:, None, :]).reshape(-1, 3))
+        per_obstacle = np.zeros((k, 3))
+        np.add.at(per_obstacle, obs, g)
+        hess = None
+        if hessian and len(tri):
+            grad = (lam[:, :, None] * n[:, None, :]).reshape(-1, 9)  # dd/d(vertices), the deepest point held
+            B = (w * ddb)[:, None, None] * grad[:, :, None] * grad[:, None, :] \
+                + (w * db)[:, None, None] * distance_hessians(lam, x[self._drawn[0][tri]], n, Hd)
+            if self.project and not exact:
+                B = _psd(B)
+            hess = (tri, B)
+        return float(np.sum(w * b)), forces, hess, per_obstacle
+
+    def _triangle_hessian(self, q, tri, blocks):
+        """``J_t^T B J_t`` (N, N) over drawn triangles ``tri`` (p,) with blocks (p, 9, 9) on their vertices'
+        points (vertex-major coordinates)."""
+        J = self._jacobian(q)
+        rows = (3 * self._drawn[0][tri][:, :, None] + np.arange(3)).ravel()
+        Jt = J[rows]
+        p = len(tri)
+        B = sp.bsr_matrix((blocks, np.arange(p), np.arange(p + 1)), shape=(9 * p, 9 * p)).tocsr()
+        return (Jt.T @ (B @ Jt)).tocsr()
 
     def _jacobian(self, q):
         if self._J is None or not self.mapping.constant_jacobian:
@@ -526,8 +664,10 @@ class ContactModel(OnePass, ModelLayer):
         return self._J
 
     def barrier_energy(self, q, fraction=None) -> float:
-        """The barrier energy E_c (J) of state q (n, d) (inf when a point touches or enters an obstacle)."""
-        return self._point_terms(np.asarray(q, dtype=float), fraction, hessian=False)[0]
+        """The barrier energy E_c (J) of state q (n, d) (inf when a point touches or enters an obstacle, or a
+        drawn triangle a curved one)."""
+        q = np.asarray(q, dtype=float)
+        return self._point_terms(q, fraction, hessian=False)[0] + self._triangle_terms(q, fraction, hessian=False)[0]
 
     def energy_gradient_hessian(self, q, *, gradient: bool = True, hessian: bool = True, exact: bool = False,
                                 u=None):
@@ -543,6 +683,14 @@ class ContactModel(OnePass, ModelLayer):
         Ec, fpts, blocks, _ = self._point_terms(q, hessian=hessian, exact=exact)
         if not np.isfinite(Ec):
             return np.inf, None, None
+        Et, ft, tri_hessians, _ = self._triangle_terms(q, hessian=hessian, exact=exact)
+        if not np.isfinite(Et):
+            return np.inf, None, None
+        Ec, fpts, tri_hessians = Ec + Et, fpts + ft, [tri_hessians]
+        if self._tri_lag is not None:
+            Ef, ff, fh, _ = self._triangle_friction_terms(self.mapping.apply(q), hessian=hessian)
+            Ec, fpts = Ec + Ef, fpts + ff
+            tri_hessians.append(fh)
         if self._lag is not None:  # friction: its blocks are PSD as they are (a convex potential)
             Ef, ff, fb, _ = self._friction_terms(self.mapping.apply(q), hessian=hessian)
             Ec = Ec + Ef
@@ -559,6 +707,10 @@ class ContactModel(OnePass, ModelLayer):
         if hessian and len(act):
             Hb = self._barrier_hessian(q, blocks, act)
             H = H + Hb.toarray() if isinstance(H, np.ndarray) else H + Hb  # frame models give dense Hessians
+        for th in tri_hessians if hessian else ():
+            if th is not None and len(th[0]):
+                Hb = self._triangle_hessian(q, *th)
+                H = H + Hb.toarray() if isinstance(H, np.ndarray) else H + Hb
         return E, g, H
 
     def _barrier_hessian(self, q, blocks, act):
@@ -582,13 +734,15 @@ class ContactModel(OnePass, ModelLayer):
         """
         q = np.asarray(q, dtype=float)
         _, _, _, per = self._point_terms(q, fraction, hessian=False)
-        if per is None:
+        per_tri = self._triangle_terms(q, fraction, hessian=False)[3]
+        if per is None or per_tri is None:
             return np.full((len(self.obstacles), 3), np.nan)
-        return -per.sum(axis=0) - self._friction_terms(self.mapping.apply(q), hessian=False)[3]
+        return -per.sum(axis=0) - per_tri - self.friction_forces(q)
 
     def friction_forces(self, q) -> np.ndarray:
         """The friction part (N) of :meth:`contact_forces` at state q (n, d): (obstacles, 3)."""
-        return -self._friction_terms(self.mapping.apply(np.asarray(q, dtype=float)), hessian=False)[3]
+        x = self.mapping.apply(np.asarray(q, dtype=float))
+        return -self._friction_terms(x, hessian=False)[3] - self._triangle_friction_terms(x, hessian=False)[3]
 
 
 def _moved(model, q, R, t):
