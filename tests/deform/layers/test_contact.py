@@ -284,11 +284,13 @@ def test_static_box_on_a_plane_carries_its_weight(project):
 def test_moving_sphere_indents_a_clamped_block():
     """A sphere moved down onto a block clamped at its base: begin_step carries the block along with
     the sphere when the previous state is inside the sphere's new position; the barrier keeps every
-    point outside at every step and the force grows monotonically."""
+    point outside at every step and the force grows monotonically.  The sphere starts 2 mm above the top face,
+    beyond the barrier's 1 mm (at 0.1 mm, as before the drawn triangles collided, the face's centre was within
+    the barrier at rest: the unsolved rest state carried a force of 306 N)."""
     h = 0.1
     inner = _cube(n=3, h=h, young=1e4, model="hooke")
     R = 0.5
-    sphere = Sphere(center=(0.15, 0.15, 0.3 + R + 1e-4), radius=R, motion=[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -0.01]])
+    sphere = Sphere(center=(0.15, 0.15, 0.3 + R + 2e-3), radius=R, motion=[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -0.012]])
     model = ContactModel(inner, [sphere], distance=1e-3)
     base = inner.nodes_in_box((-1, -1, -1), (1, 1, 1e-9))
     fixed = np.sort((3 * base[:, None] + np.arange(3)).ravel())

@@ -152,3 +152,28 @@ def test_an_obstacle_larger_than_the_gaps_is_not_named_at_any_scale(unit):
         ContactModel(inner, [box, sphere])
     assert not [w for w in caught if "fits through the gaps" in str(w.message)]
     assert len([w for w in caught if "edges and corners can cross" in str(w.message)]) == 1  # the box's
+
+
+def test_friction_of_the_drawn_triangles_by_central_differences():
+    """Friction against a sphere acts at the triangles' deepest points too (their barycentric coordinates
+    frozen over the step, like the lag's normal force): the energy, gradient and Hessian of barrier plus
+    friction agree with central differences after a slide, and the friction force is tangential to the sphere."""
+    inner = _slab()
+    sphere = Sphere(center=(0.5, 0.5, -0.502), radius=0.5, friction=0.5)
+    model = ContactModel(inner, [sphere], distance=0.01)
+    rng = np.random.default_rng(4)
+    q_lag = inner.rest + 0.0005 * rng.standard_normal(inner.rest.shape)
+    model.begin_step(0.0, q_lag.ravel(), q_lag.ravel().copy())
+    assert model._tri_lag is not None and len(model._tri_lag[1]) >= 4
+    model.slip = 1e-4
+    q = q_lag + 2e-4 * rng.standard_normal(q_lag.shape)
+    E, g, H = model.energy_gradient_hessian(q, exact=True)
+    v = rng.standard_normal(q.shape)
+    h = 1e-8
+    Ep, gp, _ = model.energy_gradient_hessian(q + h * v, hessian=False)
+    Em, gm, _ = model.energy_gradient_hessian(q - h * v, hessian=False)
+    assert (Ep - Em) / (2 * h) == pytest.approx(np.sum(g * v), rel=1e-6)
+    Hv = H @ v.ravel()
+    assert np.linalg.norm((gp - gm).ravel() / (2 * h) - Hv) < 1e-5 * np.linalg.norm(Hv)
+    friction = model.friction_forces(q)[0]
+    assert np.linalg.norm(friction) > 0 and abs(friction[2]) < 0.05 * np.linalg.norm(friction)

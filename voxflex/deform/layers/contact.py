@@ -17,6 +17,12 @@ C2 at ``dhat`` and infinite at contact, so the Newton solvers' line search
 (which rejects a trial step with a non-finite energy) never lets a point
 reach or cross an obstacle: that is the step filter.
 
+With the default ``"surface"`` points each drawn triangle also collides with
+every sphere at its deepest point (:mod:`voxflex.deform.layers.drawn`), which
+takes the vertices' share of the area against that sphere: nothing drawn
+enters it.  :mod:`voxflex.deform.layers.contact_checks` refuses or warns about
+obstacles the points cannot see.
+
 :class:`ContactModel` wraps any model of the protocol
 (:mod:`voxflex.deform.models.protocol`) and adds ``E_c`` to its energy, ``J^T f_c`` to
 its gradient and ``J^T B J`` to its Hessian, ``B`` the per-point 3x3 barrier
@@ -737,7 +743,7 @@ class ContactModel(OnePass, ModelLayer):
         per_tri = self._triangle_terms(q, fraction, hessian=False)[3]
         if per is None or per_tri is None:
             return np.full((len(self.obstacles), 3), np.nan)
-        return -per.sum(axis=0) - per_tri - self.friction_forces(q)
+        return -per.sum(axis=0) - per_tri + self.friction_forces(q)
 
     def friction_forces(self, q) -> np.ndarray:
         """The friction part (N) of :meth:`contact_forces` at state q (n, d): (obstacles, 3)."""
