@@ -26,7 +26,7 @@ voxels, then 10 affine frames):
 | sphere-0.5 | -0.0826 / -0.0756 | +0.0022 / +0.0017 | +0.008 / +0.006 |
 | sphere-1.0 | -0.0349 / -0.0500 | +0.0027 / +0.0023 | +0.008 / +0.008 |
 | sphere-4.0 | -0.0014 / -0.0059 | +0.0052 / +0.0053 | +0.012 / +0.008 |
-| edge | -0.2369 / -0.2455 | the same (warned) | +0.006 / +0.006 |
+| edge | -0.2369 / -0.2455 | the same (named after the run) | +0.006 / +0.006 |
 | press-0.1 | -0.0170 / +0.0004 | +0.0010 / +0.0010 | +0.001 / +0.001 |
 
 ("before": the collision points alone; "now": the drawn triangles also

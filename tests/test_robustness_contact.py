@@ -3,14 +3,17 @@
 
 from __future__ import annotations
 
+import re
 import socket
 import threading
 import time
+import warnings
 
 import numpy as np
 import pytest
 
 import voxflex as vf
+from voxflex.deform.layers.contact_checks import ContactWarning
 from voxflex.errors import InputError
 from voxflex.scene import Scene
 
@@ -161,10 +164,31 @@ def test_drop_box_on_a_sphere_keeps_the_drawn_triangles_out(kind):
                        steps=12)
     text = text.replace('[[obstacle]]\nkind = "plane"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]', sphere)
     text = text.replace("young = 1.0e5", "young = 5.0e4")
-    r = vf.simulate(Scene.from_toml_text(text), progress=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = vf.simulate(Scene.from_toml_text(text), progress=False)
     voxel = float(np.min(r.image_spacing))
     depth = _drawn_depth(r, (0.5, 0.5, -0.5), 0.5)
     assert 0.0 < depth < 0.01 * voxel, depth / voxel
+    assert not [w for w in caught if "drawn surface" in str(w.message)]  # spheres are kept out: not measured
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
+def test_a_box_edge_through_the_drawn_surface_is_measured_and_named(kind):
+    """The slab dropped half over a box's edge: the collision points stay out, the edge crosses the drawn
+    triangles between them (24-25 % of a voxel, ``benchmarks/bench_contact_drawn.py`` scene ``edge``).  Measured at
+    every step and named once the run ends (it was an unconditional warning at build time for every box)."""
+    box = '[[obstacle]]\nkind = "box"\nmin = [-1.0, -1.0, -1.0]\nmax = [0.6, 2.0, 0.0]'
+    text = DROP.format(kind=kind, nodes="count = 10" if kind == "affine" else "", normal="[0.0, 0.0, 1.0]",
+                       steps=20)
+    text = text.replace('[[obstacle]]\nkind = "plane"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]', box)
+    text = text.replace("young = 1.0e5", "young = 2.0e4")
+    with pytest.warns(ContactWarning, match=r"the drawn surface entered obstacle 0 \(box\) by .* of a voxel\) at "
+                                            r"step \d+: its edges and corners cross the triangles") as caught:
+        vf.simulate(Scene.from_toml_text(text), progress=False)
+    msg = [str(w.message) for w in caught if "drawn surface" in str(w.message)]
+    pct = float(re.search(r"\(([0-9.]+)% of a voxel\)", msg[0]).group(1))
+    assert len(msg) == 1 and 10.0 < pct < 40.0, msg
 
 
 def test_the_surface_rule_collides_the_drawn_vertices():

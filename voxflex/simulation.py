@@ -246,6 +246,7 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
                                f"'{target}', marked incomplete") from None
     recorder.check.warn()
     _warn_inversion(model, recorder)
+    _warn_drawn(recorder)
     if recorder.worst_residual[0] > ROUNDOFF_WARN * options.tolerance:
         res, step = recorder.worst_residual
         warnings.warn(
@@ -284,6 +285,26 @@ def model_estimate(model, steps: int, model_bytes: float | None = None):
             + (f", {samples} samples" if samples else "")
             + f"; {steps} step(s)" + ("" if model_bytes is None else f"; memory about {_progress._megabytes(model_bytes)}"))
     return dofs, text
+
+
+def _warn_drawn(recorder) -> None:
+    """ContactWarning when the drawn surface went deeper than DRAWN_TOLERANCE of a voxel into an obstacle the
+    collision points do not keep it out of (a box's or a distance field's edges between the vertices)."""
+    depth, step, o = recorder.drawn
+    image = recorder.image
+    h = float(np.min(image.spacing)) if image is not None else None
+    from .deform.layers.contact_checks import DRAWN_TOLERANCE, ContactWarning
+
+    if o < 0 or h is None or depth <= DRAWN_TOLERANCE * h:
+        return
+    ob = recorder.contact.obstacles[o]
+    warnings.warn(
+        f"the drawn surface entered obstacle {o} ({ob.kind}) by {depth:.3g} m ({depth / h:.1%} of a voxel) at step "
+        f"{step}: its edges and corners cross the triangles between the collision points, which stay out; use a "
+        f"finer voxel_size (the depth scales with it){', or a plane or sphere where one fits' if ob.kind == 'box' else ''}",
+        ContactWarning,
+        stacklevel=3,
+    )
 
 
 def _warn_inversion(model, recorder) -> None:
@@ -362,6 +383,11 @@ class _Recorder:
         from .guards import StateCheck
 
         self.check = StateCheck(self.surf_rest)  # every accepted state: finite, in balance, of plausible size
+        # how deep the drawn triangles went into the obstacles the barrier does not keep them out of (a box's
+        # edges between the vertices): (depth m, step, obstacle), measured at every accepted step
+        self.drawn = (0.0, 0, -1)
+        self._drawn_check = self.contact is not None and any(
+            ob.kind not in self.contact.kept_out for ob in self.contact.obstacles) and len(self.faces) > 0
         self._surface = None  # (q, drawn surface positions) of the state being recorded
 
     @property
@@ -379,6 +405,13 @@ class _Recorder:
         surface = self.surf_map.apply(q)
         self._surface = (rec.q, surface)
         self.check.size(k, surface)
+        if self._drawn_check and k > 0:
+            from .deform.layers.contact_checks import drawn_depth
+
+            depth, which = drawn_depth(self.contact.obstacles, surface, self.faces,
+                                       self.problem.fraction(float(rec.time)), self.contact.kept_out)
+            if depth > self.drawn[0]:
+                self.drawn = (depth, k, which)
         self.count += 1
         inversion, location = self._inversion(rec.q)
         self.location = location

@@ -91,7 +91,7 @@ import scipy.sparse as sp
 from ...errors import ConvergenceError, InputError
 from ..models.protocol import OnePass
 from .base import ModelLayer
-from .contact_checks import check_overlap, warn_drawn_surface, warn_small_obstacles
+from .contact_checks import check_overlap, kept_out, warn_small_obstacles
 from .drawn import CURVED_KINDS, deepest_points, distance_hessians
 from .obstacles import POINT_RULES, Obstacle, obstacle
 
@@ -347,8 +347,7 @@ class ContactModel(OnePass, ModelLayer):
                              "or the object apart")
         check_overlap(inner, obstacles)
         warn_small_obstacles(inner, obstacles, self.points, self._drawn is not None)
-        if isinstance(points, str) and points == "surface":
-            warn_drawn_surface(obstacles)
+        self.kept_out = kept_out(points)  # obstacle kinds the barrier keeps out of the drawn triangles
 
     def _drawn_triangles(self, inner, points):
         """The drawn triangles collided at their deepest point in the curved obstacles (``"surface"`` rule):
