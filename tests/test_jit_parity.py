@@ -112,3 +112,25 @@ def test_subrule_fits_compiled_equal_plain():
         runs.append(out)
     assert runs[0] == runs[1]
     assert len(runs[0].splitlines()) == 2 and all(len(line.split("|")[0].split()) >= 3 for line in runs[0].splitlines())
+
+
+def test_the_samplers_dijkstra_compiled_equals_plain():
+    """The march's Dijkstra with groups and ties in a binary heap's order (the sampler's:
+    :class:`voxflex.voronoi._march.VoxelGraph`) on the bar, two groups, 30 seeds: distances, owners and the
+    voxels each distance came from equal exactly."""
+    labels, mask, cost, shape, spacing = _bar()
+    rng = np.random.default_rng(5)
+    N = mask.shape[0]
+    flat = M.inner_to_flat(np.argwhere(labels), shape)
+    group = np.full(N, -1, dtype=np.int64)
+    group[flat] = rng.integers(0, 2, len(flat))
+    si = rng.choice(flat, 30, replace=False)
+    out = []
+    for kernel in (M._march, M._march.py_func):
+        dist, owner, pred = np.full(N, np.inf), np.full(N, -1, dtype=np.int64), np.full(N, -7, dtype=np.int32)
+        scratch = [np.empty(N, dtype=np.int32) for _ in range(3)]
+        kernel(cost, shape, spacing, dist, owner, M.state_of(mask), scratch[0], scratch[1], dist, False, si,
+               np.zeros(30), np.arange(30), 0, scratch[2], 0, 1.0, 1.0, group, pred)
+        out.append((dist, owner, pred))
+    for a, b in zip(*out):
+        np.testing.assert_array_equal(a, b)

@@ -220,3 +220,109 @@ def test_voxel_coordinates_take_the_units_round_off_out(unit):
     assert np.array_equal(voxel_coordinates(img, X), c)
     r = np.random.default_rng(0).random((50, 3)) * 4
     np.testing.assert_array_equal(voxel_coordinates(img, img.index_to_world(r)), img.world_to_index(img.index_to_world(r)))
+
+
+# --------------------------------------------------------------------------- the sampler's Dijkstra
+def _heap_dijkstra(mask, spacing, group, seeds, seed_owner, dist, owner):
+    """Oracle of :class:`VoxelGraph`'s propagation, compact arrays: a binary heap of (distance, C-order
+    index), a voxel lowered only by a strictly shorter path inside its group, so that a voxel at exactly
+    its distance from two voxels keeps the owner of the one popped first."""
+    import heapq
+
+    ijk = np.argwhere(mask)
+    lut = -np.ones(mask.shape, int)
+    lut[tuple(ijk.T)] = np.arange(len(ijk))
+    steps = [o for o in np.indices((3, 3, 3)).reshape(3, -1).T - 1 if o.any()]
+    heap = []
+    for v, o in zip(seeds, seed_owner):
+        dist[v], owner[v] = 0.0, o
+        heapq.heappush(heap, (0.0, int(v)))
+    while heap:
+        d, v = heapq.heappop(heap)
+        if d > dist[v]:
+            continue
+        for o in steps:
+            q = ijk[v] + o
+            if np.any(q < 0) or np.any(q >= mask.shape) or lut[tuple(q)] < 0 or group[lut[tuple(q)]] != group[v]:
+                continue
+            u = lut[tuple(q)]
+            nd = d + np.sqrt(((o * spacing) ** 2).sum())
+            if nd < dist[u]:
+                dist[u], owner[u] = nd, owner[v]
+                heapq.heappush(heap, (nd, int(u)))
+
+
+def _graph_case(seed, shape=(9, 8, 7), spacing=(1.0, 1.5, 1.3)):
+    from voxflex.voronoi._march import VoxelGraph
+
+    rng = np.random.default_rng(seed)
+    mask = np.ones(shape, bool) if seed % 2 == 0 else rng.random(shape) < 0.75  # a box: exact ties everywhere
+    g = VoxelGraph(mask, spacing)
+    group = rng.integers(0, 2, g.n).astype(np.int64)
+    return rng, mask, g, group
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_the_sampler_dijkstra_matches_scipy_and_a_binary_heap(seed):
+    """:meth:`VoxelGraph.propagate` (the march's Dijkstra with groups, in two incremental calls) against its
+    plain twin (scipy's Dijkstra on the explicit graph: the same distances to 1e-12, each owner a nearest
+    seed) and against a binary heap (:func:`_heap_dijkstra`: the same distances and owners, bit for bit,
+    exact ties included: the sampler's Lloyd cells and splits depend on them)."""
+    rng, mask, g, group = _graph_case(seed, spacing=(1.0, 1.0, 1.0) if seed == 0 else (1.0, 1.5, 1.3))
+    seeds = rng.choice(g.n, 24, replace=False)  # without the ordered ties 1-21 voxels change owner
+    gp = g.field(-1, np.arange(g.n), group, dtype=np.int64)
+    out = {}
+    for backend in ("numba", "numpy", "heap"):
+        dist, owner = (np.full(g.n, np.inf), np.full(g.n, -1)) if backend == "heap" else \
+            (g.field(np.inf), g.field(-1, dtype=np.int64))
+        for part in (slice(0, 5), slice(5, 24)):  # the second call lowers the first's field
+            if backend == "heap":
+                _heap_dijkstra(mask, g.spacing, group, seeds[part], np.arange(24)[part], dist, owner)
+            else:
+                g.propagate(gp, seeds[part], np.arange(24)[part], dist, owner, backend=backend)
+        out[backend] = (dist, owner) if backend == "heap" else (dist[g.flat], owner[g.flat])
+    (d1, o1), (d2, _), (d3, o3) = out["numba"], out["numpy"], out["heap"]
+    assert np.array_equal(d1, d3) and np.array_equal(o1, o3)
+    assert np.array_equal(np.isinf(d1), np.isinf(d2))
+    fin = np.isfinite(d1)
+    np.testing.assert_allclose(d1[fin], d2[fin], rtol=1e-12, atol=0)
+    for v in np.flatnonzero(fin):  # the owner is a nearest seed: its own distance to v is the field's
+        dd, oo = g.field(np.inf), g.field(-1, dtype=np.int64)
+        g.propagate(gp, seeds[o1[v]:o1[v] + 1], [0], dd, oo)
+        assert dd[g.flat[v]] == d1[v]
+
+
+@pytest.mark.parametrize("shape, spacing", [((12, 6, 5), (1.0, 1.0, 1.0)), ((20, 15, 10), (0.5, 1.0, 2.0))])
+def test_farthest_points_pick_the_seeds_of_full_scans(shape, spacing):
+    """The compiled farthest-point search (block maxima, :func:`voxflex.voronoi._march.farthest_points`)
+    against its definition: a loop that propagates each seed and takes the next as
+    voxflex._ties.first_extreme of the whole field (-1: not a candidate).  Same seeds, distances and owners
+    bit for bit, on a box full of exact ties and on a random body with anisotropic voxels (a padded grid of
+    25 blocks of 256), two groups (each seed reaches only its own)."""
+    from voxflex._ties import TIE, first_extreme
+    from voxflex.voronoi._march import VoxelGraph
+
+    rng = np.random.default_rng(1)
+    mask = np.ones(shape, dtype=bool) if shape[0] == 12 else rng.random(shape) < 0.7
+    g = VoxelGraph(mask, spacing)
+    labels = rng.integers(1, 3, g.n).astype(np.int64)
+    labels[rng.random(g.n) < 0.05] = -1  # not candidates
+    cand = np.flatnonzero(labels >= 0)
+    group = g.field(-1, cand, labels[cand], dtype=np.int64)
+    for k in (1, 7, len(cand) // 5, len(cand)):
+        first = int(cand[rng.integers(len(cand))])
+        dist = g.field(-1.0, cand, np.inf)
+        owner = g.field(-1, dtype=np.int64)
+        seeds = [first]
+        g.propagate(group, [first], [0], dist, owner)
+        while True:
+            v = g.index[first_extreme(dist, "max", floor=0.0)]
+            if dist[g.flat[v]] <= 0.0 or (len(seeds) >= k and np.isfinite(dist[g.flat[v]])):
+                break
+            seeds.append(v)
+            g.propagate(group, [v], [len(seeds) - 1], dist, owner)
+        d2 = g.field(-1.0, cand, np.inf)
+        o2 = g.field(-1, dtype=np.int64)
+        s2 = g.farthest_points(group, d2, o2, first, k, TIE)
+        assert np.array_equal(s2, seeds) and np.array_equal(d2, dist) and np.array_equal(o2, owner)
+        assert len(seeds) >= min(k, len(cand)) and np.all(np.isfinite(dist[g.flat[cand]]))

@@ -5,7 +5,11 @@ Voronoi stage: the multi-source geodesic distance (Dijkstra on the
 26-neighbourhood, or second-order fast marching), the incremental update when
 a seed is added (farthest-point sampling), and the bounded propagation of a
 point inserted as a new seed (natural-neighbour coordinates), where the front
-stops wherever the new seed no longer wins (``candidate >= bound``).
+stops wherever the new seed no longer wins (``candidate >= bound``).  Its
+Dijkstra is the package's only one: the sampler's farthest points, Lloyd cells
+and region splits run it too (:class:`VoxelGraph`, :func:`farthest_points`),
+with groups (a front stays in its label or region) and ties broken in the
+order of a binary heap.
 
 Grids are flattened C-order arrays of the image padded by ``PAD`` empty voxels
 on every side, so neighbour look-ups never leave the array.  ``mask`` is 1 on
@@ -13,8 +17,8 @@ material voxels; ``cost`` is the slowness per voxel (1 everywhere for plain
 geodesic distance, ``E_ref / E_label`` for the compliance distance).
 
 The plain-numpy twin of the Dijkstra kernel is ``scipy.sparse.csgraph``'s
-Dijkstra on the same 26-neighbour graph (used in the tests); the fast-marching
-kernel is checked against exact Euclidean distances.
+Dijkstra on the same 26-neighbour graph (:func:`dijkstra_numpy`, used in the
+tests); the fast-marching kernel is checked against exact Euclidean distances.
 """
 
 from __future__ import annotations
@@ -188,7 +192,7 @@ def _unlink(v, head, nxt, prv):
 
 @njit
 def _march(cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
-           seed_idx, seed_d, seed_own, fmm, touched, ntouched, smin, smax):
+           seed_idx, seed_d, seed_own, fmm, touched, ntouched, smin, smax, group=None, pred=None):
     """Propagate distances from seeds; returns the new number of touched voxels.
 
     dist, owner: current values, improved in place (a voxel changes only when a
@@ -203,6 +207,13 @@ def _march(cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
     edge or a corner are reached, with the same connectivity as Dijkstra).
     smin, smax: the smallest and largest slowness of the grid; when they are
     equal the slowness is never read (plain geodesic distance).
+
+    The sampler's Dijkstra (:class:`VoxelGraph`) passes two more arrays of the grid's size (numba
+    compiles them out of the other calls): ``group`` (int64), the front moves only between voxels of
+    equal group (a label, a region being split); ``pred`` (int32 scratch), the voxel each distance
+    came from, so that a voxel reached at exactly its distance from two voxels takes the owner of the
+    one nearer its seed, the lower index at equal distances (:func:`_earlier`): the owner a binary heap
+    popping (distance, index) gives, whatever the order in which the bucket queue pops a bucket.
 
     The priority queue is a circular bucket queue with decrease-key (Dial; the
     "untidy" queue of Yatziv, Bartesaghi & Sapiro 2006): bucket width = the
@@ -258,6 +269,8 @@ def _march(cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
                     touched[ntouched] = v
                     ntouched += 1
                 state[v] = 1
+                if pred is not None:
+                    pred[v] = -1
                 _link(v, cur % nb, head, nxt, prv)
                 live += 1
         b = cur % nb
@@ -271,10 +284,14 @@ def _march(cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
         t = dist[u]
         ou = owner[u]
         cu = 1.0 if uniform else cost[u]
+        if group is not None:
+            gu = group[u]
         for k in range(26):
             v = u + off[k]
             sv = state[v]
             if sv >= 2:
+                continue
+            if group is not None and group[v] != gu:
                 continue
             if uniform:
                 cand = t + length[k]
@@ -287,6 +304,8 @@ def _march(cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
             if cand < dist[v] and (not use_bound or cand < bound[v]):
                 dist[v] = cand
                 owner[v] = ou
+                if pred is not None:
+                    pred[v] = u
                 if sv == 1:
                     _unlink(v, head, nxt, prv)
                 else:
@@ -298,7 +317,17 @@ def _march(cost, shape, spacing, dist, owner, state, nxt, prv, bound, use_bound,
                 if bb < cur:
                     bb = cur
                 _link(v, bb % nb, head, nxt, prv)
+            elif pred is not None and sv == 1 and cand == dist[v] and _earlier(u, pred[v], dist):
+                owner[v] = ou
+                pred[v] = u
     return ntouched
+
+
+@njit
+def _earlier(u, p, dist):
+    """Whether frozen voxel ``u`` comes before ``p`` (-1: a seed, which nothing precedes) in the order
+    (distance, flat index): the order of C-order voxel indices, padded or not."""
+    return p >= 0 and (dist[u] < dist[p] or (dist[u] == dist[p] and u < p))
 
 
 def state_of(mask):
@@ -454,3 +483,185 @@ def march(mask, cost, shape, spacing, points, owners, *, fmm, dist=None, owner=N
     smin, smax = float(cost.min()), float(cost.max())
     _march(cost, shape, spacing, dist, owner, state, nxt, prv, dist, False, si, sd, so, fmm, touched, 0, smin, smax)
     return dist, owner
+
+
+# --------------------------------------------------------------------------- the sampler's graph
+class VoxelGraph:
+    """The material voxels of a mask on the padded grid, for the Dijkstra of :func:`_march` (order 0) with
+    groups and ordered ties: the sampler's farthest points, Lloyd cells and region splits.
+
+    ``ijk`` (N, 3) voxel indices in C order (``np.flatnonzero(mask)``), ``flat`` (N,) their flat padded
+    indices (increasing), ``index`` (size,) the compact index of each padded voxel or -1, ``shape`` (3,)
+    the padded shape, ``spacing`` (3,) the step lengths' unit (the sampler's voxel units).  Fields
+    (``dist``, ``owner``, ``group``) are flat padded arrays of ``size``; seeds are compact indices.
+    """
+
+    def __init__(self, mask, spacing):
+        m, _, self.shape = pad_grid(np.asarray(mask, dtype=bool))
+        self.flat = np.flatnonzero(m)
+        self.ijk = np.stack(np.unravel_index(self.flat, tuple(self.shape)), axis=1) - PAD
+        self.index = np.full(m.size, -1, dtype=np.int64)
+        self.index[self.flat] = np.arange(len(self.flat))
+        self.spacing = np.asarray(spacing, dtype=np.float64)
+        self.state = state_of(m)
+        self.nxt = np.empty(m.size, dtype=np.int32)
+        self.prv = np.empty(m.size, dtype=np.int32)
+        self.touched = np.empty(m.size, dtype=np.int32)
+        self.pred = np.empty(m.size, dtype=np.int32)
+
+    @property
+    def n(self) -> int:
+        return len(self.flat)
+
+    @property
+    def size(self) -> int:
+        return len(self.index)
+
+    @property
+    def strides(self) -> np.ndarray:
+        """Flat offsets (3,) of one step along each axis."""
+        return np.array([self.shape[1] * self.shape[2], self.shape[2], 1], dtype=np.int64)
+
+    def field(self, fill, voxels=None, values=None, dtype=np.float64) -> np.ndarray:
+        """A padded field of ``fill``, with ``values`` at the compact ``voxels`` when given."""
+        out = np.full(self.size, fill, dtype=dtype)
+        if voxels is not None:
+            out[self.flat[voxels]] = values
+        return out
+
+    def propagate(self, group, seeds, seed_owner, dist, owner, backend: str = "numba") -> None:
+        """Lower ``dist``/``owner`` (padded) in place by shortest paths from the compact ``seeds`` (at
+        distance 0, owners ``seed_owner``) inside equal ``group`` (padded); ``backend="numpy"``: the plain
+        twin, :func:`dijkstra_numpy`."""
+        seeds = self.flat[np.asarray(seeds, dtype=np.int64)]
+        seed_owner = np.ascontiguousarray(seed_owner, dtype=np.int64)
+        if backend == "numpy":
+            dijkstra_numpy(self, group, seeds, seed_owner, dist, owner)
+            return
+        nt = _march(_UNIFORM, self.shape, self.spacing, dist, owner, self.state, self.nxt, self.prv, dist, False,
+                    seeds, np.zeros(len(seeds)), seed_owner, 0, self.touched, 0, 1.0, 1.0, group, self.pred)
+        _reset(self.state, self.touched, nt)
+
+    def farthest_points(self, group, dist, owner, first, k, tie) -> np.ndarray:
+        """:func:`farthest_points` from the compact voxel ``first``; returns the seeds (compact indices)."""
+        seeds = farthest_points(self.shape, self.spacing, self.state, self.nxt, self.prv, self.touched, group,
+                                self.pred, dist, owner, self.flat[first], k, tie)
+        return self.index[seeds]
+
+
+_UNIFORM = np.ones(1)
+"""The slowness of :class:`VoxelGraph`'s marches: uniform, so never read."""
+
+BLOCK_SHIFT = 8
+"""Voxels per block of :func:`farthest_points`' maxima: 2^8."""
+
+
+@njit
+def _block_max(dist, b, top):  # pragma: no cover - compiled
+    lo = b << BLOCK_SHIFT
+    hi = min(lo + (1 << BLOCK_SHIFT), dist.shape[0])
+    m = -np.inf
+    for v in range(lo, hi):
+        if dist[v] > m:
+            m = dist[v]
+    top[b] = m
+
+
+@njit
+def _dijkstra(shape, spacing, state, nxt, prv, touched, group, pred, dist, owner, v, o):  # pragma: no cover
+    """:func:`_march`'s Dijkstra from the one voxel ``v`` (owner ``o``); returns the touched count (state reset)."""
+    one = np.full(1, v, dtype=np.int64)
+    nt = _march(_UNIFORM, shape, spacing, dist, owner, state, nxt, prv, dist, False, one, np.zeros(1),
+                np.full(1, o, dtype=np.int64), 0, touched, 0, 1.0, 1.0, group, pred)
+    _reset(state, touched, nt)
+    return nt
+
+
+@njit
+def farthest_points(shape, spacing, state, nxt, prv, touched, group, pred, dist, owner, first, k, tie):  # pragma: no cover
+    """Geodesic farthest-point seeds from ``first``: each next seed is the candidate farthest from the seeds so
+    far, ties within ``tie`` of the largest distance going to the lowest index (as
+    :func:`voxflex._ties.first_extreme` breaks them), until ``k`` seeds are placed and every candidate is
+    reached, or every candidate is a seed.  Returns the seeds (int64, flat padded).
+
+    Candidates are the voxels with ``dist`` >= 0 (inf: unreached; the others -1, never chosen nor crossed).
+    ``dist`` and ``owner`` come out as the seeds' distance field and Voronoi owner.  The maxima of blocks of
+    2^BLOCK_SHIFT voxels are kept (the blocks a seed's march touches are scanned again, the others not), so a
+    seed costs its march and a pass over the blocks, not a pass over the image (the bunny's 9,430 seeds of
+    94k voxels: 0.64 s as a Python loop of full-array maxima)."""
+    n = dist.shape[0]
+    nb = (n + (1 << BLOCK_SHIFT) - 1) >> BLOCK_SHIFT
+    seeds = np.empty(n, dtype=np.int64)
+    seeds[0] = first
+    _dijkstra(shape, spacing, state, nxt, prv, touched, group, pred, dist, owner, first, 0)
+    top = np.empty(nb)
+    for b in range(nb):
+        _block_max(dist, b, top)
+    dirty = np.zeros(nb, dtype=np.uint8)
+    ns = 1
+    while True:
+        best = -np.inf
+        for b in range(nb):
+            if top[b] > best:
+                best = top[b]
+        floor = best if best == np.inf else best - tie * best  # the first candidate at least this far wins
+        v = -1
+        for b in range(nb):
+            if top[b] >= floor:
+                lo = b << BLOCK_SHIFT
+                for u in range(lo, min(lo + (1 << BLOCK_SHIFT), n)):
+                    if dist[u] >= floor:
+                        v = u
+                        break
+                break
+        if v < 0 or dist[v] <= 0.0 or (ns >= k and dist[v] < np.inf):
+            break
+        seeds[ns] = v
+        nt = _dijkstra(shape, spacing, state, nxt, prv, touched, group, pred, dist, owner, v, ns)
+        ns += 1
+        for q in range(nt):  # the blocks whose distances fell, once each
+            b = touched[q] >> BLOCK_SHIFT
+            if not dirty[b]:
+                _block_max(dist, b, top)
+                dirty[b] = 1
+        for q in range(nt):
+            dirty[touched[q] >> BLOCK_SHIFT] = 0
+    return seeds[:ns].copy()
+
+
+def _csgraph(graph: VoxelGraph, group):
+    """The 26-neighbour graph between the compact voxels of equal ``group`` (padded) >= 0 (scipy CSR)."""
+    import scipy.sparse as sp
+
+    n = graph.n
+    steps = np.indices((3, 3, 3)).reshape(3, -1).T - 1
+    steps = steps[np.any(steps != 0, axis=1)]
+    rows, cols, vals = [], [], []
+    for step in steps:
+        dst = graph.index[graph.flat + step @ graph.strides]
+        src = np.flatnonzero(dst >= 0)
+        dst = dst[src]
+        keep = (group[graph.flat[src]] == group[graph.flat[dst]]) & (group[graph.flat[src]] >= 0)
+        rows.append(src[keep])
+        cols.append(dst[keep])
+        vals.append(np.full(int(keep.sum()), np.sqrt(((step * graph.spacing) ** 2).sum())))
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+
+
+def dijkstra_numpy(graph: VoxelGraph, group, seeds, seed_owner, dist, owner) -> None:
+    """Plain twin of :meth:`VoxelGraph.propagate` (``seeds`` flat padded): scipy's Dijkstra on the explicit
+    graph (:func:`_csgraph`), then the minimum with the given field; owners may differ at exact ties."""
+    from scipy.sparse.csgraph import dijkstra
+
+    if len(seeds) == 0:
+        return
+    at = graph.index[seeds]
+    d, _, src = dijkstra(_csgraph(graph, np.asarray(group)), directed=False, indices=at, min_only=True,
+                         return_predecessors=True)
+    pos = {int(v): int(o) for v, o in zip(at, seed_owner)}
+    new_owner = np.array([pos.get(int(s), -1) for s in src], dtype=np.int64)
+    better = d < dist[graph.flat]
+    dist[graph.flat[better]] = d[better]
+    owner[graph.flat[better]] = new_owner[better]
+    dist[seeds] = 0.0
+    owner[seeds] = seed_owner
