@@ -3,8 +3,10 @@
 Oracles: partitions checked voxel by voxel; a quadratic weight field (exactly
 reproduced by the quadratic fit, so w, dw, ddw at the sample equal the analytic
 values to round-off: 1e-9 relative, the fit's normal equations have condition
-~1e6); single-voxel regions give back the voxel's own values; the compiled
-Dijkstra equals scipy's on the explicit graph (1e-12).
+~1e6); single-voxel regions give back the voxel's own values; the sampler's
+cells come from the Dijkstra that ``geodesic_distance(method="dijkstra")`` runs,
+with the same distances (the kernel's own oracles are in
+``tests/voronoi/test_geodesic.py``).
 """
 
 from __future__ import annotations
@@ -16,7 +18,6 @@ from sampling_standin import QuadraticSF, ShepardSF, frames_in, two_label_block 
 from voxflex.errors import InputError  # noqa: E402
 from voxflex.image import LabelImage  # noqa: E402
 from voxflex.sampling import sample  # noqa: E402
-from voxflex.sampling._geodesic import VoxelGraph  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -112,64 +113,36 @@ def test_single_voxel_regions_return_voxel_values():
         assert np.allclose(vv.ddw[c][o1], s.values.ddw[v[c]][o2], rtol=0, atol=1e-10 * np.abs(vv.ddw).max())
 
 
-def test_dijkstra_kernel_matches_scipy():
-    rng = np.random.default_rng(0)
-    mask = rng.random((9, 8, 7)) < 0.7
-    g = VoxelGraph.from_mask(mask, [0.1, 0.2, 0.13])
-    group = rng.integers(0, 2, g.n).astype(np.int64)
-    seeds = np.sort(rng.choice(g.n, 5, replace=False))
-    out = {}
-    for backend in ("numba", "numpy"):
-        dist = np.full(g.n, np.inf)
-        owner = np.full(g.n, -1, dtype=np.int64)
-        g.propagate(group, seeds[:3], np.arange(3), dist, owner, backend=backend)
-        g.propagate(group, seeds[3:], np.arange(3, 5), dist, owner, backend=backend)  # incremental
-        out[backend] = dist, owner
-    d1, o1 = out["numba"]
-    d2, o2 = out["numpy"]
-    assert np.array_equal(np.isinf(d1), np.isinf(d2))
-    fin = np.isfinite(d1)
-    assert np.allclose(d1[fin], d2[fin], rtol=1e-12, atol=0)
-    # owners: a nearest seed (ties allowed): its single-source distance equals the field
-    for v in np.flatnonzero(fin):
-        dd = np.full(g.n, np.inf)
-        oo = np.full(g.n, -1, dtype=np.int64)
-        g.propagate(group, seeds[o1[v]:o1[v] + 1], [0], dd, oo, backend="numba")
-        assert dd[v] == pytest.approx(d1[v], rel=1e-12)
+def test_the_sampler_and_geodesic_distance_run_one_dijkstra(monkeypatch):
+    """The sampler's cells and ``geodesic_distance(method="dijkstra")`` both run the march's Dijkstra
+    (:func:`voxflex.voronoi._march._march`, order 0; recorded by a wrapper) and give the same distances, bit
+    for bit, on an L-shaped body of anisotropic voxels whose smallest edge is 1 (the sampler's voxel units
+    are then the image's) from seeds at voxel centres (the march's seeds at distance 0)."""
+    from voxflex.sampling.sampler import _Context
+    from voxflex.voronoi import _march as M
+    from voxflex.voronoi import geodesic_distance
 
+    calls = []
+    kernel = M._march
 
-@pytest.mark.parametrize("shape, spacing", [((12, 6, 5), (1.0, 1.0, 1.0)), ((20, 15, 10), (0.5, 1.0, 2.0))])
-def test_farthest_points_pick_the_seeds_of_full_scans(shape, spacing):
-    """The compiled farthest-point search (block maxima, :func:`farthest_points`) against its definition: a
-    loop that propagates each seed and takes the next as voxflex._ties.first_extreme of the whole field (-1:
-    not a candidate).  Same seeds, distances and owners bit for bit, on a box full of exact ties and on a
-    random body with anisotropic voxels (9 blocks of 256), two groups (each seed reaches only its own)."""
-    from voxflex._ties import TIE, first_extreme
-    from voxflex.sampling import _geodesic
+    def recording(*args):
+        calls.append(args[13])  # fmm: 0 is Dijkstra
+        return kernel(*args)
 
-    rng = np.random.default_rng(1)
-    mask = np.ones(shape, dtype=bool) if shape[0] == 12 else rng.random(shape) < 0.7
-    g = VoxelGraph.from_mask(mask, spacing)
-    labels = rng.integers(1, 3, g.n).astype(np.int64)
-    labels[rng.random(g.n) < 0.05] = -1  # not candidates
-    cand = np.flatnonzero(labels >= 0)
-    for k in (1, 7, len(cand) // 5, len(cand)):
-        first = int(cand[rng.integers(len(cand))])
-        dist = np.where(labels >= 0, np.inf, -1.0)
-        owner = np.full(g.n, -1, dtype=np.int64)
-        seeds = [first]
-        g.propagate(labels, [first], [0], dist, owner)
-        while True:
-            v = first_extreme(dist, "max", floor=0.0)
-            if dist[v] <= 0.0 or (len(seeds) >= k and np.isfinite(dist[v])):
-                break
-            seeds.append(v)
-            g.propagate(labels, [v], [len(seeds) - 1], dist, owner)
-        d2 = np.where(labels >= 0, np.inf, -1.0)
-        o2 = np.full(g.n, -1, dtype=np.int64)
-        s2 = _geodesic.farthest_points(g.lut, g.ijk, g.shape, g.steps, g.lengths, labels, d2, o2, first, k, TIE)
-        assert np.array_equal(s2, seeds) and np.array_equal(d2, dist) and np.array_equal(o2, owner)
-        assert len(seeds) >= min(k, len(cand)) and np.all(np.isfinite(dist[cand]))
+    monkeypatch.setattr(M, "_march", recording)
+    labels = np.zeros((9, 8, 5), np.uint8)
+    labels[:3] = labels[:, :3] = 1
+    image = LabelImage(labels, spacing=(1.0, 1.5, 1.25))
+    ctx = _Context(image, labels > 0)
+    g = ctx.graph
+    seeds = np.array([0, ctx.n // 2, ctx.n - 1])
+    dist = g.field(np.inf)
+    owner = g.field(-1, dtype=np.int64)
+    g.propagate(g.field(0, dtype=np.int64), seeds, np.arange(3), dist, owner)
+    d, own = geodesic_distance(image, ctx.centres[seeds], method="dijkstra")
+    assert calls == [0, 0]
+    assert np.array_equal(dist[g.flat], d[labels > 0]) and np.all(np.isfinite(d[labels > 0]))
+    assert np.array_equal(owner[g.flat], own[labels > 0])  # the same owners here (no exact tie between seeds)
 
 
 def test_input_errors(body):

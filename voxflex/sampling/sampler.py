@@ -46,8 +46,8 @@ import numpy as np
 from .._ties import TIE, first_extreme, tie_key
 from ..errors import InputError, check_choice
 from ..image import LabelImage
+from ..voronoi._march import VoxelGraph
 from ..voronoi.shape_functions import ShapeValues
-from ._geodesic import VoxelGraph, farthest_points
 from .quadrature import gauss_legendre_cube, voxel_rule_points
 from .samples import KINDS, Samples
 from .volume_moments import (
@@ -154,7 +154,7 @@ class _Context:
         from ..voronoi.geodesic import voxel_units
 
         spacing_u, self.h = voxel_units(image.spacing)
-        self.graph = VoxelGraph.from_mask(mask, spacing_u)
+        self.graph = VoxelGraph(mask, spacing_u)
         self.n = self.graph.n
         self.centres = image.index_to_world(self.graph.ijk + 0.5)
         self.occ = np.ones(self.n) if image.occupancy is None else image.occupancy[mask].astype(np.float64)
@@ -242,19 +242,17 @@ def _farthest_point_lloyd(ctx, cand, k, seed, iterations=None):
     """Partition the voxels ``cand`` (per label, geodesically) into >= k regions; returns owner (len(cand),)."""
     iterations = LLOYD_ITERATIONS if iterations is None else iterations
     g = ctx.graph
-    group = np.full(ctx.n, -1, dtype=np.int64)
-    group[cand] = ctx.labels[cand]
-    dist = np.full(ctx.n, -1.0)
-    dist[cand] = np.inf
-    owner = np.full(ctx.n, -1, dtype=np.int64)
+    at = g.flat[cand]  # the fields are the march's (padded grid)
+    group = g.field(-1, cand, ctx.labels[cand], dtype=np.int64)
+    dist = g.field(-1.0, cand, np.inf)
+    owner = g.field(-1, dtype=np.int64)
     rng = np.random.default_rng(seed)
     # ties broken scale-free, as voxflex._ties.first_extreme breaks them; -1: not a candidate
-    seeds = farthest_points(g.lut, g.ijk, g.shape, g.steps, g.lengths, group, dist, owner,
-                            int(cand[rng.integers(len(cand))]), int(k), TIE)
+    seeds = g.farthest_points(group, dist, owner, int(cand[rng.integers(len(cand))]), int(k), TIE)
     k = len(seeds)
     x, wt = ctx.centres[cand], ctx.occ[cand]
     for _ in range(iterations):
-        own = owner[cand]
+        own = owner[at]
         vol = np.bincount(own, weights=wt, minlength=k)
         c = np.stack([np.bincount(own, weights=wt * x[:, a], minlength=k) for a in range(3)], axis=1) / vol[:, None]
         d2 = tie_key(((x - c[own]) ** 2).sum(1), ctx.h**2)
@@ -264,10 +262,10 @@ def _farthest_point_lloyd(ctx, cand, k, seed, iterations=None):
         if np.array_equal(new, seeds):
             break
         seeds = new
-        dist[cand] = np.inf
-        owner[cand] = -1
+        dist[at] = np.inf
+        owner[at] = -1
         g.propagate(group, seeds, np.arange(k), dist, owner)
-    return owner[cand]
+    return owner[at]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -309,17 +307,20 @@ def _elaston_regions(ctx, vv, count):
 
     for r in range(n0):
         push(r)
-    dist = np.full(ctx.n, np.inf)
-    owner = np.full(ctx.n, -1, dtype=np.int64)
+    g = ctx.graph
+    dist = g.field(np.inf)
+    owner = g.field(-1, dtype=np.int64)
+    group = g.field(-1, np.arange(ctx.n), region, dtype=np.int64)  # the region of each voxel, on the march's grid
     while len(members) < count and heap:
         _, _, r = heapq.heappop(heap)
-        a, b = _split(ctx, members[r], region, dist, owner)
+        a, b = _split(ctx, members[r], group, dist, owner)
         if len(a) == 0 or len(b) == 0:
             continue
         new = len(members)
         members[r] = a
         members.append(b)
         region[b] = new
+        group[g.flat[b]] = new
         push(r)
         push(new)
     return region
@@ -332,15 +333,11 @@ def _merge_regions(ctx, region, n0, count):
     take the union of their parents.  Regions without a same-label neighbour stay.
     """
     g = ctx.graph
-    ny, nz = int(g.shape[1]), int(g.shape[2])
     pairs = []
-    for step in ((1, 0, 0), (0, 1, 0), (0, 0, 1)):
-        q = g.ijk + np.array(step)
-        ok = np.all(q < g.shape, axis=1)
-        src = np.flatnonzero(ok)
-        dst = g.lut[(q[ok, 0] * ny + q[ok, 1]) * nz + q[ok, 2]]
-        keep = dst >= 0
-        src, dst = src[keep], dst[keep]
+    for stride in g.strides:  # the face neighbour one step up each axis (-1: none)
+        dst = g.index[g.flat + stride]
+        src = np.flatnonzero(dst >= 0)
+        dst = dst[src]
         keep = (region[src] != region[dst]) & (ctx.labels[src] == ctx.labels[dst])
         a, b = region[src[keep]], region[dst[keep]]
         pairs.append(np.stack([np.minimum(a, b), np.maximum(a, b)], 1))
@@ -380,8 +377,11 @@ def _merge_regions(ctx, region, n0, count):
     return dense.reshape(-1)[region].astype(np.int64)
 
 
-def _split(ctx, vox, region, dist, owner, iterations=2):
-    """Split the region of voxels ``vox`` in two: geodesic cells of the voxels nearest and farthest from its centroid."""
+def _split(ctx, vox, group, dist, owner, iterations=2):
+    """Split the region of voxels ``vox`` in two: geodesic cells of the voxels nearest and farthest from its centroid.
+
+    ``group``, ``dist``, ``owner``: the march's fields (padded grid; the regions' ids, inf, -1), ``dist`` and
+    ``owner`` put back on ``vox`` before returning."""
     x, wt = ctx.centres[vox], ctx.occ[vox]
     c = (wt @ x) / wt.sum()
     d2 = ((x - c) ** 2).sum(1)
@@ -390,11 +390,12 @@ def _split(ctx, vox, region, dist, owner, iterations=2):
     seeds = np.array([vox[near], vox[far]], dtype=np.int64)
     if seeds[0] == seeds[1]:
         return vox, vox[:0]
+    at = ctx.graph.flat[vox]
     for it in range(iterations + 1):
-        dist[vox] = np.inf
-        owner[vox] = -1
-        ctx.graph.propagate(region, seeds, np.arange(2), dist, owner)
-        own = owner[vox]
+        dist[at] = np.inf
+        owner[at] = -1
+        ctx.graph.propagate(group, seeds, np.arange(2), dist, owner)
+        own = owner[at]
         lost = own < 0  # not reached (a disconnected part): nearest seed in space
         if lost.any():
             ds = ((x[lost, None, :] - ctx.centres[seeds][None]) ** 2).sum(-1)
@@ -411,8 +412,8 @@ def _split(ctx, vox, region, dist, owner, iterations=2):
         if np.array_equal(new, seeds) or new[0] == new[1]:
             break
         seeds = new
-    dist[vox] = np.inf
-    owner[vox] = -1
+    dist[at] = np.inf
+    owner[at] = -1
     return vox[own == 0], vox[own == 1]
 
 
