@@ -210,12 +210,15 @@ def _class_ids(*columns):
 # midpoint: single-parent regions + geodesic farthest point / Lloyd over multi-parent voxels
 # ----------------------------------------------------------------------------------------------
 def _midpoint_regions(ctx, vv, count, seed):
-    idx_s, _, n_active = _sorted_parents(vv)
-    single = n_active <= 1
+    # a voxel's only active parent is its smallest active index (what the first column of _sorted_parents holds):
+    # no sort of every voxel's parents (0.17 s of the bunny's 94k voxels with 34 parents, where none is single)
+    active = (vv.index >= 0) & (vv.w > 0)
+    single = active.sum(axis=1) <= 1
     region = np.full(ctx.n, -1, dtype=np.int64)
     ns = 0
     if single.any():
-        region[single] = _class_ids(ctx.labels[single], idx_s[single, 0])
+        first = np.where(active[single], vv.index[single], np.iinfo(np.int64).max).min(axis=1)
+        region[single] = _class_ids(ctx.labels[single], first)
         ns = int(region[single].max()) + 1
     multi = np.flatnonzero(~single)
     if len(multi) == 0:
