@@ -107,6 +107,28 @@ def test_symmetric_ties_break_the_same_way_at_any_unit():
     assert all(np.allclose(p[1], picks[0][1], rtol=1e-9) for p in picks)
 
 
+def test_ties_are_scattered_so_that_third_moment_errors_do_not_add_up():
+    """64 identical 2x2x2-voxel regions of a box (every Gauss point tied with its mirror images): the sub-rules'
+    third-moment errors must not all point the same way.  Breaking ties by the candidates' order picked one
+    pattern in every region (the errors added up: |sum e_r| / sum |e_r| = 1.00, and the capsule with 80 frames
+    came out 2.1 % softer than with Gauss points); the scattered ranks give 9 patterns and 0.49 here (below 0.7:
+    a coherent sum would be 1)."""
+    img = LabelImage(np.ones((8, 8, 8), np.uint8))
+    pts, vol, vox = gauss_points(img)
+    ijk = np.argwhere(img.labels > 0)[vox]
+    region = (ijk[:, 0] // 2) * 16 + (ijk[:, 1] // 2) * 4 + ijk[:, 2] // 2
+    sel, w = moment_fitted_rule(pts, vol, region, 64, h=1.0)
+    errors, patterns = [], set()
+    for r in range(64):
+        ids, mine = region == r, region[sel] == r
+        c = (vol[ids] @ pts[ids]) / vol[ids].sum()
+        errors.append(w[mine] @ monomials(pts[sel[mine]] - c)[:, 10:20] - vol[ids] @ monomials(pts[ids] - c)[:, 10:20])
+        patterns.add(tuple(np.round(pts[sel[mine]] - c, 6).ravel()))
+    errors = np.array(errors)
+    assert len(patterns) > 1
+    assert np.linalg.norm(errors.sum(axis=0)) < 0.7 * np.linalg.norm(errors, axis=1).sum()
+
+
 def test_bad_input_is_refused():
     pts, vol, _ = gauss_points(_l_region(1.0))
     region = np.zeros(len(pts), dtype=np.int64)

@@ -2,7 +2,8 @@
 
 Per region: the (nm, k) system of its candidates' monomials, a non-negative least-squares fit by the
 active-set method of Lawson and Hanson (a basic solution: at most nm points with positive weights), then the
-weights on that support re-solved to round-off.  Every small least-squares problem (nm <= 20 rows) is solved
+weights on that support re-solved to round-off.  Exact ties between entering candidates (symmetric Gauss
+points) go to the lowest of a fixed, scattered rank (:func:`voxflex.sampling.subrule.tie_ranks`).  Every small least-squares problem (nm <= 20 rows) is solved
 by Householder QR.  The regions are independent: one thread per slice of regions, each writing only its own
 candidates' slots, so the answer does not depend on the thread count.
 
@@ -76,7 +77,7 @@ def _qr_solve(A, cols, ncol, b, z):  # pragma: no cover - compiled
 
 
 @njit
-def _nnls(A, b, maxiter, x):  # pragma: no cover - compiled
+def _nnls(A, b, maxiter, x, rank):  # pragma: no cover - compiled
     """Lawson-Hanson active set for ``min |A x - b|, x >= 0``; x (k,) written.  Returns the support size, or
     -1 when ``maxiter`` inner steps did not finish (the caller keeps the full rule)."""
     m, k = A.shape
@@ -110,11 +111,11 @@ def _nnls(A, b, maxiter, x):  # pragma: no cover - compiled
             if not inset[j] and not skip[j] and w[j] > best:
                 best = w[j]
         jmax = -1
-        if best > tol:  # the first of the candidates tied with the largest to 1e-9: ties between symmetric
-            for j in range(k):  # points broken by their order, not by round-off (the same rule at any unit)
+        if best > tol:  # of the candidates tied with the largest to 1e-9, the lowest rank: ties between
+            for j in range(k):  # symmetric points broken by a fixed hash of the points, not by round-off (any unit)
                 if not inset[j] and not skip[j] and w[j] >= best - 1e-9 * best:
-                    jmax = j
-                    break
+                    if jmax < 0 or rank[j] < rank[jmax]:
+                        jmax = j
         if jmax < 0 or nset >= m:
             break
         inset[jmax] = True
@@ -194,7 +195,7 @@ def _meets(A, cols, ncol, x, b, rtol, atol):  # pragma: no cover - compiled
 
 
 @njit
-def _fit_one(A, v, xout):  # pragma: no cover - compiled
+def _fit_one(A, v, rank, xout):  # pragma: no cover - compiled
     """One region: A (nm, k) its monomials, v (k,) its candidates' weights; xout (k,) the fitted weights (0 off
     the support).  Returns False where no fit met the moments (the caller keeps the full rule)."""
     nm, k = A.shape
@@ -216,7 +217,7 @@ def _fit_one(A, v, xout):  # pragma: no cover - compiled
             As[i, j] = A[i, j] * scale[i]
         bs[i] = b[i] * scale[i]
     x = np.empty(k)
-    ns = _nnls(As, bs, 50 * k, x)
+    ns = _nnls(As, bs, 50 * k, x, rank)
     if ns <= 0:
         return False
     xmax = 0.0
@@ -250,13 +251,14 @@ def _fit_one(A, v, xout):  # pragma: no cover - compiled
 
 
 @njit(parallel=True)
-def fit_regions(offsets, volume, order, bounds, exps, chosen, weight):  # pragma: no cover - compiled
+def fit_regions(offsets, volume, order, bounds, exps, rank, chosen, weight):  # pragma: no cover - compiled
     """Fit every region's sub-rule (see the module).
 
     offsets (K, 3) the candidates from their region's centroid, in the fit's unit; volume (K,) their weights;
     order (K,) the candidates grouped by region (region r: ``order[bounds[r]:bounds[r + 1]]``); exps (nm, 3)
-    the monomials' exponents.  Written: chosen (K,) whether each candidate is in its region's rule, weight (K,)
-    its weight there.  Regions with at most nm candidates, or no fit within tolerance, keep every candidate
+    the monomials' exponents; rank (K,) uint64, the order in which exact ties are broken
+    (:func:`voxflex.sampling.subrule.tie_ranks`).  Written: chosen (K,) whether each candidate is in its region's
+    rule, weight (K,) its weight there.  Regions with at most nm candidates, or no fit within tolerance, keep every candidate
     with its own weight.
     """
     nm = exps.shape[0]
@@ -268,16 +270,18 @@ def fit_regions(offsets, volume, order, bounds, exps, chosen, weight):  # pragma
         if k > nm:
             A = np.empty((nm, k))
             v = np.empty(k)
+            rk = np.empty(k, dtype=np.uint64)
             for j in range(k):
                 p = order[a + j]
                 v[j] = volume[p]
+                rk[j] = rank[p]
                 d0 = offsets[p, 0]
                 d1 = offsets[p, 1]
                 d2 = offsets[p, 2]
                 for i in range(nm):
                     A[i, j] = d0 ** exps[i, 0] * d1 ** exps[i, 1] * d2 ** exps[i, 2]
             x = np.empty(k)
-            if _fit_one(A, v, x):
+            if _fit_one(A, v, rk, x):
                 for j in range(k):
                     p = order[a + j]
                     chosen[p] = x[j] > 0.0

@@ -43,7 +43,7 @@ from ..errors import InputError
 from .quadrature import voxel_rule_points
 from .volume_moments import EXPONENTS
 
-__all__ = ["gauss_points", "gauss_points_in_voxels", "moment_fitted_rule", "fit_region", "SUBRULE_DEGREE"]
+__all__ = ["gauss_points", "gauss_points_in_voxels", "moment_fitted_rule", "fit_region", "tie_ranks", "SUBRULE_DEGREE"]
 
 SUBRULE_DEGREE = 2
 """Degree of the polynomials the elastons' sub-rules integrate exactly (10 moments, at most 10 points)."""
@@ -141,11 +141,22 @@ def moment_fitted_rule(points, volume, region, n_regions: int, *, h: float, degr
     centre = np.stack([np.bincount(region, weights=v * points[:, a], minlength=n_regions) for a in range(3)],
                       axis=1) / vol_r[:, None]
     x = (points - centre[region]) / h  # offsets from each region's centroid
+    rank = tie_ranks(len(points))
     chosen = np.zeros(len(points), dtype=np.bool_)
     weight = np.zeros(len(points))
-    fit_regions(x, v, order, bounds, np.ascontiguousarray(EXPONENTS[:nm], dtype=np.int64), chosen, weight)
+    fit_regions(x, v, order, bounds, np.ascontiguousarray(EXPONENTS[:nm], dtype=np.int64), rank, chosen, weight)
     selected = order[chosen[order]]
     return selected.astype(np.int64), weight[selected] * h**3
+
+
+def tie_ranks(n: int) -> np.ndarray:
+    """(n,) uint64: the order in which the sub-rule fit breaks exact ties between candidates (symmetric Gauss
+    points that NNLS would pick by round-off): a multiplicative hash of their position in the candidates' order,
+    so that it is the same at any unit and origin, but scattered.  Breaking ties by the order itself picked the
+    same corner of every region (the lowest x, y, z), and their third-moment errors added up instead of
+    cancelling: the bundled capsule with 80 frames came out 2.1 % softer than with Gauss-Legendre points
+    (8.204 against 8.033 mm), against 0.4 % (8.064 mm) with the hash and 0.5 % with scipy's NNLS."""
+    return (np.arange(n, dtype=np.uint64) * np.uint64(2654435761)) % np.uint64(1 << 32)
 
 
 def fit_region(A, v):
