@@ -301,3 +301,56 @@ def test_tradeoff_refuses_a_silent_scheduler_before_the_reference_runs(tmp_path,
     finally:
         server.close()
     assert_refused(status, capfd.readouterr().err, "tradeoff", "not a Dask scheduler")
+
+
+TUNNEL = """\
+[object]
+shape = "box"
+size = [0.4, 0.4, 0.4]
+voxel_size = 0.05
+origin = [0.0, 0.0, 0.0]
+
+[[material]]
+model = "hooke"
+young = 1.0e4
+poisson = 0.3
+strain = "linear"
+
+[nodes]
+kind = "{kind}"
+{nodes}
+
+[[fixed]]
+max = [1e9, 1e9, 1e-9]
+
+[[obstacle]]
+kind = "{obstacle}"
+{geometry}
+motion = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, {dz}]]
+
+[solver]
+kind = "static"
+steps = {steps}
+"""
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
+@pytest.mark.parametrize("obstacle, geometry", [("sphere", "center = [0.2, 0.2, 0.52]\nradius = 0.1"),
+                                                ("box", "min = [0.1, 0.1, 0.42]\nmax = [0.3, 0.3, 0.6]")])
+def test_an_obstacle_that_tunnels_into_the_body_in_one_step_is_named(kind, obstacle, geometry):
+    """A sphere or box moved 0.3 m down in one step into a clamped 0.4 m block: the barrier judges the state the
+    step reaches, where the obstacle lies wholly inside the body touching no collision point, so the step was
+    accepted with no contact force and nothing said.  Now the obstacle's centre is found inside the drawn surface
+    (winding number) and the run ends with a ContactWarning naming it and the step; the same obstacle pressed
+    30 mm in four steps (10 mm into the block) is not named, and pushes."""
+    nodes = "count = 8" if kind == "affine" else ""
+    text = TUNNEL.format(kind=kind, nodes=nodes, obstacle=obstacle, geometry=geometry, dz=-0.3, steps=1)
+    with pytest.warns(ContactWarning, match=rf"obstacle 0 \({obstacle}\) passed into the body at step 1 .* use more "
+                                            r"steps \(or a smaller dt\) or a larger obstacle"):
+        vf.simulate(Scene.from_toml_text(text), progress=False)
+    text = TUNNEL.format(kind=kind, nodes=nodes, obstacle=obstacle, geometry=geometry, dz=-0.03, steps=4)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = vf.simulate(Scene.from_toml_text(text), progress=False)
+    assert not [w for w in caught if "passed into the body" in str(w.message)]
+    assert np.linalg.norm(r.contact_force[-1]) > 0  # it pushes

@@ -247,6 +247,7 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     recorder.check.warn()
     _warn_inversion(model, recorder)
     _warn_drawn(recorder)
+    _warn_tunnel(recorder)
     if recorder.worst_residual[0] > ROUNDOFF_WARN * options.tolerance:
         res, step = recorder.worst_residual
         warnings.warn(
@@ -285,6 +286,23 @@ def model_estimate(model, steps: int, model_bytes: float | None = None):
             + (f", {samples} samples" if samples else "")
             + f"; {steps} step(s)" + ("" if model_bytes is None else f"; memory about {_progress._megabytes(model_bytes)}"))
     return dofs, text
+
+
+def _warn_tunnel(recorder) -> None:
+    """ContactWarning when a sphere or box obstacle passed wholly into the body within a step (tunnelling)."""
+    if recorder.tunnel is None:
+        return
+    from .deform.layers.contact_checks import ContactWarning
+
+    step, which = recorder.tunnel
+    names = ", ".join(f"{o} ({recorder.contact.obstacles[o].kind})" for o in which)
+    warnings.warn(
+        f"obstacle {names} passed into the body at step {step} (its centre is inside the drawn surface, and no "
+        "collision point touched it): the step moved the body or the obstacle by more than the obstacle's size, "
+        "so the contact stopped acting there; use more steps (or a smaller dt) or a larger obstacle",
+        ContactWarning,
+        stacklevel=3,
+    )
 
 
 def _warn_drawn(recorder) -> None:
@@ -388,6 +406,10 @@ class _Recorder:
         self.drawn = (0.0, 0, -1)
         self._drawn_check = self.contact is not None and any(
             ob.kind not in self.contact.kept_out for ob in self.contact.obstacles) and len(self.faces) > 0
+        # the first step at which a sphere or box obstacle was found wholly inside the body: (step, [obstacles])
+        self.tunnel = None
+        self._tunnel_check = self.contact is not None and len(self.faces) > 0 and any(
+            ob.kind in ("sphere", "box") for ob in self.contact.obstacles)
         self._surface = None  # (q, drawn surface positions) of the state being recorded
 
     @property
@@ -412,6 +434,12 @@ class _Recorder:
                                        self.problem.fraction(float(rec.time)), self.contact.kept_out)
             if depth > self.drawn[0]:
                 self.drawn = (depth, k, which)
+        if self._tunnel_check and k > 0 and self.tunnel is None:
+            from .deform.layers.contact_checks import tunnelled
+
+            inside = tunnelled(self.contact.obstacles, surface, self.faces, self.problem.fraction(float(rec.time)))
+            if inside:
+                self.tunnel = (k, inside)
         self.count += 1
         inversion, location = self._inversion(rec.q)
         self.location = location

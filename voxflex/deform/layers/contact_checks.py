@@ -16,7 +16,11 @@ miss an obstacle are checked when the layer is built:
   (:func:`drawn_depth`, :func:`kept_out`), and a run whose drawn triangles
   went deeper than :data:`DRAWN_TOLERANCE` of a voxel into an obstacle ends
   with a :class:`ContactWarning` naming the depth
-  (:mod:`voxflex.simulation`).
+  (:mod:`voxflex.simulation`);
+* an obstacle that passed wholly into the body within one step (tunnelling:
+  the barrier judges the states a step reaches, not the path between them) is
+  found at every accepted step by the winding number of the drawn surface at
+  the obstacle's centre (:func:`tunnelled`) and named after the run.
 
 Every threshold is a ratio of lengths (the obstacle's size to the gap), so
 the same scene gets the same verdict in any unit.
@@ -32,7 +36,7 @@ from ...errors import InputError
 from .drawn import CURVED_KINDS
 
 __all__ = ["ContactWarning", "check_overlap", "collision_gap", "obstacle_size", "warn_small_obstacles",
-           "drawn_depth", "kept_out", "DRAWN_TOLERANCE"]
+           "drawn_depth", "kept_out", "DRAWN_TOLERANCE", "tunnelled"]
 
 DRAWN_TOLERANCE = 1e-3
 """Depth of the drawn surface in an obstacle, as a fraction of the voxel size, above which a run ends with a
@@ -194,3 +198,36 @@ def drawn_depth(obstacles, V, faces, fraction: float, skip=(), *, subdivisions: 
         if depth > worst:
             worst, which = depth, o
     return worst, which
+
+
+def tunnelled(obstacles, V, faces, fraction: float) -> list[int]:
+    """The spheres and boxes whose centre lies inside the drawn surface (V, faces) at ``fraction``.
+
+    The barrier keeps every collision point (and, against spheres, every drawn triangle) out of the obstacles
+    in the states a step reaches, not on the path between them: a sphere or box reached, or moving, by more
+    than its size in one step can end wholly inside the body, touching nothing, and act no more.  Its centre is
+    then inside the body's surface: the generalized winding number there is about 1 (0 outside; judged at
+    0.5, a ratio, the same at any unit).  Planes cannot pass (a body wholly behind one has every point inside
+    it); distance fields are not judged (no centre).
+
+    Returns
+    -------
+    list of obstacle indices (empty when none tunnelled)
+    """
+    from ...rasterize.winding import winding_number_brute
+
+    which, centres = [], []
+    for o, ob in enumerate(obstacles):
+        if ob.kind == "sphere":
+            c = np.asarray(ob.center, dtype=float)
+        elif ob.kind == "box":
+            c = 0.5 * (np.asarray(ob.min, dtype=float) + np.asarray(ob.max, dtype=float))
+        else:
+            continue
+        R, t = ob.pose(fraction)
+        which.append(o)
+        centres.append(R @ c + t)
+    if not which or len(faces) == 0:
+        return []
+    w = winding_number_brute(np.asarray(V, dtype=float), np.asarray(faces, dtype=np.int64), np.array(centres))
+    return [o for o, wi in zip(which, w) if wi > 0.5]
