@@ -229,5 +229,12 @@ def tunnelled(obstacles, V, faces, fraction: float) -> list[int]:
         centres.append(R @ c + t)
     if not which or len(faces) == 0:
         return []
-    w = winding_number_brute(np.asarray(V, dtype=float), np.asarray(faces, dtype=np.int64), np.array(centres))
-    return [o for o, wi in zip(which, w) if wi > 0.5]
+    V = np.asarray(V, dtype=float)
+    centres = np.array(centres)
+    # only a centre within the surface's bounding box can be inside (the winding number costs a pass over every
+    # triangle: a few ms on a large surface, which a dynamic run pays at every step)
+    box = np.all((centres >= V.min(axis=0)) & (centres <= V.max(axis=0)), axis=1)
+    if not box.any():
+        return []
+    w = winding_number_brute(V, np.asarray(faces, dtype=np.int64), centres[box])
+    return [o for o, wi in zip(np.asarray(which)[box].tolist(), w) if wi > 0.5]
