@@ -194,3 +194,29 @@ def test_drawn_depth_of_a_box_edge_through_a_tilted_quad():
     assert which == 1 and depth == pytest.approx(0.125, rel=1e-12)
     assert drawn_depth([box], V, faces, 0.0, skip=("box",)) == (0.0, -1)
     assert kept_out("surface") == ("plane", "sphere") and kept_out("vertices") == ("plane",) and kept_out(2) == ()
+
+
+def test_box_culling_never_skips_a_triangle_that_meets_the_box():
+    """drawn_depth samples only the triangles no face plane of a box separates (outcodes sharing a bit): on 3,000
+    random triangles around a moved box, every skipped triangle is outside it at every one of 231 barycentric
+    points (a plane that has all three vertices beyond it has the whole triangle beyond it), and the depth found
+    equals the brute-force sampling's on the kept ones."""
+    from voxflex.deform.layers.contact_checks import _box_distance, _box_separated, drawn_depth
+
+    rng = np.random.default_rng(7)
+    box = Box(min=(-0.5, -0.3, -0.2), max=(0.5, 0.3, 0.2), motion=[[0.0, -1.0, 0.0, 0.1], [1.0, 0.0, 0.0, 0.0],
+                                                                   [0.0, 0.0, 1.0, -0.05]])
+    V = rng.uniform(-1.0, 1.0, size=(9000, 3))
+    faces = np.arange(9000).reshape(-1, 3)
+    skipped = _box_separated(box, V, faces, 0.7)
+    assert 0 < skipped.sum() < len(faces)
+    n = 20
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    keep = i + j <= n
+    lam = np.stack([i[keep], j[keep], n - i[keep] - j[keep]], axis=1) / n
+    pts = np.einsum("sv,fvc->fsc", lam, V[faces])
+    d = _box_distance(box, pts.reshape(-1, 3), 0.7).reshape(len(faces), -1)
+    assert np.all(d[skipped] > 0)
+    assert np.allclose(d, box.signed_distance(pts.reshape(-1, 3), 0.7)[0].reshape(d.shape), atol=1e-14)
+    depth, which = drawn_depth([box], V, faces, 0.7, subdivisions=n)
+    assert which == 0 and depth == pytest.approx(-d.min(), rel=1e-12)

@@ -151,6 +151,28 @@ def kept_out(rule) -> tuple[str, ...]:
     return ()
 
 
+def _box_distance(ob, x, fraction):
+    """Signed distance (m,) of world points to a box obstacle, without its gradient and Hessian."""
+    R, t = ob.pose(fraction)
+    y = (np.asarray(x, dtype=float) - t) @ R
+    q = np.abs(y - 0.5 * (ob.min + ob.max)) - 0.5 * (ob.max - ob.min)
+    return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+
+
+def _box_separated(ob, V, faces, fraction):
+    """(F,) bool: triangles with all three vertices beyond one face plane of a box obstacle, which therefore
+    cannot meet it (the box is convex: that plane separates them)."""
+    R, t = ob.pose(fraction)
+    y = (V - t) @ R  # the vertices in the box's frame
+    # one bit per face plane a vertex lies beyond (Cohen-Sutherland outcodes): a triangle whose three codes
+    # share a bit lies beyond that plane
+    code = np.zeros(len(y), dtype=np.uint8)
+    for a in range(3):
+        code |= (y[:, a] < ob.min[a]).astype(np.uint8) << np.uint8(2 * a)
+        code |= (y[:, a] > ob.max[a]).astype(np.uint8) << np.uint8(2 * a + 1)
+    return (code[faces[:, 0]] & code[faces[:, 1]] & code[faces[:, 2]]) != 0
+
+
 def drawn_depth(obstacles, V, faces, fraction: float, skip=(), *, subdivisions: int = 8):
     """How deep the drawn triangles reach into the obstacles whose kind is not in ``skip``.
 
@@ -166,35 +188,43 @@ def drawn_depth(obstacles, V, faces, fraction: float, skip=(), *, subdivisions: 
     skip : iterable of str
         Obstacle kinds not measured (:func:`kept_out`: the barrier keeps them out).
     subdivisions : int
-        Each triangle that may reach an obstacle (a vertex within its longest edge of it: the signed distance
-        is 1-Lipschitz, so no other triangle can) is sampled on a barycentric grid of this many subdivisions
-        per edge (45 points at 8): the depth found is the deepest of those points, a lower bound of the
-        triangle's own, within an eighth of its size.
+        Each triangle that may reach an obstacle is sampled on a barycentric grid of this many subdivisions per
+        edge (45 points at 8): the depth found is the deepest of those points, a lower bound of the triangle's
+        own, within an eighth of its size.  May reach: against a box, no face plane has all three vertices
+        beyond it (else that plane separates them: a body resting on a box's face samples nothing); against a
+        distance field, a vertex within the triangle's longest edge of it (the distance is 1-Lipschitz).
 
     Returns
     -------
     (depth, obstacle) : depth in metres (>= 0; 0 when nothing drawn is inside) and the obstacle's index (-1)
     """
-    V = np.asarray(V, dtype=float)
-    faces = np.asarray(faces, dtype=np.int64)
     worst, which = 0.0, -1
-    if len(faces) == 0:
+    measured = [(o, ob) for o, ob in enumerate(obstacles) if ob.kind not in skip]
+    faces = np.asarray(faces, dtype=np.int64)
+    if not measured or len(faces) == 0:
         return worst, which
-    tri = V[faces]
-    longest = np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2), axis=1)
+    V = np.asarray(V, dtype=float)
+    tri = None
     n = int(subdivisions)
     i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
     keep = i + j <= n
     lam = np.stack([i[keep], j[keep], n - i[keep] - j[keep]], axis=1) / n
-    for o, ob in enumerate(obstacles):
-        if ob.kind in skip:
-            continue
-        dv = ob.signed_distance(V, fraction)[0]
-        near = np.flatnonzero(dv[faces].min(axis=1) < longest)
+    longest = None
+    for o, ob in measured:
+        if ob.kind == "box":
+            near = np.flatnonzero(~_box_separated(ob, V, faces, fraction))
+            distance = (lambda x, ob=ob: _box_distance(ob, x, fraction))
+        else:
+            if longest is None:
+                tri = V[faces]
+                longest = np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2), axis=1)
+            dv = ob.signed_distance(V, fraction)[0]
+            near = np.flatnonzero(dv[faces].min(axis=1) < longest)
+            distance = (lambda x, ob=ob: ob.signed_distance(x, fraction)[0])
         if len(near) == 0:
             continue
-        pts = np.einsum("sv,fvc->fsc", lam, tri[near]).reshape(-1, 3)
-        depth = -float(ob.signed_distance(pts, fraction)[0].min())
+        pts = np.einsum("sv,fvc->fsc", lam, V[faces[near]]).reshape(-1, 3)
+        depth = -float(distance(pts).min())
         if depth > worst:
             worst, which = depth, o
     return worst, which
