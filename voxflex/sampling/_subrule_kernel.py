@@ -21,6 +21,18 @@ __all__ = ["fit_regions"]
 
 
 @njit
+def _largest_column(A, cols, ncol):  # pragma: no cover - compiled
+    """The largest Euclidean norm of the columns ``A[:, cols[:ncol]]``."""
+    top = 0.0
+    for c in range(ncol):
+        s = 0.0
+        for i in range(A.shape[0]):
+            s += A[i, cols[c]] * A[i, cols[c]]
+        top = max(top, np.sqrt(s))
+    return top
+
+
+@njit
 def _qr_solve(A, cols, ncol, b, z):  # pragma: no cover - compiled
     """Least squares ``min |A[:, cols[:ncol]] z - b|`` by Householder QR; z (ncol,) written.  False where a
     column is numerically dependent on the others (|R_jj| <= 1e-13 of the largest column norm)."""
@@ -30,12 +42,7 @@ def _qr_solve(A, cols, ncol, b, z):  # pragma: no cover - compiled
         for i in range(m):
             R[i, c] = A[i, cols[c]]
     y = b.copy()
-    top = 0.0
-    for c in range(ncol):
-        s = 0.0
-        for i in range(m):
-            s += R[i, c] * R[i, c]
-        top = max(top, np.sqrt(s))
+    top = _largest_column(R, np.arange(ncol), ncol)
     if ncol > m:
         return False
     for c in range(ncol):
@@ -87,12 +94,7 @@ def _nnls(A, b, maxiter, x, rank):  # pragma: no cover - compiled
     w = np.empty(k)
     r = b.copy()
     x[:] = 0.0
-    anorm = 0.0
-    for j in range(k):
-        s = 0.0
-        for i in range(m):
-            s += A[i, j] * A[i, j]
-        anorm = max(anorm, np.sqrt(s))
+    anorm = _largest_column(A, np.arange(k), k)
     bnorm = 0.0
     for i in range(m):
         bnorm += b[i] * b[i]

@@ -38,6 +38,18 @@ def _sampled_min(tri, centre, n=60):
     return np.linalg.norm(np.einsum("sv,kvc->ksc", lam, tri) - centre[:, None, :], axis=2).min(axis=1)
 
 
+
+def _central_differences(model, q, rng, *, h, rel_gradient, rel_hessian):
+    """The model's gradient and exact Hessian at q against central differences of its energy and gradient
+    along a random direction (truncation O(h^2), round-off O(eps / h) of the energy's size)."""
+    E, g, H = model.energy_gradient_hessian(q, exact=True)
+    v = rng.standard_normal(q.shape)
+    Ep, gp, _ = model.energy_gradient_hessian(q + h * v, hessian=False)
+    Em, gm, _ = model.energy_gradient_hessian(q - h * v, hessian=False)
+    assert (Ep - Em) / (2 * h) == pytest.approx(np.sum(g * v), rel=rel_gradient)
+    Hv = H @ v.ravel()
+    assert np.linalg.norm((gp - gm).ravel() / (2 * h) - Hv) < rel_hessian * np.linalg.norm(Hv)
+
 def test_closest_point_on_triangles_against_sampling():
     """Every Voronoi region of a triangle (3 vertices, 3 edges, the face) is hit by 2000 random pairs; the
     closest point is never farther than the best of 1891 samples, and within their spacing of it."""
@@ -63,14 +75,7 @@ def test_triangle_terms_derivatives_by_central_differences():
     rng = np.random.default_rng(1)
     q = inner.rest + 0.0005 * rng.standard_normal(inner.rest.shape)
     assert len(model._triangle_pairs(model.mapping.apply(q))[0]) >= 4
-    E, g, H = model.energy_gradient_hessian(q, exact=True)
-    v = rng.standard_normal(q.shape)
-    h = 1e-7
-    Ep, gp, _ = model.energy_gradient_hessian(q + h * v, hessian=False)
-    Em, gm, _ = model.energy_gradient_hessian(q - h * v, hessian=False)
-    assert (Ep - Em) / (2 * h) == pytest.approx(np.sum(g * v), rel=1e-7)
-    Hv = H @ v.ravel()
-    assert np.linalg.norm((gp - gm).ravel() / (2 * h) - Hv) < 1e-6 * np.linalg.norm(Hv)
+    _central_differences(model, q, rng, h=1e-7, rel_gradient=1e-7, rel_hessian=1e-6)
 
 
 def test_a_sphere_between_the_vertices_is_seen_by_the_drawn_triangles():
@@ -167,14 +172,7 @@ def test_friction_of_the_drawn_triangles_by_central_differences():
     assert model._tri_lag is not None and len(model._tri_lag[1]) >= 4
     model.slip = 1e-4
     q = q_lag + 2e-4 * rng.standard_normal(q_lag.shape)
-    E, g, H = model.energy_gradient_hessian(q, exact=True)
-    v = rng.standard_normal(q.shape)
-    h = 1e-8
-    Ep, gp, _ = model.energy_gradient_hessian(q + h * v, hessian=False)
-    Em, gm, _ = model.energy_gradient_hessian(q - h * v, hessian=False)
-    assert (Ep - Em) / (2 * h) == pytest.approx(np.sum(g * v), rel=1e-6)
-    Hv = H @ v.ravel()
-    assert np.linalg.norm((gp - gm).ravel() / (2 * h) - Hv) < 1e-5 * np.linalg.norm(Hv)
+    _central_differences(model, q, rng, h=1e-8, rel_gradient=1e-6, rel_hessian=1e-5)
     friction = model.friction_forces(q)[0]
     assert np.linalg.norm(friction) > 0 and abs(friction[2]) < 0.05 * np.linalg.norm(friction)
 
