@@ -108,6 +108,27 @@ def test_absurd_magnitudes_are_refused(folder, capfd, kind, name, kw, expected):
     assert not (folder / "r.h5").exists()
 
 
+def _damped(kind, rayleigh):
+    text = beam(kind, nodes="count = 4" if kind == "affine" else "", solver=f"steps = 2\ndt = 0.05\n{rayleigh}")
+    return text.replace('kind = "static"', 'kind = "implicit-euler"')
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
+def test_stiffness_proportional_damping_runs_and_absurd_damping_is_refused(folder, capfd, kind):
+    """Round 27: ``rayleigh_stiffness`` with frames (the default model) was a numpy ``ValueError`` traceback at
+    the first step (the sparse mass plus the frames' dense stiffness is an ``np.matrix``); 1e300 with voxels ran
+    to a tip of -7.6e-305 m, exit 0.  Now the frames run, damping slows the fall as it does for voxels, and a
+    coefficient double precision cannot carry is refused like dt."""
+    tip = {}
+    for beta in ("0.0", "0.01"):
+        r = vf.simulate(Scene.from_toml_text(_damped(kind, f"rayleigh_stiffness = {beta}")), progress=False)
+        tip[beta] = r.probe_displacements()["tip"][2]
+    assert np.isfinite(tip["0.01"]) and tip["0.0"] < tip["0.01"] < 0
+    (folder / "s.toml").write_text(_damped(kind, "rayleigh_stiffness = 1e300"))
+    status = main(["simulate", "s.toml", "-o", "r.h5", "--quiet"])
+    assert_refused(status, capfd.readouterr().err, "simulate", "rayleigh_stiffness = 1e+300 is outside")
+
+
 def test_traction_and_force_loads_are_measured_against_the_stiffness(folder):
     for load, expected in (('kind = "traction"\nvector = [0.0, 0.0, -1e9]\nmin = [3.9, -1.0, -1.0]', "|t| / E"),
                            ('kind = "force"\nvector = [0.0, 0.0, -1e12]\nmin = [3.9, -1.0, -1.0]', "|F| / (E A)")):

@@ -145,6 +145,8 @@ def check_magnitudes(scene, image) -> None:
     solver = scene.solver
     if solver.kind == "implicit-euler":
         _representable("[solver] dt", solver.dt, zero_ok=False)
+        _representable("[solver] rayleigh_mass", solver.rayleigh_mass)
+        _representable("[solver] rayleigh_stiffness", solver.rayleigh_stiffness)
     size, volume = _body(image)
     if size <= 0:
         return

@@ -512,6 +512,8 @@ def _steps(model, options, records, u, v, M, f_full, free, dofs, owner, fixed, n
                 D = options.rayleigh_mass * M
                 if options.rayleigh_stiffness:
                     D = D + options.rayleigh_stiffness * model.hessian(x.reshape(shape))
+                if not sp.issparse(D):
+                    D = np.asarray(D)  # a sparse mass plus a frame model's dense stiffness is an np.matrix
             uhat = u + options.dt * v
             # Newton starts from the motion extrapolated to second order (the last step's change of velocity
             # carried on: u + h (2 v - v_prev)), not from the inertial prediction uhat; the answer is the
