@@ -156,7 +156,11 @@ class _Context:
         spacing_u, self.h = voxel_units(image.spacing)
         self.graph = VoxelGraph(mask, spacing_u)
         self.n = self.graph.n
-        self.centres = image.index_to_world(self.graph.ijk + 0.5)
+        # the voxel centres as world offsets from the image's origin (m): every choice below (centroids, splits,
+        # the linear error) reads these, so that a body far from the origin (100 km at 2 mm voxels) is cut into
+        # the regions it gets at the origin; in world coordinates their differences carried eps |x| / h
+        self.offsets = (np.asarray(self.graph.ijk + 0.5, dtype=np.float64) * image.spacing) @ image.direction.T
+        self.centres = image.origin + self.offsets  # = image.index_to_world(ijk + 0.5), bit for bit
         self.occ = np.ones(self.n) if image.occupancy is None else image.occupancy[mask].astype(np.float64)
         self.labels = image.labels[mask].astype(np.int64)
 
@@ -253,7 +257,7 @@ def _farthest_point_lloyd(ctx, cand, k, seed, iterations=None):
     # ties broken scale-free, as voxflex._ties.first_extreme breaks them; -1: not a candidate
     seeds = g.farthest_points(group, dist, owner, int(cand[rng.integers(len(cand))]), int(k), TIE)
     k = len(seeds)
-    x, wt = ctx.centres[cand], ctx.occ[cand]
+    x, wt = ctx.offsets[cand], ctx.occ[cand]
     for _ in range(iterations):
         own = owner[at]
         vol = np.bincount(own, weights=wt, minlength=k)
@@ -305,7 +309,7 @@ def _elaston_regions(ctx, vv, count):
         vox = members[r]
         if len(vox) < 2:
             return
-        err = _linear_error(ctx.centres[vox], ctx.occ[vox], w_s[vox])  # dimensionless: ties scale-free
+        err = _linear_error(ctx.offsets[vox], ctx.occ[vox], w_s[vox])  # dimensionless: ties scale-free
         heapq.heappush(heap, (-float(tie_key(err, 1.0)), -float(tie_key(ctx.occ[vox].sum(), 1.0)), r))
 
     for r in range(n0):
@@ -385,7 +389,7 @@ def _split(ctx, vox, group, dist, owner, iterations=2):
 
     ``group``, ``dist``, ``owner``: the march's fields (padded grid; the regions' ids, inf, -1), ``dist`` and
     ``owner`` put back on ``vox`` before returning."""
-    x, wt = ctx.centres[vox], ctx.occ[vox]
+    x, wt = ctx.offsets[vox], ctx.occ[vox]
     c = (wt @ x) / wt.sum()
     d2 = ((x - c) ** 2).sum(1)
     near = first_extreme(d2, "min")
@@ -401,7 +405,7 @@ def _split(ctx, vox, group, dist, owner, iterations=2):
         own = owner[at]
         lost = own < 0  # not reached (a disconnected part): nearest seed in space
         if lost.any():
-            ds = ((x[lost, None, :] - ctx.centres[seeds][None]) ** 2).sum(-1)
+            ds = ((x[lost, None, :] - ctx.offsets[seeds][None]) ** 2).sum(-1)
             own[lost] = np.argmin(ds, axis=1)
         if it == iterations:
             break
@@ -427,26 +431,27 @@ def _finish(kind, ctx, vv, region, n_frames, at_points=None) -> Samples:
     """The regions' points, moments, labels and shape values (fitted; evaluated by ``at_points`` when given)."""
     m = int(region.max()) + 1
     vol = np.bincount(region, weights=ctx.occ, minlength=m)
-    points = np.stack([np.bincount(region, weights=ctx.occ * ctx.centres[:, a], minlength=m) for a in range(3)], 1)
-    points /= vol[:, None]
+    offsets = np.stack([np.bincount(region, weights=ctx.occ * ctx.offsets[:, a], minlength=m) for a in range(3)], 1)
+    offsets /= vol[:, None]
     image = ctx.image
+    points = image.origin + offsets
     T = shift_table(box_moment_table(image.spacing, image.direction))
-    moments = _region_moments_impl(ctx.centres, ctx.occ, region, points, T, m)
+    moments = _region_moments_impl(ctx.offsets, ctx.occ, region, offsets, T, m)
     label = np.zeros(m, dtype=np.int64)
     label[region] = ctx.labels
     rimg = ctx.region_image(region)
     if at_points is None:
         values = fit_values(vv, region, points, ctx.occ, ctx.h, n_frames)
     else:
-        values = at_points(_inside_points(ctx, region, rimg, points))
+        values = at_points(_inside_points(ctx, region, rimg, points, offsets))
     return Samples(kind, points, moments[:, 0].copy(), moments, label, rimg, values)
 
 
-def _inside_points(ctx, region, rimg, points):
+def _inside_points(ctx, region, rimg, points, offsets):
     """Each region's centroid where it lies in one of the region's own voxels, else the region's voxel centre
     nearest to it (ties: the lowest voxel, scale-free): where unfitted regions are evaluated.  A non-convex
     region's centroid can lie outside the material (the cow at 0.35: evaluating the weights there was refused),
-    ``rimg`` the region image, and the regions read that way (elastons, stabilised regions) integrate their own points, not these values."""
+    ``rimg`` the region image, ``offsets`` the centroids less the image's origin (m), and the regions read that way (elastons, stabilised regions) integrate their own points, not these values."""
     image = ctx.image
     ijk = np.floor(image.world_to_index(points) + 1e-9).astype(np.int64)
     shape = np.asarray(image.shape)
@@ -456,7 +461,7 @@ def _inside_points(ctx, region, rimg, points):
     out = np.array(points, dtype=np.float64, copy=True)
     bad = np.flatnonzero(own != np.arange(len(points)))
     if len(bad):
-        d2 = tie_key(((ctx.centres - points[region]) ** 2).sum(1), ctx.h ** 2)
+        d2 = tie_key(((ctx.offsets - offsets[region]) ** 2).sum(1), ctx.h ** 2)
         order = np.lexsort((np.arange(ctx.n), d2, region))
         first = order[np.searchsorted(region[order], bad)]
         out[bad] = ctx.centres[first]

@@ -98,7 +98,16 @@ def voxel_coordinates(image, points) -> np.ndarray:
     is (a point placed at random moves by nothing)."""
     c = image.world_to_index(points)
     r = np.round(c / SNAP_GRID) * SNAP_GRID
-    return np.where(np.abs(c - r) <= SNAP_TOLERANCE, r, c)
+    return np.where(np.abs(c - r) <= snap_tolerance(image, points), r, c)
+
+
+def snap_tolerance(image, points) -> float:
+    """The snap tolerance (voxels) of :func:`voxel_coordinates`: :data:`SNAP_TOLERANCE`, or the round-off
+    of the world coordinates in voxels where the image lies far from the origin (16 eps |x| / h: a body
+    1 km from the origin at 2 mm voxels carries ~1e-10 voxel), at most 2^-20 voxel (the grid's 1/16)."""
+    far = max(float(np.max(np.abs(image.origin), initial=0.0)), float(np.max(np.abs(points), initial=0.0)))
+    roundoff = 16.0 * np.finfo(float).eps * far / float(np.min(image.spacing))
+    return float(min(max(SNAP_TOLERANCE, roundoff), 2.0 ** -20))
 
 
 def voxel_units(spacing) -> tuple[np.ndarray, float]:

@@ -90,15 +90,17 @@ class FrameAttachments:
     def _check_inside(self, pts):
         """Points must lie in (the closure of) a material voxel: a point on a face or a corner
         belongs to every voxel touching it."""
-        f = self._grid().world_to_index(pts)
+        grid = self._grid()
+        f = grid.world_to_index(pts)
+        tol = max(1e-9, grid.index_roundoff(pts))  # a point on a face far from the origin: its round-off
         labels = self.image.labels
         shape = np.asarray(labels.shape)
         ok = np.zeros(len(pts), dtype=bool)
-        lo = np.floor(f + 1e-9).astype(np.int64)
+        lo = np.floor(f + tol).astype(np.int64)
         for d in np.array([[a, b, c] for a in (0, -1) for b in (0, -1) for c in (0, -1)]):
             cell = lo + d
             inside = np.all((cell >= 0) & (cell < shape), axis=1)
-            near = np.all((f >= cell - 1e-9) & (f <= cell + 1 + 1e-9), axis=1)
+            near = np.all((f >= cell - tol) & (f <= cell + 1 + tol), axis=1)
             c = np.clip(cell, 0, shape - 1)
             ok |= inside & near & (labels[c[:, 0], c[:, 1], c[:, 2]] > 0)
         if not np.all(ok):
