@@ -388,6 +388,35 @@ class FixedSpec:
             if isinstance(rows, (str, bytes)) or not hasattr(rows, "__len__") or len(rows) != 3:
                 raise InputError(f"[fixed] transform must be a 3x4 matrix [[a,b,c,tx],[..],[..]], got {rows!r}")
             object.__setattr__(self, "transform", tuple(_vector(t, "transform", r, 4) for r in rows))
+            _check_reachable(self.transform)
+
+
+def _check_reachable(transform) -> None:
+    """InputError for a ``[[fixed]] transform`` whose path from the identity flattens the region.
+
+    A rigid map moves along its screw motion; any other map is interpolated, ``A_s = I + s (A - I)``, which is
+    singular at ``s = 1 / (1 - lam)`` for every real eigenvalue ``lam <= 0`` of ``A``: a reflection, a collapse
+    (the zero matrix crushed the clamp to a point and ran, exit 0) or a negative stretch.
+    """
+    import numpy as np
+
+    from .deform.models.motion import RIGID_TRANSFORM_TOL
+
+    A = np.asarray(transform, dtype=float)[:, :3]
+    if (np.abs(A.T @ A - np.eye(3)).max() <= RIGID_TRANSFORM_TOL
+            and abs(np.linalg.det(A) - 1.0) <= RIGID_TRANSFORM_TOL):
+        return  # a rotation: the screw motion stays rigid throughout
+    lam = np.linalg.eigvals(A)
+    real = lam.real[np.abs(lam.imag) <= 1e-9 * np.maximum(np.abs(lam), 1.0)]
+    bad = real[real <= 1e-12]
+    if len(bad):
+        worst = float(bad.min())
+        at = 1.0 / (1.0 - worst) if worst < 0 else 1.0
+        raise InputError(
+            f"[fixed] transform's 3x3 part has the eigenvalue {worst:.3g} (determinant {np.linalg.det(A):.3g}): "
+            f"interpolated from the identity it flattens the region to zero volume at {at:.3g} of the run "
+            "(a reflection, a collapse or a negative stretch is reached by no motion); give a rotation or a "
+            "map with positive stretches")
 
 
 @dataclass(frozen=True)
