@@ -91,3 +91,22 @@ def test_bundled_bar_and_phantom(tmp_path, capsys):
     assert counts[0] == 0 and counts[1:].sum() == 80 * 40 * 40
     # ball r = 5 mm at 0.5 mm voxels: 4/3 pi 10^3 = 4189 voxels, staircase error measured 0.8 % (R/h = 10)
     assert abs(counts[2] / 4188.8 - 1) < 0.02
+
+
+@pytest.mark.parametrize("argv, fixed", [
+    (["box:1e30,1,1", "--voxel-size", "0.1"], "--voxel-size"),
+    (["box:1,1,1", "--voxel-size", "0.5", "--padding", "1000000000"], "--padding"),
+])
+def test_a_grid_too_large_names_a_fix_that_works(tmp_path, capfd, argv, fixed):
+    """Round 27: a 1e30 m box gave numpy cast warnings and "no voxel centre lies inside ... use a smaller voxel
+    size" (the grid's counts overflowed int64); --padding 1e9 was told "use a voxel size of at least 2.9e10",
+    which still pads 2e9 voxels per axis.  Now one line naming a voxel size or a padding, and that one fits."""
+    out = tmp_path / "x.npz"
+    status = main(["voxelize", *argv, "-o", str(out), "--max-memory", "0.01"])
+    err = capfd.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and "Warning" not in err[0], err
+    value = err[0].split("use a voxel size of at least " if fixed == "--voxel-size" else "use --padding ")[1].split()[0]
+    args = list(argv)
+    args[args.index(fixed) + 1] = value
+    assert main(["voxelize", *args, "-o", str(out), "--max-memory", "0.01"]) in (0, 2)
+    assert "grid needs" not in capfd.readouterr().err  # the named fix fits (its voxels may then hold no centre)

@@ -161,9 +161,10 @@ def voxelize(
     items = _items(source, label, up)
     lo = np.min([b[0] for _, _, _, b in items], axis=0)
     hi = np.max([b[1] for _, _, _, b in items], axis=0)
-    counts = np.maximum(np.ceil((hi - lo) / h - 1e-9).astype(np.int64), 1) + 2 * padding
+    counts = np.maximum(np.ceil((hi - lo) / h - 1e-9), 1) + 2 * padding  # float: a 1e300 m box overflows int64
+    _check_memory(h, counts, occupancy, max_bytes, hi - lo, padding)
+    counts = counts.astype(np.int64)
     grid = _Grid(lo - padding * h, h, tuple(int(c) for c in counts))
-    _check_memory(grid, occupancy, max_bytes, hi - lo, padding)
 
     top = max(lab for _, lab, _, _ in items)
     labels = np.zeros(grid.shape, dtype=np.uint8 if top <= 255 else np.uint16)
@@ -292,35 +293,56 @@ def estimate_bytes(shape, occupancy: bool) -> int:
     Labels (1 B) plus masks and the winding-number work arrays (about 10 B per
     voxel at the peak), plus 8 B with occupancy (the fractions and their work).
     """
-    return int(np.prod(np.asarray(shape, dtype=float)) * (11 + (8 if occupancy else 0)))
+    need = _need(shape, occupancy)
+    return int(need) if need < 2.0**62 else 2**62
 
 
-def _check_memory(grid: _Grid, occupancy: bool, max_bytes, extent, padding) -> None:
+def _need(shape, occupancy: bool) -> float:
+    """:func:`estimate_bytes` as a float (inf beyond double precision, as for a 1e300 m box)."""
+    with np.errstate(over="ignore"):
+        return float(np.prod(np.asarray(shape, dtype=float)) * (11 + (8 if occupancy else 0)))
+
+
+def _check_memory(h, counts, occupancy: bool, max_bytes, extent, padding) -> None:
+    """InputError naming a voxel size (or, when the padding alone is too large, a padding) that fits."""
     if max_bytes is None:
         avail = _available_bytes()
         max_bytes = DEFAULT_MAX_BYTES if avail is None else min(DEFAULT_MAX_BYTES, avail // 2)
-    need = estimate_bytes(grid.shape, occupancy)
-    if need > max_bytes:
-        scale = grid.h.max()
-        fit = scale * (need / max_bytes) ** (1.0 / 3.0)
-        for _ in range(1000):  # grow until the rounded-up grid fits
-            fit = float(_fmt_up(fit))
-            h = grid.h / scale * fit
-            shape = np.maximum(np.ceil(extent / h - 1e-9), 1) + 2 * padding
-            if estimate_bytes(shape, occupancy) <= max_bytes:
-                break
-            fit *= 1.01
-        dims = "x".join(str(s) for s in grid.shape)
-        raise InputError(
-            f"a {dims} grid needs about {_human(need)} (limit {_human(max_bytes)}); "
-            f"use a voxel size of at least {_fmt_up(fit)} (now {_fmt(scale)})"
-        )
+    need = _need(counts, occupancy)
+    if need <= max_bytes:
+        return
+    dims = "x".join(f"{c:.0f}" if c < 1e12 else f"{c:.3g}" for c in counts)
+    head = f"a {dims} grid needs {'about ' if math.isfinite(need) else ''}{_human(need)} (limit {_human(max_bytes)}); "
+    if estimate_bytes(np.full(3, 1.0 + 2 * padding), occupancy) > max_bytes:
+        # the padding is counted in voxels: no voxel size makes it fit
+        core = np.maximum(np.ceil(extent / h - 1e-9), 1)
+        p = padding
+        while p > 0 and estimate_bytes(core + 2 * p, occupancy) > max_bytes:
+            p //= 2
+        fix = f"use --padding {p} or less" if estimate_bytes(core + 2 * p, occupancy) <= max_bytes else "use --padding 0"
+        raise InputError(head + f"--padding {padding} adds {2 * padding} voxels along every axis at any voxel size; {fix}")
+    scale = h.max()
+    per_voxel = 11 + (8 if occupancy else 0)
+    fit = scale * math.exp((float(np.log(counts).sum()) + math.log(per_voxel / max_bytes)) / 3.0)  # no overflow
+
+    def fits(size):
+        return _need(np.maximum(np.ceil(extent / (h / scale * size) - 1e-9), 1) + 2 * padding, occupancy) <= max_bytes
+
+    while not fits(fit) and fit < 1e300:  # axes one voxel thick stop shrinking: the need falls slower than cubic
+        fit *= 2.0
+    low = fit / 2.0
+    for _ in range(60):  # the smallest size that fits, to 1e-18 of it in the log
+        mid = math.exp(0.5 * (math.log(low) + math.log(fit)))
+        low, fit = (low, mid) if fits(mid) else (mid, fit)
+    raise InputError(head + f"use a voxel size of at least {_fmt_up(fit)} (now {_fmt(scale)})")
 
 
 def _human(n: float) -> str:
+    if not math.isfinite(n):
+        return "more than 1e308 B"
     for unit in ("B", "KiB", "MiB", "GiB"):
         if n < 1024 or unit == "GiB":
-            return f"{n:.0f} B" if unit == "B" else f"{n:.2f} {unit}"
+            return f"{n:.0f} B" if unit == "B" else (f"{n:.2f} {unit}" if n < 1e6 else f"{n:.3g} {unit}")
         n /= 1024
     return f"{n:.2f} GiB"  # pragma: no cover
 
@@ -330,6 +352,9 @@ def _fmt(x: float) -> str:
 
 
 def _fmt_up(x: float) -> str:
+    if x >= 1e6:  # three digits, rounded up, as an exponent (a 1e300 m box's voxel size)
+        e = int(math.floor(math.log10(x))) - 2
+        return f"{math.ceil(x / 10.0**e) * 10.0**e:.3g}"
     digits = 3 - int(math.floor(math.log10(abs(x)))) - 1
     return f"{math.ceil(x * 10**digits) / 10**digits:.{max(digits, 0)}f}" if digits > 0 else f"{math.ceil(x)}"
 
