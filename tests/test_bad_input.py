@@ -195,6 +195,8 @@ COMMANDS = [
     ("render-not-a-result", ["render", "notes.h5", "-o", "r.png"], "notes.h5"),
     ("render-o-extension", ["render", "result.h5", "-o", "r.bmp"], "unknown extension"),
     ("render-o-foreign", ["render", "result.h5", "-o", "fake.png"], "not a .png file"),
+    ("render-size-huge", ["render", "result.h5", "-o", "r.png", "--size", "100000", "100000"],
+     "at most 8192 pixels a side"),  # round 27: VTK's bad_alloc aborted the process (exit -6)
     # info
     ("info-bare-npy", ["info", "bare.npy"], "no sidecar"),
     ("info-missing", ["info", "missing.nii.gz"], "not found"),

@@ -143,6 +143,10 @@ class _Style:
     show_frames: bool
 
 
+MAX_PIXELS = 8192
+"""The largest picture side (pixels): 8192 x 8192 RGB is 200 MB; 100000 x 100000 made VTK abort the process."""
+
+
 def _style(result, *, window_size, title, cmap, view, azimuth, elevation, up, color, show_rest, axes, gravity,
            frames) -> _Style:
     try:
@@ -151,6 +155,8 @@ def _style(result, *, window_size, title, cmap, view, azimuth, elevation, up, co
         raise InputError(f"window_size must be (width, height) in pixels, got {window_size!r}") from None
     if min(w, h) < 16:
         raise InputError(f"window_size must be (width, height) of at least 16 pixels, got {window_size!r}")
+    if max(w, h) > MAX_PIXELS:
+        raise InputError(f"window_size must be (width, height) of at most {MAX_PIXELS} pixels a side, got {window_size!r}")
     _colormap(cmap)
     for name, flag in (("show_rest", show_rest), ("axes", axes), ("gravity", gravity), ("frames", frames)):
         if not isinstance(flag, (bool, np.bool_)):
