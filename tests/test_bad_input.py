@@ -119,11 +119,11 @@ SCENES = [
     ("fixed-holds-nothing", edit((_CLAMP, "min = [10.0, 10.0, 10.0]\nmax = [11.0, 11.0, 11.0]")), "fixed region"),
     ("fixed-min-above-max", edit((_CLAMP, "min = [1.0, 1.0, 1.0]\nmax = [0.0, 0.0, 0.0]")), "min must be <= max"),
     ("fixed-bad-components", edit((_CLAMP, _CLAMP + '\ncomponents = "xw"')), "components"),
-    # round 27: a map no motion reaches (the zero matrix crushed the clamp to a point and ran, exit 0)
-    ("fixed-transform-reflection", edit((_CLAMP, _CLAMP + "\ntransform = [[-1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], "
-                                                  "[0.0, 0.0, 1.0, 0.0]]")), "flattens the region to zero volume at 0.5"),
+    # round 27: the zero matrix crushed the clamp to a point and ran, exit 0 (a reflection is kept: inversion tests)
     ("fixed-transform-zero", edit((_CLAMP, _CLAMP + "\ntransform = [[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], "
-                                            "[0.0, 0.0, 0.0, 0.0]]")), "eigenvalue 0"),
+                                            "[0.0, 0.0, 0.0, 0.0]]")), "collapses the region to zero volume"),
+    ("fixed-transform-flat", edit((_CLAMP, _CLAMP + "\ntransform = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], "
+                                            "[0.0, 0.0, 0.0, 0.0]]")), "is singular"),
     ("fixed-not-a-table", edit(("[[fixed]]\n" + _CLAMP + "\n", ""), before="fixed = 3\n"), "[[fixed]]"),
     ("unknown-load-kind", edit(('kind = "gravity"', 'kind = "magnetic"')), "'magnetic'"),
     ("gravity-two-numbers", edit(("vector = [0.0, 0.0, -9.81]", "vector = [0.0, -9.81]")), "vector"),
