@@ -254,3 +254,24 @@ def test_a_millimetre_body_far_from_the_origin_gets_the_verdict_and_the_answer_i
     assert -0.005 < ref[2] < -0.002
     for origin in (1e3, 1e5, 1e6):
         np.testing.assert_allclose(tip(origin), ref, rtol=0, atol=1e-7 * abs(ref[2]))
+
+
+@pytest.mark.parametrize("kind", ["voxel", "affine"])
+def test_a_clamp_moved_rigidly_1000_km_reaches_its_round_off_floor_and_names_the_motion(kind):
+    """A 4 cm beam whose clamp is translated 1e6 m (2.5e7 body sizes) in one step: its forces come from a
+    displacement of 1e6 m and carry eps |u| / h of round-off, but Newton's floor was set at the step's start
+    (u = 0): the line search failed after 14 iterations and advised more load steps, which failed the same way.
+    The floor now includes the prescribed motion: the step is accepted at it, the sag is the one the beam gets
+    unmoved to 0.1 % (the round-off of forces known to eps 1e6 m / 2 mm), and the round-off warning names the
+    motion as the cause instead of a stiffness contrast."""
+    def text(shift):
+        return beam(kind, size=(0.04, 0.01, 0.01), h=0.002, model="neo-hookean", young="1.0e5", density="1000.0",
+                    nodes="count = 10" if kind == "affine" else "", elasticity="",
+                    fixed_max="[0.0001, 1.0, 1.0]\ntransform = [[1.0, 0.0, 0.0, %r], [0.0, 1.0, 0.0, 0.0], "
+                              "[0.0, 0.0, 1.0, 0.0]]" % shift)
+    ref = vf.simulate(Scene.from_toml_text(text(0.0)), progress=False).probe_displacements()["tip"]
+    with pytest.warns(UserWarning, match=r"round-off floor .* the fixed regions move the body 2\.5e\+07 body sizes"):
+        r = vf.simulate(Scene.from_toml_text(text(1e6)), progress=False)
+    u = r.probe_displacements()["tip"]
+    assert u[0] == pytest.approx(1e6 + ref[0], abs=1e-3 * abs(ref[2]) + 1e-9)
+    assert u[2] == pytest.approx(ref[2], rel=1e-3)

@@ -250,10 +250,14 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     _warn_tunnel(recorder)
     if recorder.worst_residual[0] > ROUNDOFF_WARN * options.tolerance:
         res, step = recorder.worst_residual
+        moved = _prescribed_reach(scene, recorder.surf_rest)
+        fix = (f"the fixed regions move the body {moved:.3g} body sizes, so its forces carry eps times that motion: "
+               "prescribe a smaller motion, or model it in the body's own frame, for a tighter answer"
+               if moved > 1e3 else "soften the stiffness contrast for a tighter answer")
         warnings.warn(
             f"{recorder.roundoff_steps} step(s) stopped at the round-off floor of double precision, far above the "
             f"tolerance {options.tolerance:.1e} (relative residual up to {res:.2e}, step {step}): the stiffest "
-            "parts' forces are known only to about eps |K x|; soften the stiffness contrast for a tighter answer",
+            f"parts' forces are known only to about eps |K x|; {fix}",
             RoundoffWarning,
             stacklevel=2,
         )
@@ -286,6 +290,22 @@ def model_estimate(model, steps: int, model_bytes: float | None = None):
             + (f", {samples} samples" if samples else "")
             + f"; {steps} step(s)" + ("" if model_bytes is None else f"; memory about {_progress._megabytes(model_bytes)}"))
     return dofs, text
+
+
+def _prescribed_reach(scene, rest) -> float:
+    """How far the fixed regions' transforms move the body's rest surface, in body sizes (0 without one)."""
+    rest = np.asarray(rest, dtype=float)
+    if rest.size == 0:
+        return 0.0
+    size = float(np.ptp(rest, axis=0).max()) or 1.0
+    reach = 0.0
+    for f in getattr(scene, "fixed", ()):
+        T = getattr(f, "transform", None)
+        if T is None:
+            continue
+        T = np.asarray(T, dtype=float)
+        reach = max(reach, float(np.abs(rest @ T[:, :3].T + T[:, 3] - rest).max()))
+    return reach / size
 
 
 def _warn_tunnel(recorder) -> None:

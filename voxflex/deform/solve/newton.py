@@ -386,7 +386,11 @@ def _newton(problem, x, free, fixed, x_fixed, options, near_null, label, reduce=
                 diag = chord.elastic
             else:
                 diag = problem.elastic_diagonal if lean else problem.elastic_diagonal[free]
-            floor = 16.0 * np.finfo(float).eps * vnorm(diag * problem.roundoff_lengths(free))
+            lengths = problem.roundoff_lengths(free)
+            if moving:  # the free DOFs follow the prescribed motion this step imposes (a clamp moved 1000 km
+                # rigidly: its forces carry eps |u| / h, which the step's start, still at u = 0, does not show)
+                lengths = lengths + float(np.max(np.abs(delta_c)))
+            floor = 16.0 * np.finfo(float).eps * vnorm(diag * lengths)
             # and the cancellation of a nearly incompressible material's volumetric terms: relative to the forces'
             # scale, BULK_FLOOR eps lambda / mu (dimensionless; ~1e-7 at nu = 0.49999999, 1e-11 at 0.4999)
             bulk_floor = BULK_FLOOR * np.finfo(float).eps * problem.bulk_ratio()
