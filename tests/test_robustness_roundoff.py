@@ -275,3 +275,33 @@ def test_a_clamp_moved_rigidly_1000_km_reaches_its_round_off_floor_and_names_the
     u = r.probe_displacements()["tip"]
     assert u[0] == pytest.approx(1e6 + ref[0], abs=1e-3 * abs(ref[2]) + 1e-9)
     assert u[2] == pytest.approx(ref[2], rel=1e-3)
+
+
+@pytest.mark.parametrize("h", [2e-6, 2e-3, 2.0])
+def test_a_body_too_far_from_the_origin_is_refused_with_the_same_verdict_at_every_unit(h, tmp_path, monkeypatch,
+                                                                                        capfd):
+    """A beam 5e11 voxel sizes from the origin (1e9 m at 2 mm voxels): coordinates carry 1.8e-3 of a voxel, the
+    frames' answer moved 1 % and at 5e14 the end-face probe was 'outside the material'.  Refused before anything is
+    built, naming the distance and the fix, at 2 um, 2 mm and 2 m voxels alike; 1e7 voxel sizes out runs."""
+    from robust import assert_refused
+
+    from voxflex.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("VOXFLEX_PROGRESS", "0")
+
+    def text(out):
+        x0 = out * h
+        # the modulus scales with the size (rho g L / E fixed): the same scene at every unit
+        return beam("voxel", size=(20 * h, 5 * h, 5 * h), h=h, young=repr(1.0e5 * h / 2e-3), density="1000.0",
+                    fixed_max=f"[{x0 + 0.05 * h!r}, 1.0e12, 1.0e12]").replace(
+            "origin = [0.0, 0.0, 0.0]", f"origin = [{x0!r}, 0.0, 0.0]").replace(
+            "min = [-1.0e9, -1.0e9, -1.0e9]", "min = [-1.0e15, -1.0e15, -1.0e15]").replace(
+            f"point = [{20 * h!r},", f"point = [{x0 + 20 * h!r},")
+
+    (tmp_path / "far.toml").write_text(text(5e11))
+    status = main(["simulate", "far.toml", "-o", "far.h5", "--quiet"])
+    assert_refused(status, capfd.readouterr()[1], "simulate",
+                   ["the object lies", "5e+11 voxel sizes", "move it near the origin"])
+    (tmp_path / "near.toml").write_text(text(1e7))
+    assert main(["simulate", "near.toml", "-o", "near.h5", "--quiet"]) == 0

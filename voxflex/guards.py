@@ -36,7 +36,7 @@ from .errors import ConvergenceError, InputError
 
 __all__ = ["check_magnitudes", "check_thin_body", "check_unreached_components", "check_held", "warn_locking",
            "StateCheck", "ImplausibleStateWarning", "LockingWarning", "LOCKING_POISSON",
-           "REPRESENTABLE", "MAX_LOAD_STRAIN", "GROWTH_WARN", "GROWTH_REFUSE", "RESIDUAL_REFUSE", "THIN_FRACTION"]
+           "REPRESENTABLE", "MAX_LOAD_STRAIN", "FAR_VOXELS", "GROWTH_WARN", "GROWTH_REFUSE", "RESIDUAL_REFUSE", "THIN_FRACTION"]
 
 REPRESENTABLE = (1e-100, 1e100)
 """Magnitudes an input may have (moduli, densities, loads, voxel sizes, time steps; 0 where a load may be 0).
@@ -118,6 +118,29 @@ def _body(image):
     return float(extent.max()), float(np.count_nonzero(mask) * np.prod(spacing))
 
 
+FAR_VOXELS = 2.0 ** 36
+"""The farthest a body's voxels may lie from the origin, in voxel sizes (about 6.9e10: 140,000 km at 2 mm).  World
+coordinates there carry 16 eps |x| / h = 2.4e-4 of a voxel of round-off, which moved frame models' answers (a 4 cm
+beam 1e9 m out, 5e11 voxels: 1 % off; 1e12 m: its end-face probe 'outside the material'); a dimensionless bound,
+so the same scene is refused at every unit."""
+
+
+def _check_far(image) -> None:
+    """InputError for a body so far from the origin that its coordinates lose a voxel's digits (:data:`FAR_VOXELS`)."""
+    labels = np.asarray(image.labels) > 0
+    ijk = np.argwhere(labels)
+    lo, hi = ijk.min(axis=0), ijk.max(axis=0) + 1
+    corners = image.index_to_world(np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
+                                             for c in (lo[2], hi[2])], dtype=float))
+    h = float(np.min(image.spacing))
+    far = float(np.abs(corners).max())
+    if far > FAR_VOXELS * h:
+        raise InputError(f"the object lies {far:.3g} m from the origin, {far / h:.3g} voxel sizes: its coordinates "
+                         f"carry {16 * np.finfo(float).eps * far / h:.2g} of a voxel of round-off (the limit is "
+                         f"{FAR_VOXELS:.3g} voxel sizes); move it near the origin ([object] origin, or the mesh's "
+                         "coordinates)")
+
+
 def check_magnitudes(scene, image) -> None:
     """InputError for an input double precision cannot carry or a load no solid carries (module docstring).
 
@@ -150,6 +173,7 @@ def check_magnitudes(scene, image) -> None:
     size, volume = _body(image)
     if size <= 0:
         return
+    _check_far(image)
     labels = set(int(x) for x in np.unique(np.asarray(image.labels))) - {0}
     specs = [m for m in scene.materials if m.label in labels] or list(scene.materials)
     soft = [(s, _stiffness(s)) for s in specs]
