@@ -138,3 +138,23 @@ def test_the_checksum_sees_every_array_name_dtype_and_shape():
     assert cache.checksum({"x": np.arange(6), "y": np.ones((2, 3))}) != base
     assert cache.checksum({"z": np.arange(6.0), "y": np.ones((2, 3))}) != base
     assert cache.checksum({"y": np.ones((2, 3)), "x": np.arange(6.0)}) == base  # name order does not matter
+
+
+@pytest.mark.parametrize("value, on", [("0", False), ("off", False), ("1", True), ("ON", True), (" yes ", True)])
+def test_the_cache_switch_reads_its_values(value, on, monkeypatch):
+    monkeypatch.setenv("VOXFLEX_CACHE", value)
+    assert cache.enabled() is on
+
+
+def test_an_unknown_cache_switch_is_refused(monkeypatch, tmp_path, capfd):
+    """VOXFLEX_CACHE=maybe was taken as on without a word; now one line naming the values that work."""
+    from robust import assert_refused, beam
+
+    from voxflex.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("VOXFLEX_CACHE", "maybe")
+    monkeypatch.setenv("VOXFLEX_PROGRESS", "0")
+    (tmp_path / "s.toml").write_text(beam("affine", nodes="count = 4"))
+    status = main(["simulate", "s.toml", "-o", "r.h5", "--quiet"])
+    assert_refused(status, capfd.readouterr()[1], "simulate", ["VOXFLEX_CACHE='maybe' is not a switch", "0 (off)"])

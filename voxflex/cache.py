@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import InputError
+
 __all__ = ["code_fingerprint", "key_of", "load", "save", "discard", "cache_dir", "enabled", "CacheWarning",
            "CacheMismatch", "CHECKSUM"]
 
@@ -51,8 +53,15 @@ class CacheMismatch(Exception):
 
 
 def enabled() -> bool:
-    """False when ``VOXFLEX_CACHE`` is 0/false/no/off."""
-    return os.environ.get("VOXFLEX_CACHE", "1").lower() not in {"0", "false", "no", "off"}
+    """False when ``VOXFLEX_CACHE`` is 0/false/no/off, True when unset or 1/true/yes/on; InputError for anything
+    else (``maybe`` was taken as on without a word)."""
+    value = os.environ.get("VOXFLEX_CACHE", "1").strip().lower()
+    if value in {"0", "false", "no", "off"}:
+        return False
+    if value in {"1", "true", "yes", "on", ""}:
+        return True
+    raise InputError(f"VOXFLEX_CACHE={os.environ['VOXFLEX_CACHE']!r} is not a switch; set it to 0 (off) or 1 (on), "
+                     "or unset it")
 
 
 def cache_dir() -> Path:
