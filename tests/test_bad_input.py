@@ -168,7 +168,10 @@ COMMANDS = [
     ("o-is-the-image", ["simulate", "image_scene.toml", "-o", "img.h5"], "is the scene's image"),
     ("o-foreign-h5", ["simulate", "beam.toml", "-o", "notes.h5"], "not a voxflex result file"),
     ("o-image-h5", ["simulate", "beam.toml", "-o", "img.h5"], "not a voxflex result file"),
-    ("o-wrong-extension", ["simulate", "beam.toml", "-o", "r.txt"], "must end in .h5"),
+    ("o-wrong-extension", ["simulate", "beam.toml", "-o", "r.txt"],
+     "must end in .h5 or .hdf5 (it is HDF5); e.g. -o r.h5"),
+    # the example was "-o /dev/null.h5": beside /dev/null is no place for a result (round 27)
+    ("o-dev-null", ["simulate", "beam.toml", "-o", "/dev/null"], "(it is HDF5); e.g. -o null.h5"),
     ("output-key-folder-missing", ["simulate", "output_scene.toml"], "does not exist"),
     ("vtk-on-a-file", ["simulate", "beam.toml", "-o", "r.h5", "--vtk", "notes.txt"], "existing file"),
     ("vtk-file-extension", ["simulate", "beam.toml", "-o", "r.h5", "--vtk", "series.vtp"], "must be a folder"),

@@ -85,6 +85,16 @@ def run_inputs(scene_path, scene) -> list[tuple[str, Path]]:
     return inputs
 
 
+def _system_folder(folder: Path) -> bool:
+    """Whether ``folder`` is one of the system's device or kernel folders (/dev, /proc, /sys), where no result
+    belongs even when the process may write there (root)."""
+    try:
+        parts = Path(folder).resolve().parts
+    except OSError:
+        return False
+    return len(parts) > 1 and parts[0] == "/" and parts[1] in {"dev", "proc", "sys"}
+
+
 def check_result_output(path, *, inputs=(), force: bool = False, option: str = "-o", hint: str = _FORCE) -> Path:
     """Validate the result file target of ``voxflex simulate`` and of :func:`voxflex.simulate` (``output=``).
 
@@ -97,9 +107,10 @@ def check_result_output(path, *, inputs=(), force: bool = False, option: str = "
     _refuse_inputs(path, inputs, what, option, force, hint)
     if path.suffix.lower() not in RESULT_EXTENSIONS:
         stem = path.stem if path.suffix else path.name
-        raise InputError(
-            f"{what} '{path}' must end in .h5 or .hdf5 (it is HDF5); e.g. {option} {path.with_name(stem + '.h5')}"
-        )
+        alt = path.with_name(stem + ".h5")
+        if _system_folder(alt.parent) or not os.access(alt.parent, os.W_OK):
+            alt = Path(stem + ".h5")  # beside /dev/null is no place for a result: the current folder
+        raise InputError(f"{what} '{path}' must end in .h5 or .hdf5 (it is HDF5); e.g. {option} {alt}")
     if path.exists() and not force and not is_result_file(path):
         raise InputError(
             f"'{path}' exists and is not a voxflex result file, so it would be lost; "
