@@ -62,8 +62,14 @@ class FrameAttachments:
 
     def mass_matrix(self, densities: Mapping[int, float], *, lumped: bool = True) -> sp.csr_matrix:
         """Mass matrix (12n, 12n): consistent ``J^T diag(m) J`` or lumped per frame (see the module docstring;
-        :func:`.mass.mass_matrix`)."""
-        return frame_mass_matrix(self, densities, lumped=lumped)
+        :func:`.mass.mass_matrix`).  Kept per (densities, lumped) on the model, which every run of a scene
+        reuses (reproducing kernels' point mass: 0.22 s of a 10-step run of the bunny at 3 mm with 60 frames,
+        1.6 s); a copy is returned."""
+        key = (tuple(sorted((repr(k), repr(v)) for k, v in dict(densities).items())), bool(lumped))
+        store = self.__dict__.setdefault("_mass_store", {})
+        if key not in store:
+            store[key] = frame_mass_matrix(self, densities, lumped=lumped)
+        return store[key].copy()
 
     def _point_mass(self, values, masses, chunk: int = 4096) -> sp.csr_matrix:
         """``J^T diag(m) J`` of point masses at the points of ``values`` (:func:`.mass.point_mass`)."""
