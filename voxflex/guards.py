@@ -36,7 +36,8 @@ from .errors import ConvergenceError, InputError
 
 __all__ = ["check_magnitudes", "check_thin_body", "check_unreached_components", "check_held", "warn_locking",
            "StateCheck", "ImplausibleStateWarning", "LockingWarning", "LOCKING_POISSON",
-           "REPRESENTABLE", "MAX_LOAD_STRAIN", "FAR_VOXELS", "GROWTH_WARN", "GROWTH_REFUSE", "RESIDUAL_REFUSE", "THIN_FRACTION"]
+           "REPRESENTABLE", "MAX_LOAD_STRAIN", "FAR_VOXELS", "GROWTH_WARN", "GROWTH_REFUSE", "RESIDUAL_REFUSE",
+           "THIN_FRACTION"]
 
 REPRESENTABLE = (1e-100, 1e100)
 """Magnitudes an input may have (moduli, densities, loads, voxel sizes, time steps; 0 where a load may be 0).
@@ -126,7 +127,8 @@ so the same scene is refused at every unit."""
 
 
 def _check_far(image) -> None:
-    """InputError for a body so far from the origin that its coordinates lose a voxel's digits (:data:`FAR_VOXELS`)."""
+    """InputError for a body so far from the origin that its coordinates lose a voxel's digits
+    (:data:`FAR_VOXELS`)."""
     labels = np.asarray(image.labels) > 0
     ijk = np.argwhere(labels)
     lo, hi = ijk.min(axis=0), ijk.max(axis=0) + 1
