@@ -339,7 +339,8 @@ def _warn_drawn(recorder) -> None:
     warnings.warn(
         f"the drawn surface entered obstacle {o} ({ob.kind}) by {depth:.3g} m ({depth / h:.1%} of a voxel) at step "
         f"{step}: its edges and corners cross the triangles between the collision points, which stay out; use a "
-        f"finer voxel_size (the depth scales with it){', or a plane or sphere where one fits' if ob.kind == 'box' else ''}",
+        f"finer voxel_size (the depth scales with it)"
+        f"{', or a plane or sphere where one fits' if ob.kind == 'box' else ''}",
         ContactWarning,
         stacklevel=3,
     )

@@ -3,11 +3,12 @@
 Per region: the (nm, k) system of its candidates' monomials, a non-negative least-squares fit by the
 active-set method of Lawson and Hanson (a basic solution: at most nm points with positive weights), then the
 weights on that support re-solved to round-off.  Exact ties between entering candidates (symmetric Gauss
-points) go to the lowest of a fixed, scattered rank (:func:`voxflex.sampling.subrule.tie_ranks`).  Every small least-squares problem (nm <= 20 rows) is solved
-by Householder QR.  The regions are independent: one thread per slice of regions, each writing only its own
-candidates' slots, so the answer does not depend on the thread count.
+points) go to the lowest of a fixed, scattered rank (:func:`voxflex.sampling.subrule.tie_ranks`).  Every small
+least-squares problem (nm <= 20 rows) is solved by Householder QR.  The regions are independent: one thread
+per slice of regions, each writing only its own candidates' slots, so the answer does not depend on the thread
+count.
 
-The plain twin is :func:`voxflex.sampling.subrule.fit_region` (scipy's NNLS and numpy's QR, one region),
+The plain twin is :func:`voxflex.sampling.subrule.fit_region` (scipy's NNLS and numpy's least squares, one region),
 which the tests compare with this kernel.
 """
 
@@ -260,8 +261,8 @@ def fit_regions(offsets, volume, order, bounds, exps, rank, chosen, weight):  # 
     order (K,) the candidates grouped by region (region r: ``order[bounds[r]:bounds[r + 1]]``); exps (nm, 3)
     the monomials' exponents; rank (K,) uint64, the order in which exact ties are broken
     (:func:`voxflex.sampling.subrule.tie_ranks`).  Written: chosen (K,) whether each candidate is in its region's
-    rule, weight (K,) its weight there.  Regions with at most nm candidates, or no fit within tolerance, keep every candidate
-    with its own weight.
+    rule, weight (K,) its weight there.  Regions with at most nm candidates, or no fit within tolerance, keep
+    every candidate with its own weight.
     """
     nm = exps.shape[0]
     nreg = len(bounds) - 1
