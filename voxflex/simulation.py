@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ._version import __version__
+from .deform.models.protocol import begin_run
 from .errors import ConvergenceError, InputError
 from .result import AUTO_KEEP_BYTES, Result
 from .problems import problem_of  # noqa: F401 - the one translation (re-exported; it lives below build.py)
@@ -207,6 +208,9 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
             # overflow and invalid-value warnings stay inside: Newton rejects non-finite trials, and the
             # recorder refuses every accepted state that is not finite or not plausible (voxflex.guards)
             with np.errstate(all="ignore"):
+                # a scene's run starts its model's layers at rest (plastic strains, moving obstacles, a friction
+                # lag), whatever an earlier run of the same model left; solve() alone continues from them
+                begin_run(model)
                 problem.solve(callback=callback,
                               newton_callback=newton_callback if (bar is not None or verbose) else None, sink=recorder)
         except ConvergenceError as exc:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import InputError
-from ..models.protocol import FromDisplacement, end_step
+from ..models.protocol import FromDisplacement, begin_run, end_step
 
 __all__ = ["ModelLayer", "NOT_FORWARDED"]
 
@@ -111,6 +111,13 @@ class ModelLayer:
     def end_step(self, q) -> bool:
         """Forward the post-convergence hook to the wrapped model (see :func:`end_step`)."""
         return end_step(self.inner, q)
+
+    def begin_run(self) -> None:
+        """A run starts: the wrapped model's state back to rest, and the layer's run fraction to 0 (layers with
+        more state of their own extend this)."""
+        begin_run(self.inner)
+        if "fraction" in self.__dict__:
+            self.set_time(0.0)
 
     def set_time(self, fraction: float) -> None:
         """Set the run fraction (0 at the start of the run, 1 at its end)."""

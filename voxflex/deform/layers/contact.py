@@ -387,6 +387,16 @@ class ContactModel(OnePass, ModelLayer):
         return bool(np.all(self._distances(x)[0] > 0)) and (self._drawn is None
                                                             or self._triangle_pairs(x) is not None)
 
+    def begin_run(self) -> None:
+        """A run starts: the obstacles back at fraction 0, no step start and no friction lag (a model reused for a
+        second run carried its obstacles from where the last run left them: examples/pushed_block.toml's second
+        run had no admissible start)."""
+        super().begin_run()
+        self.set_time(0.0)
+        self._step_start = None
+        self._lag = None
+        self._tri_lag = None
+
     def begin_step(self, fraction: float, q_prev, q_start):
         """Move the obstacles to ``fraction`` and return a state the barrier admits to start the step from.
 

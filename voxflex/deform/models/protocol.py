@@ -33,7 +33,8 @@ from typing import Mapping, Protocol, runtime_checkable
 import numpy as np
 
 __all__ = ["Model", "PointMap", "DisplacementMap", "Part", "SurfacePoints", "OnePass", "end_step", "END_STEP_PASSES",
-           "OnVoxelGrid", "ConstantStiffness", "FromDisplacement", "InternalVariables", "TangentProjection", "PointSamples"]
+           "OnVoxelGrid", "ConstantStiffness", "FromDisplacement", "InternalVariables", "TangentProjection", "PointSamples",
+           "RunState", "begin_run"]
 
 
 @runtime_checkable
@@ -281,6 +282,17 @@ class InternalVariables(Protocol):
 
 
 @runtime_checkable
+class RunState(Protocol):
+    """State a run leaves behind (plastic strains, where moving obstacles stand, a friction lag):
+    :func:`voxflex.simulate` calls :meth:`begin_run` when a scene's run starts, so that a model reused for another
+    run starts from rest, not from where the last one ended (the solvers alone continue from it: a load-unload
+    sequence of ``solve`` calls keeps its plastic strains)."""
+
+    def begin_run(self) -> None:
+        """A run starts at load fraction 0: forget the last run's state."""
+
+
+@runtime_checkable
 class TangentProjection(Protocol):
     """Hessians from per-sample tangents dP/dF projected to positive semi-definite on demand."""
 
@@ -319,6 +331,12 @@ class OnePass:
 END_STEP_PASSES = 100
 """Re-solves of one step that :func:`~voxflex.deform.solve.stepping.solve` allows while :func:`end_step` still
 reports changed internal variables, before it gives up with a ConvergenceError."""
+
+
+def begin_run(model) -> None:
+    """The start-of-run hook: ``model.begin_run()`` for a model with :class:`RunState`, else nothing."""
+    if isinstance(model, RunState):
+        model.begin_run()
 
 
 def end_step(model, q) -> bool:
