@@ -262,3 +262,54 @@ def test_the_state_check_error_reaches_the_api_as_a_voxflex_error(monkeypatch):
     monkeypatch.setattr(simulation._Recorder, "__call__", poisoned)
     with pytest.raises(VoxflexError, match="not finite"):
         vf.simulate(Scene.from_toml_text(beam()), progress=False)
+
+
+# ---------------------------------------------------------------------------
+# wrong types through the Python API (round 27b: notebook users): one InputError, no traceback from inside
+# ---------------------------------------------------------------------------
+def _image():
+    return vf.voxelize("box:4,1,1", 0.5)
+
+
+API_REFUSED = [
+    ("simulate TOML text", lambda: vf.simulate(beam(), progress=False), "vf.Scene.from_toml_text"),
+    ("simulate output=5", lambda: vf.simulate(Scene.from_toml_text(beam()), progress=False, output=5),
+     "output must be a result file path"),
+    ("simulate model='voxel'", lambda: vf.simulate(Scene.from_toml_text(beam()), progress=False, model="voxel"),
+     "[nodes] kind"),
+    ("model of a dict", lambda: vf.model({"object": {}}), "vf.model needs a Scene"),
+    ("model image=array", lambda: vf.model(Scene.from_toml_text(beam()), image=np.ones((8, 2, 2))),
+     "must be the scene's LabelImage"),
+    ("place_frames of an array", lambda: vf.place_frames(np.ones((8, 2, 2)), 3), "image must be a LabelImage"),
+    ("shape_function of None", lambda: vf.shape_function(None, [[0.25, 0.25, 0.25]]), "image must be a LabelImage"),
+    ("geodesic_distance of an array", lambda: vf.geodesic_distance(np.ones((8, 2, 2)), [[0.25, 0.25, 0.25]]),
+     "image must be a LabelImage"),
+    ("place_frames seed='a'", lambda: vf.place_frames(_image(), 3, seed="a"), "seed must be an integer >= 0"),
+    ("voxelize voxel_size=True", lambda: vf.voxelize("box:4,1,1", True), "voxel size must be a number"),
+    ("from_toml_text bytes", lambda: Scene.from_toml_text(beam().encode()), ".decode('utf-8')"),
+    ("from_toml_text None", lambda: Scene.from_toml_text(None), "vf.Scene.from_toml(path)"),
+    ("from_toml_text base_dir=5", lambda: Scene.from_toml_text(beam(), base_dir=5), "base_dir must be a folder"),
+    ("Scene fixed=None", lambda: __import__("dataclasses").replace(Scene.from_toml_text(beam()), fixed=None),
+     "Scene.fixed must be a sequence of FixedSpec"),
+    ("a NUL in the title", lambda: Scene.from_toml_text('title = "a\\u0000b"\n' + beam()), "NUL character"),
+    ("a lone surrogate in the title",
+     lambda: __import__("dataclasses").replace(Scene.from_toml_text(beam()), title="a\udc80"), "lone surrogate"),
+]
+
+
+@pytest.mark.parametrize("name, call, expected", API_REFUSED, ids=[c[0] for c in API_REFUSED])
+def test_wrong_types_through_the_api_are_one_input_error(folder, name, call, expected):
+    with pytest.raises(InputError) as info:
+        call()
+    assert expected in str(info.value) and "\n" not in str(info.value), str(info.value)
+
+
+def test_a_scene_with_a_byte_order_mark_and_control_characters_reads_back(folder):
+    """A BOM (Windows editors) was 'Invalid statement (at line 1, column 1)'; a control character in a title
+    was written raw by to_toml (TOML refuses it: the result's scene text did not read back)."""
+    import dataclasses
+
+    (folder / "bom.toml").write_text("\ufeff" + beam(), encoding="utf-8")
+    scene = Scene.from_toml(folder / "bom.toml")
+    titled = dataclasses.replace(scene, title="tab\there, bell\x07, del\x7f")
+    assert Scene.from_toml_text(titled.to_toml()) == titled

@@ -65,6 +65,13 @@ def vector(table, key, value, length=3, *, finite=True, positive=False) -> tuple
 def string(table, key, value, choices=None) -> str:
     if not isinstance(value, str):
         raise InputError(f"{where(table, key)} must be a string, got {value!r}")
+    if "\x00" in value:  # no file name or HDF5 string holds one
+        raise InputError(f"{where(table, key)} holds a NUL character (\\u0000), got {value!r}; remove it")
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:  # a lone surrogate (from a Python str; TOML cannot spell one)
+        raise InputError(f"{where(table, key)} is not valid Unicode text (a lone surrogate), got {value!r}; "
+                         "remove the character") from None
     if choices is not None and value not in choices:
         raise InputError(
             f"{where(table, key)}: unknown value '{value}'{did_you_mean(value, choices)}; "

@@ -162,11 +162,16 @@ def model(scene, *, image=None, cache: bool = True):
     InputError
         A label without material, a setting the node kind does not take.
     """
-    if not isinstance(scene, Scene):
-        scene = Scene.from_toml(scene)
+    from .image import LabelImage
+    from .scene import as_scene
+
+    scene = as_scene(scene, "vf.model")
     kind = node_kind(scene.nodes.kind)
     if image is None:
         image = build_image(scene)
+    elif not isinstance(image, LabelImage):
+        raise InputError(f"image must be the scene's LabelImage (voxflex.build.build_image(scene)), got "
+                         f"{type(image).__name__}")
     labels_present = np.unique(image.labels[image.labels > 0])
     materials = build_materials(scene, labels_present)
     from .guards import check_thin_body, check_unreached_components

@@ -29,6 +29,7 @@ axis`` for cylinders; ``[[material]]`` model constants and a per-material
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -179,6 +180,9 @@ class Scene:
         for name, cls in (("materials", MaterialSpec), ("fixed", FixedSpec), ("loads", LoadSpec), ("probes", ProbeSpec),
                           ("obstacles", ObstacleSpec), ("cables", CableSpec)):
             items = getattr(self, name)
+            if items is None or isinstance(items, (str, bytes, dict)):
+                raise InputError(f"Scene.{name} must be a sequence of {cls.__name__} (() for none), "
+                                 f"got {type(items).__name__}")
             if isinstance(items, cls):
                 items = (items,)
             items = tuple(items)
@@ -208,8 +212,13 @@ class Scene:
     @classmethod
     def from_toml(cls, path) -> Scene:
         """Read a scene file; relative paths in it are resolved against its folder."""
+        if isinstance(path, str) and "\n" in path:
+            raise InputError("Scene.from_toml takes a path, and this looks like scene TOML text; read text with "
+                             "vf.Scene.from_toml_text(text)")
+        if not isinstance(path, (str, os.PathLike)):
+            raise InputError(f"a scene file path must be a string or a Path, got {type(path).__name__}")
         path = Path(path)
-        if not path.is_file():
+        if not _is_file(path):
             from .errors import missing_file
 
             raise missing_file(path, "scene file")
@@ -224,8 +233,15 @@ class Scene:
     @classmethod
     def from_toml_text(cls, text: str, *, base_dir=None, source: str = "scene") -> Scene:
         """Parse scene TOML text (``base_dir``: folder for relative paths, default the current one)."""
+        if isinstance(text, (bytes, bytearray)):
+            raise InputError("Scene.from_toml_text takes text (str), got bytes; decode them with .decode('utf-8')")
+        if not isinstance(text, str):
+            raise InputError(f"Scene.from_toml_text takes the TOML text as a str, got {type(text).__name__}; "
+                             "for a file use vf.Scene.from_toml(path)")
+        if base_dir is not None and not isinstance(base_dir, (str, os.PathLike)):
+            raise InputError(f"base_dir must be a folder path, got {type(base_dir).__name__}")
         try:
-            data = tomllib.loads(text)
+            data = tomllib.loads(text.removeprefix("\ufeff"))  # a byte-order mark (Windows editors) is no TOML
         except tomllib.TOMLDecodeError as exc:
             raise InputError(f"{source} is not valid TOML: {exc}") from None
         return cls.from_dict(data, base_dir=base_dir)
@@ -358,6 +374,24 @@ def _build(name: str, spec, table: dict):
     return spec(**table)
 
 
+def as_scene(scene, who: str) -> Scene:
+    """``scene`` itself, or the scene read from a path; InputError for anything else (``who``: the caller)."""
+    if isinstance(scene, Scene):
+        return scene
+    if isinstance(scene, (str, os.PathLike)):
+        return Scene.from_toml(scene)
+    raise InputError(f"{who} needs a Scene or a scene file path, got {type(scene).__name__}; read one with "
+                     "vf.Scene.from_toml(path)")
+
+
+def _is_file(path: Path) -> bool:
+    """``path.is_file()`` that says False instead of raising (a name too long, a loop of links)."""
+    try:
+        return path.is_file()
+    except OSError:
+        return False
+
+
 def _resolve(base: Path, path: str) -> str:
     p = Path(path).expanduser()
     return str(p if p.is_absolute() else (base / p).resolve())
@@ -378,6 +412,8 @@ def _toml_value(value) -> str:
         escaped = (
             value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t").replace("\r", "\\r")
         )
+        # TOML's basic strings hold no other control character: \u escapes read back to the same text
+        escaped = "".join(f"\\u{ord(c):04x}" if ord(c) < 0x20 or ord(c) == 0x7F else c for c in escaped)
         return f'"{escaped}"'
     if isinstance(value, (tuple, list)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"

@@ -27,9 +27,9 @@ Example
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 
@@ -38,7 +38,7 @@ from .deform.models.protocol import begin_run
 from .errors import ConvergenceError, InputError
 from .result import AUTO_KEEP_BYTES, Result
 from .problems import problem_of  # noqa: F401 - the one translation (re-exported; it lives below build.py)
-from .scene import Scene
+from .scene import as_scene
 
 __all__ = ["simulate", "problem_of", "InversionWarning", "RoundoffWarning", "CANNOT_RECOVER", "AUTO_KEEP_BYTES"]
 
@@ -136,11 +136,11 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
     ImplausibleStateWarning
         When a state is more than :data:`voxflex.guards.GROWTH_WARN` times the body's rest size.
     """
-    if not isinstance(scene, Scene):
-        if isinstance(scene, (str, Path)):
-            scene = Scene.from_toml(scene)
-        else:
-            raise InputError(f"simulate needs a Scene or a scene file path, got {type(scene).__name__}")
+    scene = as_scene(scene, "vf.simulate")
+    if output is not None and not isinstance(output, (str, os.PathLike)):
+        raise InputError(f"output must be a result file path (str or Path), got {type(output).__name__}")
+    if model is not None:
+        check_model(model)
     from . import _progress
     from ._atomic import atomic_path
     from .build import build_image
@@ -266,6 +266,15 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
             stacklevel=2,
         )
     return result
+
+
+def check_model(model) -> None:
+    """InputError unless ``model`` has the model protocol's core (:class:`voxflex.deform.models.protocol.Model`)."""
+    missing = [a for a in ("rest", "image", "energy_gradient_hessian", "point_mapping") if not hasattr(model, a)]
+    if missing:
+        raise InputError(f"model must be a model of the protocol voxflex.deform.models.protocol.Model, such as "
+                         f"vf.model(scene), got {type(model).__name__} (no '{missing[0]}'); to choose the kind of "
+                         "nodes, set the scene's [nodes] kind")
 
 
 def image_estimate(image, scene):

@@ -191,6 +191,9 @@ def voxelize(
 
 # -- validation and sources ------------------------------------------------------
 def _voxel_size(voxel_size) -> np.ndarray:
+    if isinstance(voxel_size, (bool, np.bool_)) or (isinstance(voxel_size, (list, tuple))
+                                                   and any(isinstance(v, (bool, np.bool_)) for v in voxel_size)):
+        raise InputError(f"voxel size must be a number or 3 numbers (metres), got {voxel_size!r}")
     try:
         h = np.asarray(voxel_size, dtype=float).reshape(-1)
     except (TypeError, ValueError):

@@ -119,6 +119,23 @@ def voxel_units(spacing) -> tuple[np.ndarray, float]:
     return np.round(spacing / unit, 12), unit
 
 
+def check_image(image) -> None:
+    """InputError unless ``image`` is a :class:`~voxflex.image.LabelImage` (a labels array, a path or None
+    has no spacing or origin: the functions of this package would fail deep inside)."""
+    from ..image import LabelImage
+
+    if not isinstance(image, LabelImage):
+        raise InputError(f"image must be a LabelImage, got {type(image).__name__}; make one with vf.voxelize(...), "
+                         "vf.LabelImage(labels, spacing=...) or vf.LabelImage.load(path)")
+
+
+def check_seed(seed) -> int:
+    """The random seed as a non-negative int (InputError otherwise)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"seed must be an integer >= 0, got {seed!r}")
+    return int(seed)
+
+
 def _seed_voxels(image, seeds, name="seeds"):
     """Validated seeds (s, 3) world, their continuous index coords (s, 3) and voxel indices (s, 3)."""
     try:
@@ -204,6 +221,7 @@ def geodesic_distance(image, seeds, *, method: str = "fast-marching", compliance
     fast marching eikonal solver", SEP report 100, 1999.  F. Faure et al.,
     "Sparse meshless models of complex deformable solids", SIGGRAPH 2011.
     """
+    check_image(image)
     check_choice("method", method, METHODS)
     S, c, _ = _seed_voxels(image, seeds)
     mask, cost, pshape, spacing = _prepare(image, compliance)

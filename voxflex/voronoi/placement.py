@@ -67,7 +67,7 @@ from .._ties import TIE, first_extreme
 
 from ..errors import InputError, check_choice
 from . import _march as M
-from .geodesic import _centres, _prepare, _seed_voxels, voxel_units
+from .geodesic import _centres, _prepare, _seed_voxels, check_image, check_seed, voxel_units
 
 __all__ = ["place_frames", "pinned_frames", "strain_density", "STRAIN_EXPONENT", "STRAIN_CLIP"]
 
@@ -173,6 +173,8 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
     """
     import dataclasses
 
+    check_image(image)
+    seed = check_seed(seed)
     spacing_u, h = voxel_units(image.spacing)
     origin = np.asarray(image.origin, dtype=np.float64)
     unit = dataclasses.replace(image, spacing=spacing_u, origin=np.zeros(3))

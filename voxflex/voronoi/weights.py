@@ -69,7 +69,7 @@ from ..errors import InputError, check_choice
 from . import _march as M
 from ._sight import frame_distances
 from .families import FRAME_SHAPE_FUNCTIONS
-from .geodesic import _centres, _prepare, _seed_voxels, voxel_coordinates, voxel_units
+from .geodesic import _centres, _prepare, _seed_voxels, check_image, voxel_coordinates, voxel_units
 from .natural_neighbour import keep_largest_insert, natural_weights, normalise_first
 from .placement import _compliance_for
 from ._node_fits import _adjacency, _basis, _fit_nodes, fit_nodes  # noqa: F401 - importable here as before
@@ -468,6 +468,7 @@ def shape_function(image, frames, *, kind="natural-neighbour", parents=None, dis
     methods", IJNME 50, 2001 (Laplace).  B. Gilles et al., "Frame-based
     elastic models", ACM TOG 30(2), 2011.
     """
+    check_image(image)
     check_choice("kind", kind, KINDS)
     comp = _compliance_for(distance, compliance)
     rk = kind == "reproducing-kernel"
