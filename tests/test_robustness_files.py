@@ -8,6 +8,7 @@ from __future__ import annotations
 import errno
 import random
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -320,3 +321,68 @@ def test_a_voxflex_error_from_the_api_is_one_line(folder):
     with pytest.raises(VoxflexError) as info:
         vf.simulate(Scene.from_toml_text(beam("affine", nodes="count = 100000000")), progress=False)
     assert "\n" not in str(info.value)
+
+
+# ---------------------------------------------------------------------------
+# results through the Python API (round 27b)
+# ---------------------------------------------------------------------------
+def test_result_save_protects_files_and_checks_what_was_edited(folder):
+    """Result.save wrote over any file (a scene became HDF5), a folder was an IsADirectoryError, and an edited
+    probes dict a ValueError from inside the writer."""
+    r = vf.Result.load(folder / "good.h5")
+    (folder / "notes.h5").write_text("precious\n")
+    for target, expected in [("beam.toml", "must end in .h5"), ("notes.h5", "is not a voxflex result file"),
+                             (".", "is a folder"), (5, "must be a path")]:
+        with pytest.raises(vf.InputError, match=expected):
+            r.save(target)
+    assert (folder / "notes.h5").read_text() == "precious\n" and (folder / "beam.toml").read_text() == beam()
+    r.save("notes.h5", force=True)
+    assert vf.Result.load("notes.h5").n_states == r.n_states
+    r.probes["tip"] = np.zeros((1, 3))  # the dataclass is frozen, its dicts are not
+    with pytest.raises(vf.InputError, match="probe 'tip' must have shape"):
+        r.save("edited.h5")
+    with pytest.raises(vf.InputError, match="must be an integer state index"):
+        r.displacement(1.0)
+
+
+def test_export_vtk_into_odd_targets(folder):
+    r = vf.Result.load(folder / "good.h5")
+    (folder / "plain").write_text("x")
+    with pytest.raises(vf.InputError, match="is a file"):
+        r.export_vtk("plain")  # was FileExistsError
+    (folder / "series.pvd").mkdir()
+    assert r.export_vtk("series.pvd") == Path("series.pvd") / "result.pvd"  # was IsADirectoryError
+    positions = np.array(r.surface_positions)
+    positions[-1, 0, 0] = np.nan
+    broken = vf.Result(**{**{k: getattr(r, k) for k in r.__dataclass_fields__}, "surface_positions": positions})
+    with pytest.raises(vf.InputError, match="not finite"):
+        broken.export_vtk("nan_series")  # was a series of NaN surfaces
+    assert not (folder / "nan_series").exists() or not any((folder / "nan_series").iterdir())
+
+
+@pytest.mark.parametrize("path, value, expected", [
+    ("time", np.nan, "DAMAGED: the times"),
+    ("energy/elastic", np.inf, "DAMAGED: the elastic energies"),
+    ("probes/tip", np.nan, "DAMAGED: the probe tip's positions"),
+])
+def test_info_names_every_non_finite_series(folder, capfd, path, value, expected):
+    import h5py
+
+    with h5py.File(folder / "good.h5", "r+") as f:
+        a = f[path][()]
+        a.reshape(len(a), -1)[-1, 0] = value
+        f[path][...] = a
+    assert main(["info", "good.h5"]) == 0
+    assert expected in capfd.readouterr().out
+
+
+def test_a_result_with_an_impossible_image_geometry_is_refused_and_unknown_model_arrays_ignored(folder, capfd):
+    import h5py
+
+    with h5py.File(folder / "good.h5", "r+") as f:
+        f["model"].attrs["future_array"] = np.arange(4)  # readers ignore what they do not know
+    assert vf.Result.load(folder / "good.h5").n_states >= 2
+    with h5py.File(folder / "good.h5", "r+") as f:
+        f["image/labels"].attrs["spacing"] = [np.nan, 0.5, 0.5]
+    status, err = _run(capfd, "info", "good.h5")
+    assert_refused(status, err, "info", "image_spacing must be 3 finite lengths > 0")

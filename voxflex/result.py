@@ -51,7 +51,7 @@ during a run); the file is written atomically.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -275,9 +275,16 @@ class Result:
         s(self, "image_labels", labels)
         s(self, "image_spacing", _arr("image_spacing", self.image_spacing, 1, 3))
         s(self, "image_origin", _arr("image_origin", self.image_origin, 1, 3))
+        if not (np.all(np.isfinite(self.image_spacing)) and np.all(self.image_spacing > 0)):
+            raise InputError(f"Result.image_spacing must be 3 finite lengths > 0 (m), got {self.image_spacing.tolist()}")
+        if not np.all(np.isfinite(self.image_origin)):
+            raise InputError(f"Result.image_origin must be 3 finite coordinates (m), got {self.image_origin.tolist()}")
         direction = np.asarray(self.image_direction, dtype=float)
         if direction.shape != (3, 3):
             raise InputError(f"Result.image_direction must be 3x3, got {direction.shape}")
+        if not (np.all(np.isfinite(direction)) and np.allclose(direction.T @ direction, np.eye(3), atol=1e-6)):
+            raise InputError("Result.image_direction must be orthonormal (its columns are the world directions of "
+                             f"the array axes), got {direction.tolist()}")
         s(self, "image_direction", direction)
         s(self, "scene", str(self.scene))
         s(self, "version", str(self.version))
@@ -421,7 +428,10 @@ class Result:
     def step_index(self, step: int) -> int:
         """Normalize a step index (negative counts from the end); InputError when out of range."""
         T = self.n_states
-        if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or not -T <= step < T:
+        if isinstance(step, bool) or not isinstance(step, (int, np.integer)):
+            raise InputError(f"step must be an integer state index, got {step!r}; this result has states 0..{T - 1} "
+                             "(or -1 for the last)")
+        if not -T <= step < T:
             raise InputError(f"step {step!r} is out of range; this result has steps 0..{T - 1} (or -1 for the last)")
         return int(step) % T
 
@@ -438,14 +448,22 @@ class Result:
         return out
 
     # -- HDF5 -------------------------------------------------------------
-    def save(self, path) -> Path:
-        """Write the result file (HDF5, the layout of docs/results.md), atomically; returns the path."""
-        path = Path(path)
+    def save(self, path, *, force: bool = False) -> Path:
+        """Write the result file (HDF5, the layout of docs/results.md), atomically; returns the path.
+
+        An existing file that is not a voxflex result is refused (it would be lost) unless ``force``,
+        as :func:`voxflex.simulate` refuses it (:func:`voxflex.outputs.check_result_output`).
+        """
+        from .outputs import check_result_output
+
+        path = check_result_output(_path(path, "result file"), force=force, option="path",
+                                   hint="pass force=True to overwrite it")
+        checked = Result(**{f.name: getattr(self, f.name) for f in fields(self)})  # its dicts may have been edited
         with atomic_path(path) as tmp:
-            writer = ResultWriter(tmp, self)
+            writer = ResultWriter(tmp, checked)
             try:
-                writer.append_block(self.rows())
-                writer.close(complete=self.complete, error=self.error, totals=self.run_totals())
+                writer.append_block(checked.rows())
+                writer.close(complete=checked.complete, error=checked.error, totals=checked.run_totals())
             finally:
                 writer.abort()
         return path
@@ -467,7 +485,7 @@ class Result:
         """Read a result file; InputError when the file is missing or not a voxflex result."""
         import h5py
 
-        path = Path(path)
+        path = _path(path, "result file")
         if not _is_file(path):
             from .errors import missing_file
 
@@ -541,7 +559,8 @@ class Result:
             version=_text(f.attrs["voxflex_version"]),
             node_kind=_text(f.attrs["node_kind"]) if "node_kind" in f.attrs else _reference_kind(),
             model={k: (_text(v) if isinstance(v, (bytes, str)) else np.asarray(v).item())
-                   for k, v in (f["model"].attrs.items() if "model" in f else ())},
+                   for k, v in (f["model"].attrs.items() if "model" in f else ())
+                   if isinstance(v, (bytes, str)) or np.size(v) == 1},  # what it does not know (an array): ignored
             contact_force=get("contact/force"),
             cable_tension=get("cable/tension"),
             cable_points=get("cable/points"),
@@ -584,7 +603,16 @@ class Result:
         """
         import pyvista as pv
 
-        target = Path(target)
+        target = _path(target, "VTK export target")
+        if target.exists() and not target.is_dir() and target.suffix.lower() != ".pvd":
+            raise InputError(f"VTK export target '{target}' is a file; give a folder (created if missing) or a .pvd "
+                             "file name")
+        if target.suffix.lower() == ".pvd" and target.is_dir():
+            target = target / "result.pvd"  # a folder that happens to end in .pvd
+        bad = [t for t in range(self.n_states) if not np.all(np.isfinite(self.surface_positions[t]))]
+        if bad:
+            raise InputError(f"the result's surface at state {bad[0]} is not finite (NaN or inf): there is nothing "
+                             "meaningful to export; check the run (voxflex info) and simulate it again")
         if target.suffix.lower() == ".pvd":
             folder, stem = target.parent if str(target.parent) else Path("."), target.stem
         else:
@@ -695,6 +723,15 @@ def _reference_kind() -> str:
     from .deform.models.kinds import reference_kind
 
     return reference_kind().name
+
+
+def _path(value, what: str) -> Path:
+    """``value`` as a Path; InputError for what is not a path (a number, None)."""
+    import os
+
+    if not isinstance(value, (str, os.PathLike)):
+        raise InputError(f"{what} must be a path (str or Path), got {type(value).__name__}")
+    return Path(value)
 
 
 def _is_file(path: Path) -> bool:

@@ -38,9 +38,16 @@ def _describe(r, path) -> str:
     lines += [f"  {line}" for line in field_lines(r)]
     if not r.complete:
         lines.append(f"  INCOMPLETE: the run failed after step {r.n_steps}: {r.error}")
-    bad = [s for s in range(T) if not np.all(np.isfinite(r.surface_positions[s]))]
-    if bad:
-        lines.append(f"  DAMAGED: the surface positions of {len(bad)} state(s) are not finite (first: state {bad[0]})")
+    series = [("surface positions", r.surface_positions), ("node states", r.nodes_state), ("times", r.time),
+              ("elastic energies", r.energy_elastic), ("kinetic energies", r.energy_kinetic)]
+    series += [(f"probe {name}'s positions", v) for name, v in r.probes.items()]
+    series += [(f"probe {name}'s displacements", v) for name, v in r.probe_displacement.items()]
+    for what, values in series:  # a run records finite states only: these were edited or damaged since
+        bad = np.flatnonzero(~np.isfinite(values.reshape(T, -1)).all(axis=1))
+        if len(bad):
+            lines.append(f"  DAMAGED: the {what} of {len(bad)} state(s) are not finite (first: state {bad[0]})")
+    if np.any(np.diff(r.time) < 0):
+        lines.append(f"  DAMAGED: the times decrease (first after state {int(np.flatnonzero(np.diff(r.time) < 0)[0])})")
     return "\n".join(lines)
 
 
