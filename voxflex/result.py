@@ -452,9 +452,9 @@ class Result:
         """Write the result file (HDF5, the layout of docs/results.md), atomically; returns the path.
 
         An existing file that is not a voxflex result is refused (it would be lost) unless ``force``,
-        as :func:`voxflex.simulate` refuses it (:func:`voxflex.outputs.check_result_output`).
+        as :func:`voxflex.simulate` refuses it (:func:`voxflex._result_target.check_result_output`).
         """
-        from .outputs import check_result_output
+        from ._result_target import check_result_output
 
         path = check_result_output(_path(path, "result file"), force=force, option="path",
                                    hint="pass force=True to overwrite it")
