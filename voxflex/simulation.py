@@ -270,11 +270,12 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
 
 def check_model(model) -> None:
     """InputError unless ``model`` has the model protocol's core (:class:`voxflex.deform.models.protocol.Model`)."""
-    missing = [a for a in ("rest", "image", "energy_gradient_hessian", "point_mapping") if not hasattr(model, a)]
-    if missing:
+    from .deform.models.protocol import Model
+
+    if not isinstance(model, Model):
         raise InputError(f"model must be a model of the protocol voxflex.deform.models.protocol.Model, such as "
-                         f"vf.model(scene), got {type(model).__name__} (no '{missing[0]}'); to choose the kind of "
-                         "nodes, set the scene's [nodes] kind")
+                         f"vf.model(scene), got {type(model).__name__}; to choose the kind of nodes, set the scene's "
+                         "[nodes] kind")
 
 
 def image_estimate(image, scene):
