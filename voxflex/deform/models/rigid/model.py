@@ -233,6 +233,7 @@ class RigidFrameModel:
             raise InputError("RigidFrameModel wraps an affine FrameModel (12 DOF per frame)")
         self.inner = inner
         self.image = inner.image
+        self.materials = inner.materials  # the protocol's {label: material}: the affine model's, which it integrates
         self.frames = np.asarray(inner.frames, dtype=float)
         if densities is None:
             densities = {int(k): 1.0 for k in inner.materials}
