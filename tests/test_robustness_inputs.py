@@ -313,3 +313,23 @@ def test_a_scene_with_a_byte_order_mark_and_control_characters_reads_back(folder
     scene = Scene.from_toml(folder / "bom.toml")
     titled = dataclasses.replace(scene, title="tab\there, bell\x07, del\x7f")
     assert Scene.from_toml_text(titled.to_toml()) == titled
+
+
+def test_a_model_built_for_another_scene_is_refused_naming_the_tables():
+    """vf.simulate(S, model=vf.model(S2)) with S2 another Young's modulus returned S2's answer (a sag 100x too
+    small) under S's title and scene text (round 27b).  A model built by vf.model carries its scene's model tables;
+    simulate names the ones that differ.  Another load or solver on the same model is the run's own: taken."""
+    from dataclasses import replace
+
+    from voxflex.errors import InputError
+    from voxflex.scene import Scene
+
+    scene = Scene.from_toml_text(beam("voxel", young="1.0e4"))
+    other = Scene.from_toml_text(beam("voxel", young="1.0e6"))
+    model = vf.model(other, cache=False)
+    with pytest.raises(InputError, match=r"the model was built for another scene: its \[materials\] differ"):
+        vf.simulate(scene, model=model, progress=False)
+    heavier = replace(other, loads=tuple(replace(ld, vector=(0.0, 0.0, -19.62)) for ld in other.loads))
+    u1 = vf.simulate(other, model=model, progress=False).probe_displacements()["tip"][2]
+    u2 = vf.simulate(heavier, model=model, progress=False).probe_displacements()["tip"][2]
+    assert u2 == pytest.approx(2.0 * u1, rel=1e-9)  # linear strain: twice the load, twice the sag

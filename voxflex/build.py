@@ -188,7 +188,38 @@ def model(scene, *, image=None, cache: bool = True):
         extra["placement_energy"] = strain_indicator(scene, image, materials)
     # the collision layer is built only when the scene has obstacles, the cable layer when it has cables
     built = kind.build(scene, image, materials, cache=cache, **extra)
-    return with_cables(with_contact(_with_plasticity(built, scene), scene), scene)
+    out = with_cables(with_contact(_with_plasticity(built, scene), scene), scene)
+    out.__dict__["scene_tables"] = scene_tables(scene)  # what simulate checks a model against (check_built_for)
+    return out
+
+
+MODEL_TABLES = ("object", "materials", "nodes", "elasticity", "fixed", "obstacles", "contact", "cables", "membrane")
+"""The scene tables a built model depends on (the geometry, the materials, the nodes and their placement, which
+follows the fixed boxes, the integration and the layers); loads, solver, probes and output are the run's."""
+
+
+def scene_tables(scene) -> dict:
+    """{table: its repr} of the :data:`MODEL_TABLES` of ``scene`` (and its loads when the frames follow a first
+    solve's strain energy, ``[nodes] placement = "strain"``)."""
+    out = {name: repr(getattr(scene, name)) for name in MODEL_TABLES}
+    if getattr(scene.nodes, "placement", "volume") == "strain":
+        out["loads"] = repr(scene.loads)
+    return out
+
+
+def check_built_for(model, scene) -> None:
+    """InputError when ``model`` was built by :func:`model` for a scene whose model tables differ from ``scene``'s
+    (a model of one Young's modulus run under another scene's title returned the first scene's answer); models
+    built otherwise (a kind's own constructors) are taken as they are."""
+    built = getattr(model, "__dict__", {}).get("scene_tables")
+    if built is None:
+        return
+    now = scene_tables(scene)
+    differ = [name for name in now if built.get(name) != now[name]]
+    if differ:
+        names = ", ".join(f"[{n}]" for n in differ)
+        raise InputError(f"the model was built for another scene: its {names} differ from this scene's; build it "
+                         "with vf.model(scene) for this scene, or pass the scene it was built for")
 
 
 STRAIN_SOLVE_VOXELS = 4000

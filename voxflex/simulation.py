@@ -141,6 +141,9 @@ def simulate(scene, *, progress: bool = True, output=None, model=None, verbose: 
         raise InputError(f"output must be a result file path (str or Path), got {type(output).__name__}")
     if model is not None:
         check_model(model)
+        from .build import check_built_for
+
+        check_built_for(model, scene)
     from . import _progress
     from ._atomic import atomic_path
     from .build import build_image
