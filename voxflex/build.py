@@ -193,15 +193,18 @@ def model(scene, *, image=None, cache: bool = True):
     return out
 
 
-MODEL_TABLES = ("object", "materials", "nodes", "elasticity", "fixed", "obstacles", "contact", "cables", "membrane")
-"""The scene tables a built model depends on (the geometry, the materials, the nodes and their placement, which
-follows the fixed boxes, the integration and the layers); loads, solver, probes and output are the run's."""
+RUN_TABLES = ("loads", "solver", "probes", "output", "title", "base_dir", "path")
+"""The scene's fields a run reads and its model does not; every other table (the geometry, the materials, the
+nodes and their placement, which follows the fixed boxes, the integration, the layers, a kind's own table) is one
+a built model depends on."""
 
 
 def scene_tables(scene) -> dict:
-    """{table: its repr} of the :data:`MODEL_TABLES` of ``scene`` (and its loads when the frames follow a first
-    solve's strain energy, ``[nodes] placement = "strain"``)."""
-    out = {name: repr(getattr(scene, name)) for name in MODEL_TABLES}
+    """{table: its repr} of every model table of ``scene`` (its fields but :data:`RUN_TABLES`; the loads too when
+    the frames follow a first solve's strain energy, ``[nodes] placement = "strain"``)."""
+    from dataclasses import fields
+
+    out = {f.name: repr(getattr(scene, f.name)) for f in fields(scene) if f.name not in RUN_TABLES}
     if getattr(scene.nodes, "placement", "volume") == "strain":
         out["loads"] = repr(scene.loads)
     return out
