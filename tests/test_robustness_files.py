@@ -386,3 +386,19 @@ def test_a_result_with_an_impossible_image_geometry_is_refused_and_unknown_model
         f["image/labels"].attrs["spacing"] = [np.nan, 0.5, 0.5]
     status, err = _run(capfd, "info", "good.h5")
     assert_refused(status, err, "info", "image_spacing must be 3 finite lengths > 0")
+
+
+@pytest.mark.parametrize("value, complete", [(True, True), (False, False), (1, True), (np.int8(0), False),
+                                             ("no", None), (0.5, None)])
+def test_the_complete_flag_reads_only_booleans(folder, capfd, value, complete):
+    """A result's ``complete`` attribute edited to "no" read as True (round 27b): a flag is a boolean (or the
+    integers 1 / 0 h5py may hand back); anything else is a damaged file, said in one line by info."""
+    import h5py
+
+    with h5py.File(folder / "good.h5", "r+") as f:
+        f.attrs["complete"] = value
+    if complete is not None:
+        assert vf.Result.load(folder / "good.h5").complete is complete
+        return
+    status, err = _run(capfd, "info", "good.h5")
+    assert_refused(status, err, "info", ["'complete' attribute is", "not a boolean: the file is damaged"])

@@ -574,7 +574,7 @@ class Result:
             reactions=get("reactions/force"),
             inverted_samples=get("stats/inverted_samples"),
             min_det_F=get("stats/min_det_F"),
-            complete=bool(f.attrs.get("complete", True)),
+            complete=_flag(f.attrs.get("complete", True), "complete"),
             error=_text(f.attrs.get("error", "")),
             step=get("stats/step"),
             totals={k: v for k, v in (f["stats"].attrs.items() if "stats" in f else ()) if k in TOTALS},
@@ -741,6 +741,16 @@ def _is_file(path: Path) -> bool:
     except OSError:
         return False
 
+
+
+def _flag(value, name: str) -> bool:
+    """A boolean attribute of a result file (True/False, or the integers 1/0 h5py may hand back); anything else
+    (``complete = "no"`` read as True) is a damaged file."""
+    v = np.asarray(value)
+    if v.size == 1 and (v.dtype == bool or np.issubdtype(v.dtype, np.integer)) and v.item() in (0, 1):
+        return bool(v.item())
+    raise InputError(f"the result's '{name}' attribute is {value!r}, not a boolean: the file is damaged; write it "
+                     "again with 'voxflex simulate'")
 
 def _text(value) -> str:
     return value.decode("utf-8") if isinstance(value, bytes) else str(value)
