@@ -129,13 +129,8 @@ so the same scene is refused at every unit."""
 def _check_far(image) -> None:
     """InputError for a body so far from the origin that its coordinates lose a voxel's digits
     (:data:`FAR_VOXELS`)."""
-    labels = np.asarray(image.labels) > 0
-    ijk = np.argwhere(labels)
-    lo, hi = ijk.min(axis=0), ijk.max(axis=0) + 1
-    corners = image.index_to_world(np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
-                                             for c in (lo[2], hi[2])], dtype=float))
     h = float(np.min(image.spacing))
-    far = float(np.abs(corners).max())
+    far = max(float(np.abs(np.concatenate(box)).max()) for box in image.world_bounding_boxes().values())
     if far > FAR_VOXELS * h:
         raise InputError(f"the object lies {far:.3g} m from the origin, {far / h:.3g} voxel sizes: its coordinates "
                          f"carry {16 * np.finfo(float).eps * far / h:.2g} of a voxel of round-off (the limit is "

@@ -404,6 +404,7 @@ class _Recorder:
     def __init__(self, scene, problem, image, probe_map, *, keep, every, streamed):
         from .deform.layers.cables import CableModel
         from .deform.layers.contact import ContactModel
+        from .deform.layers.contact_checks import drawn_depth, tunnelled
         from .deform.layers.plasticity import PlasticModel
 
         model, options = problem.model, problem.options
@@ -446,6 +447,7 @@ class _Recorder:
             ob.kind not in self.contact.kept_out for ob in self.contact.obstacles) and len(self.faces) > 0
         # the first step at which a sphere or box obstacle was found wholly inside the body: (step, [obstacles])
         self.tunnel = None
+        self._drawn_depth, self._tunnelled = drawn_depth, tunnelled
         self._tunnel_check = self.contact is not None and len(self.faces) > 0 and any(
             ob.kind in ("sphere", "box") for ob in self.contact.obstacles)
         self._surface = None  # (q, drawn surface positions) of the state being recorded
@@ -465,19 +467,17 @@ class _Recorder:
         surface = self.surf_map.apply(q)
         self._surface = (rec.q, surface)
         self.check.size(k, surface)
-        if self._drawn_check and k > 0:
-            from .deform.layers.contact_checks import drawn_depth
-
-            depth, which = drawn_depth(self.contact.obstacles, surface, self.faces,
-                                       self.problem.fraction(float(rec.time)), self.contact.kept_out)
-            if depth > self.drawn[0]:
-                self.drawn = (depth, k, which)
-        if self._tunnel_check and k > 0 and self.tunnel is None:
-            from .deform.layers.contact_checks import tunnelled
-
-            inside = tunnelled(self.contact.obstacles, surface, self.faces, self.problem.fraction(float(rec.time)))
-            if inside:
-                self.tunnel = (k, inside)
+        if k > 0 and (self._drawn_check or (self._tunnel_check and self.tunnel is None)):
+            fraction = self.problem.fraction(float(rec.time))  # where moving obstacles stand at this state
+            if self._drawn_check:
+                depth, which = self._drawn_depth(self.contact.obstacles, surface, self.faces, fraction,
+                                                 self.contact.kept_out)
+                if depth > self.drawn[0]:
+                    self.drawn = (depth, k, which)
+            if self._tunnel_check and self.tunnel is None:
+                inside = self._tunnelled(self.contact.obstacles, surface, self.faces, fraction)
+                if inside:
+                    self.tunnel = (k, inside)
         self.count += 1
         inversion, location = self._inversion(rec.q)
         self.location = location

@@ -43,7 +43,7 @@ def _qr_solve(A, cols, ncol, b, z):  # pragma: no cover - compiled
         for i in range(m):
             R[i, c] = A[i, cols[c]]
     y = b.copy()
-    top = _largest_column(R, np.arange(ncol), ncol)
+    top = _largest_column(A, cols, ncol)  # the columns R starts as
     if ncol > m:
         return False
     for c in range(ncol):

@@ -47,6 +47,7 @@ from .._ties import TIE, first_extreme, tie_key
 from ..errors import InputError, check_choice
 from ..image import LabelImage
 from ..voronoi._march import VoxelGraph
+from ..voronoi.geodesic import check_seed
 from ..voronoi.shape_functions import ShapeValues
 from .quadrature import gauss_legendre_cube, voxel_rule_points
 from .samples import KINDS, Samples
@@ -116,8 +117,7 @@ def sample(image: LabelImage, sf, *, kind: str = "elaston", count: int = 200, se
     check_choice("sampling kind", kind, KINDS)
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
         raise InputError(f"count must be an integer >= 1, got {count!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InputError(f"seed must be an integer >= 0, got {seed!r}")
+    seed = check_seed(seed)
     for attr in ("frames", "voxel_values"):
         if not hasattr(sf, attr):
             raise InputError(f"sf must be a shape function (with frames, voxel_values and a call); it has no '{attr}'")

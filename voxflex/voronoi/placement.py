@@ -207,10 +207,9 @@ def place_frames(image, count, *, positions=None, fixed=(), seed=0, distance="ge
 
 def _extent(image) -> str:
     """The material's world bounding box, as a message shows it."""
-    ijk = np.argwhere(image.labels > 0)
-    corners = image.index_to_world(np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], float)
-                                   * (ijk.max(0) + 1 - ijk.min(0)) + ijk.min(0))
-    lo, hi = corners.min(0), corners.max(0)
+    boxes = list(image.world_bounding_boxes().values())
+    lo = np.min([b[0] for b in boxes], axis=0)
+    hi = np.max([b[1] for b in boxes], axis=0)
     return f"{[float(f'{v:.6g}') for v in lo]} .. {[float(f'{v:.6g}') for v in hi]}"
 
 
